@@ -1,0 +1,17 @@
+"""Estimators: centralized Kalman filter, MTMSE (Theorems 1-3) and the per-agent MMSE baseline."""
+
+from .base import Design
+from .kalman import CentralizedDesign, design_centralized, kalman_covariances
+from .team import StaticTeamEstimate, TeamDesign, design_mmse, design_mtmse, static_team_estimate
+
+__all__ = [
+    "Design",
+    "CentralizedDesign",
+    "TeamDesign",
+    "StaticTeamEstimate",
+    "design_centralized",
+    "design_mtmse",
+    "design_mmse",
+    "static_team_estimate",
+    "kalman_covariances",
+]

@@ -1,0 +1,201 @@
+"""The linear system Gamma F = eta of Theorems 1-3, solved with its structure.
+
+For gains F_i (d_z x d_i), Radner's stationarity conditions (eq. 33) read
+
+    sum_j S_ij F_j Sigma_ji = S_i. L Theta_i        for every agent i,
+
+i.e. Gamma vec(F) = eta with Gamma_ij = Sigma_ij (x) S_ij (eq. 34; we use the
+row-major vec, so our blocks are S_ij (x) Sigma_ij). Gamma is symmetric
+positive definite when S > 0 and every Sigma_ii > 0 (Lemma 5).
+
+Every Sigma_ij here is a sub-block of one covariance ``Sigma`` of a *pool* of
+measurements (the window y(k-c+1 : k) for filtering), indexed by ``idx[i]``.
+That lets Gamma be applied without ever forming it (:meth:`GammaProblem.apply`):
+scatter the F_i into a sparse n d_z x D matrix G, then
+
+    (Gamma F)_i = [ S (G Sigma) ]_{rows of i, columns idx[i]},
+
+which costs O(d_z D_loc D + nnz(S) D) and touches blocks with S_ij = 0 not at
+all (Remark 8) when S is sparse. Small problems assemble Gamma densely (a
+Hadamard product per pair of d_z components, no Kronecker product) and use a
+Cholesky factorization; large ones use preconditioned conjugate gradients
+with the block-Jacobi preconditioner Gamma_ii^-1 X = S_ii^-1 X Sigma_ii^-1.
+The crossover is set by memory (``dense_max_bytes``); see docs/performance.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from .._validation import FloatArray
+from ..exceptions import ConvergenceError, NotPositiveDefiniteError
+
+__all__ = ["GammaProblem", "DENSE_MAX_BYTES"]
+
+#: dense Gamma is assembled when it needs at most this much memory
+DENSE_MAX_BYTES = 1 << 30
+
+Method = Literal["auto", "dense", "cg"]
+
+
+@dataclass(eq=False)
+class GammaProblem:
+    """Gamma of one step: cost weight ``S`` and pooled innovation covariance ``Sigma``.
+
+    Parameters
+    ----------
+    S : (n d_z, n d_z) array
+    Sigma : (D, D) array
+        Covariance of the pooled innovations; agent i's local innovation is
+        ``pool[idx[i]]`` so Sigma_ij = Sigma[idx[i]][:, idx[j]].
+    idx : list of int arrays
+        Indices of each agent's local innovation in the pool (no repeats
+        within one agent).
+    dz : int
+    """
+
+    S: FloatArray
+    Sigma: FloatArray
+    idx: list[np.ndarray]
+    dz: int
+    iterations: int = field(default=0, init=False)
+    method_used: str = field(default="", init=False)
+
+    def __post_init__(self) -> None:
+        self.n = len(self.idx)
+        self.d = np.array([len(ix) for ix in self.idx], dtype=int)
+        self.offsets = np.concatenate([[0], np.cumsum(self.d)]).astype(int)
+        self.D_loc = int(self.offsets[-1])
+        self.idx_all = np.concatenate(self.idx).astype(int) if self.n else np.zeros(0, int)
+        self.agent_of = np.repeat(np.arange(self.n), self.d)
+        dz = self.dz
+        density = np.count_nonzero(self.S) / max(self.S.size, 1)
+        self._S_op = sp.csr_matrix(self.S) if density < 0.25 else self.S
+        # scatter pattern of G: row (i, a), column idx[i][p]
+        rows = (self.agent_of * dz)[None, :] + np.arange(dz)[:, None]  # (dz, D_loc), order (a, i, p)
+        cols = np.broadcast_to(self.idx_all, rows.shape)
+        self._g_rows = rows.ravel()
+        self._g_cols = cols.ravel()
+
+    @property
+    def size(self) -> int:
+        """Number of unknowns, d_z * sum_i d_i."""
+        return self.dz * self.D_loc
+
+    # --- vectorization: list of (dz, d_i) <-> flat (a, i, p) -----------------
+    def flatten(self, F: list[FloatArray]) -> FloatArray:
+        if self.D_loc == 0:
+            return np.zeros(0)
+        return np.concatenate([np.asarray(f).reshape(self.dz, -1) for f in F], axis=1).ravel()
+
+    def unflatten(self, x: FloatArray) -> list[FloatArray]:
+        M = np.asarray(x).reshape(self.dz, self.D_loc)
+        return [M[:, self.offsets[i] : self.offsets[i + 1]].copy() for i in range(self.n)]
+
+    # --- the operator --------------------------------------------------------
+    def apply_flat(self, x: FloatArray) -> FloatArray:
+        """Gamma x without forming Gamma."""
+        if self.D_loc == 0:
+            return np.zeros(0)
+        D = self.Sigma.shape[0]
+        G = sp.csr_matrix((np.asarray(x, dtype=float).ravel(), (self._g_rows, self._g_cols)), shape=(self.n * self.dz, D))
+        H = np.asarray(G @ self.Sigma)  # (n dz, D): row (j, b) = F_j[b] scattered, times Sigma
+        K = np.asarray(self._S_op @ H)  # (n dz, D)
+        return K[self._g_rows, self._g_cols]
+
+    def apply(self, F: list[FloatArray]) -> list[FloatArray]:
+        return self.unflatten(self.apply_flat(self.flatten(F)))
+
+    def dense(self) -> FloatArray:
+        """Gamma assembled densely in the (a, i, p) ordering of :meth:`flatten`."""
+        dz, N = self.dz, self.D_loc
+        Sig = self.Sigma[np.ix_(self.idx_all, self.idx_all)]
+        G = np.empty((dz * N, dz * N))
+        ag = self.agent_of
+        for a in range(dz):
+            for b in range(dz):
+                Sab = self.S[a::dz, b::dz]  # (n, n): S_ij[a, b]
+                np.multiply(Sig, Sab[np.ix_(ag, ag)], out=G[a * N : (a + 1) * N, b * N : (b + 1) * N])
+        return G
+
+    # --- solving -------------------------------------------------------------
+    def choose(self, method: Method = "auto", dense_max_bytes: int = DENSE_MAX_BYTES) -> str:
+        if method != "auto":
+            return method
+        return "dense" if 8 * self.size**2 <= dense_max_bytes else "cg"
+
+    def solve(self, eta: list[FloatArray], method: Method = "auto", *, rtol: float = 1e-12,
+              max_iter: int | None = None, dense_max_bytes: int = DENSE_MAX_BYTES) -> list[FloatArray]:
+        """Solve Gamma F = eta; ``eta`` and the result are lists of (d_z, d_i) arrays."""
+        b = self.flatten(eta)
+        if b.size == 0:
+            self.method_used = "empty"
+            return self.unflatten(b)
+        m = self.choose(method, dense_max_bytes)
+        self.method_used = m
+        if m == "dense":
+            try:
+                cf = sla.cho_factor(self.dense(), lower=True, check_finite=False)
+            except np.linalg.LinAlgError:
+                raise NotPositiveDefiniteError(
+                    "Gamma: the Theorem-2 system is not numerically positive definite; check that S > 0 and R_i > 0 are well conditioned"
+                ) from None
+            x = sla.cho_solve(cf, b, check_finite=False)
+        elif m == "cg":
+            x = self._cg(b, rtol=rtol, max_iter=max_iter)
+        else:
+            raise ValueError(f"method: expected 'auto', 'dense' or 'cg', found {m!r}")
+        return self.unflatten(x)
+
+    def _preconditioner(self) -> spla.LinearOperator:
+        dz = self.dz
+        S_inv = [np.linalg.inv(self.S[i * dz : (i + 1) * dz, i * dz : (i + 1) * dz]) for i in range(self.n)]
+        groups: dict[int, list[int]] = {}
+        for i, di in enumerate(self.d):
+            if di:
+                groups.setdefault(int(di), []).append(i)
+        inv_blocks = {}
+        for di, members in groups.items():
+            blocks = np.stack([self.Sigma[np.ix_(self.idx[i], self.idx[i])] for i in members])
+            inv_blocks[di] = (np.array(members), np.linalg.inv(blocks), np.stack([S_inv[i] for i in members]))
+
+        def apply(x: FloatArray) -> FloatArray:
+            M = np.asarray(x).reshape(dz, self.D_loc)
+            out = np.empty_like(M)
+            for di, (members, Sig_inv, Sinv) in inv_blocks.items():
+                cols = self.offsets[members][:, None] + np.arange(di)[None, :]  # (g, di)
+                X = M[:, cols].transpose(1, 0, 2)  # (g, dz, di)
+                Y = Sinv @ X @ Sig_inv
+                out[:, cols] = Y.transpose(1, 0, 2)
+            return out.ravel()
+
+        return spla.LinearOperator((self.size, self.size), matvec=apply, dtype=float)
+
+    def _cg(self, b: FloatArray, *, rtol: float, max_iter: int | None) -> FloatArray:
+        A = spla.LinearOperator((self.size, self.size), matvec=self.apply_flat, dtype=float)
+        count = [0]
+
+        def cb(_: FloatArray) -> None:
+            count[0] += 1
+
+        maxiter = max_iter if max_iter is not None else max(1000, 10 * int(np.sqrt(self.size)))
+        x, info = spla.cg(A, b, rtol=rtol, atol=0.0, maxiter=maxiter, M=self._preconditioner(), callback=cb)
+        self.iterations = count[0]
+        if info != 0:
+            res = float(np.linalg.norm(self.apply_flat(x) - b) / max(np.linalg.norm(b), 1e-300))
+            raise ConvergenceError(
+                f"Gamma F = eta: conjugate gradients stopped after {count[0]} iterations with relative residual {res:.3g} "
+                f"(asked {rtol:g}); raise max_iter or use method='dense' if Gamma fits in memory"
+            )
+        return np.asarray(x)
+
+    def quad(self, F: list[FloatArray]) -> float:
+        """<F, Gamma F>."""
+        x = self.flatten(F)
+        return float(x @ self.apply_flat(x)) if x.size else 0.0

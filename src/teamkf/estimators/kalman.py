@@ -1,0 +1,163 @@
+"""Centralized Kalman filter and predictor — the lower bound and the oracle for the rest.
+
+Notation (team-MMSE paper eqs. 20-22; steps 0-based):
+
+===========  ==================================================================
+P(k)         var(x(k) | y(0:k-1)), predictor covariance; P(0) = Sigma_x
+K(k)         P(k) C(k)' [C(k) P(k) C(k)' + R(k)]^-1                     (eq. 21)
+P(k|k)       (I - K C) P(k) (I - K C)' + K R K'  (Joseph form)
+P(k+1)       A(k) P(k|k) A(k)' + Q(k)                                  (eq. 22)
+x^(k+1)      A x^(k) + A K(k) [y(k) - C x^(k)]                         (eq. 20)
+===========  ==================================================================
+
+A centralized estimator holds every measurement y(0:k). Its team cost with
+z = L x^(k|k) is Tr(L' S L P(k|k)) (filter form) or Tr(L' S L P(k))
+(predictor form, z = L x^(k|k-1)). No decentralized estimator beats it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Literal, Sequence
+
+import numpy as np
+import scipy.linalg as sla
+
+from .. import _validation as V
+from .._validation import FloatArray
+from ..exceptions import ShapeError
+from ..models import LinearGaussianSystem, TeamCost
+from .base import Design, Packet
+
+__all__ = ["kalman_covariances", "design_centralized", "CentralizedDesign", "CentralizedAgent", "kalman_step"]
+
+Form = Literal["filter", "predictor"]
+
+
+def kalman_step(P: FloatArray, C: FloatArray, R: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """One measurement update: returns (K, P(k|k)) from the predictor covariance P (eq. 21)."""
+    Sy = C @ P @ C.T + R
+    cf = sla.cho_factor(0.5 * (Sy + Sy.T), lower=True, check_finite=False)
+    K = sla.cho_solve(cf, C @ P, check_finite=False).T
+    IKC = np.eye(P.shape[0]) - K @ C
+    Pf = IKC @ P @ IKC.T + K @ R @ K.T
+    return K, 0.5 * (Pf + Pf.T)
+
+
+def kalman_covariances(system: LinearGaussianSystem, n_steps: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Forward Riccati recursion (eq. 22).
+
+    Returns
+    -------
+    P_pred : (n_steps + 1, d_x, d_x)   P(k) = var(x(k) | y(0:k-1)), k = 0..n_steps
+    K : (n_steps, d_x, d_y)            Kalman gains (eq. 21)
+    P_filt : (n_steps, d_x, d_x)       P(k|k)
+    """
+    T = V.positive_int(n_steps, "n_steps", minimum=0)
+    system.require_horizon(T)
+    dx, dy = system.dx, system.dy_total
+    P_pred = np.empty((T + 1, dx, dx))
+    K = np.empty((T, dx, dy))
+    P_filt = np.empty((T, dx, dx))
+    P_pred[0] = system.Sigma_x
+    for k in range(T):
+        K[k], P_filt[k] = kalman_step(P_pred[k], system.C_stack(k), system.R_stack(k))
+        if k + 1 <= T:
+            A = system.A_at(k) if (system.A.shape[0] == 1 or k < system.A.shape[0]) else None
+            if A is None:
+                P_pred[k + 1] = np.nan  # beyond the given dynamics; never used
+                continue
+            Pn = A @ P_filt[k] @ A.T + system.Q_at(k)
+            P_pred[k + 1] = 0.5 * (Pn + Pn.T)
+    return P_pred, K, P_filt
+
+
+def steady_state(system: LinearGaussianSystem, *, check: bool = True) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """(P_bar, K_bar, P_bar(k|k)) of the algebraic Riccati equation (eq. 37); needs (A4)-(A5)."""
+    from .riccati import steady_state_kalman
+
+    system.require_time_invariant()
+    return steady_state_kalman(system.A_at(0), system.C_stack(0), system.Q_at(0), system.R_stack(0), check=check)
+
+
+@dataclass(frozen=True, eq=False)
+class CentralizedDesign(Design):
+    """Centralized Kalman filter (or predictor) design.
+
+    Attributes
+    ----------
+    P_pred, K, P_filt : arrays
+        Covariance and gain schedules (one matrix each for the steady state).
+    form : "filter" or "predictor"
+    """
+
+    system: Any = None
+    cost: Any = None
+    form: str = "filter"
+    P_pred: Any = None
+    K: Any = None
+    P_filt: Any = None
+
+    def K_at(self, k: int) -> FloatArray:
+        return self.K if self.horizon is None else self.K[k]  # type: ignore[no-any-return]
+
+    def agents(self) -> list["CentralizedAgent"]:
+        """One agent per team member; each holds every measurement at once (a bound, not a network)."""
+        return [CentralizedAgent(self, i) for i in range(self.system.n_agents)]
+
+
+def design_centralized(system: LinearGaussianSystem, cost: TeamCost, horizon: int | None = None, *,
+                       form: Form = "filter", check: bool = True) -> CentralizedDesign:
+    """Design the centralized Kalman filter/predictor and its analytic team cost.
+
+    Parameters
+    ----------
+    system, cost
+    horizon : int or None
+        Number of steps T; None for the steady state (algebraic Riccati equation).
+    form : "filter" (z = L x^(k|k)) or "predictor" (z = L x^(k|k-1)).
+    """
+    cost.check_system(system.dx, system.n_agents)
+    if form not in ("filter", "predictor"):
+        raise ShapeError(f"form: expected 'filter' or 'predictor', found {form!r}")
+    if horizon is None:
+        cost.require_time_invariant()
+        P, K, Pf = steady_state(system, check=check)
+        W = cost.L_at(0).T @ cost.S_at(0) @ cost.L_at(0)
+        avg = float(np.trace(W @ (Pf if form == "filter" else P)))
+        return CentralizedDesign("centralized", None, None, avg, {"form": form}, system, cost, form, P, K, Pf)
+    T = V.positive_int(horizon, "horizon")
+    cost.require_horizon(T)
+    P, K, Pf = kalman_covariances(system, T)
+    stage = np.array([
+        np.trace(cost.L_at(k).T @ cost.S_at(k) @ cost.L_at(k) @ (Pf[k] if form == "filter" else P[k])) for k in range(T)
+    ])
+    return CentralizedDesign("centralized", T, stage, None, {"form": form}, system, cost, form, P, K, Pf)
+
+
+class CentralizedAgent:
+    """Agent i of the centralized bound: receives every y_j(k) at step k, reports L_i x^(k|k)."""
+
+    def __init__(self, design: CentralizedDesign, index: int):
+        self.design = design
+        self.index = index
+        self.system: LinearGaussianSystem = design.system
+        self.cost: TeamCost = design.cost
+
+    def arrival_lag(self, j: int) -> int:
+        return 0
+
+    def init_state(self, n_runs: int) -> dict[str, Any]:
+        return {"xhat": np.zeros((n_runs, self.system.dx))}
+
+    def step(self, state: dict[str, Any], k: int, received: Sequence[Packet]) -> tuple[dict[str, Any], FloatArray]:
+        sys = self.system
+        got = {j: v for (j, s, v) in received if s == k}
+        if len(got) != sys.n_agents:
+            raise ValueError(f"centralized agent {self.index}: expected every y_j({k}) at step {k}, found {sorted(got)}")
+        y = np.concatenate([got[j] for j in range(sys.n_agents)], axis=1)
+        xpred = state["xhat"]
+        xfilt = xpred + (y - xpred @ sys.C_stack(k).T) @ self.design.K_at(k).T
+        Li = self.cost.L_block(self.index, k)
+        z = (xfilt if self.design.form == "filter" else xpred) @ Li.T
+        return {"xhat": xfilt @ sys.A_at(k).T}, z

@@ -1,0 +1,693 @@
+r"""Steady-state Kalman Riccati solutions and detectability checks.
+
+The one-step *predictor* error covariance of the centralized Kalman filter,
+:math:`P(t+1) = \operatorname{cov}(x(t+1) \mid y(1{:}t))`, obeys the
+finite-horizon Riccati recursion
+
+.. math::
+
+    P(t+1) = A P(t) A^\top - A P(t) C^\top (C P(t) C^\top + R)^{-1} C P(t) A^\top + Q ,
+
+and, when :math:`(A, C)` is detectable and :math:`(A, Q^{1/2})` is
+stabilizable (assumption (A5) of the team-MMSE paper), converges from any
+:math:`P(1) \succeq 0` to the unique stabilizing solution :math:`\bar P` of
+the filter algebraic Riccati equation (paper eq. 37)
+
+.. math::
+
+    \bar P = A \bar P A^\top - A \bar P C^\top (C \bar P C^\top + R)^{-1} C \bar P A^\top + Q .
+
+:func:`solve_filter_dare` computes :math:`\bar P` with the structure-preserving
+doubling algorithm (SDA) of Chu, Fan and Lin (2005) -- only matrix products
+and one LU factorization per step, quadratic convergence -- and verifies the
+result (Riccati residual, closed-loop spectral radius). :func:`steady_state_kalman`
+adds the gain and the filtered covariance.
+
+The detectability and stabilizability checks use the Popov-Belevitch-Hautus
+(PBH) test restricted to the unstable invariant subspace: one real Schur
+decomposition of :math:`A` (:math:`O(n^3)`) and a small test per distinct
+unstable eigenvalue.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+import scipy.linalg as sla
+from numpy.typing import ArrayLike
+
+from .. import _validation as V
+from ..exceptions import ConvergenceError, DetectabilityError, NotPositiveDefiniteError, ShapeError, TeamkfError
+
+FloatArray = V.FloatArray
+
+__all__ = [
+    "solve_filter_dare",
+    "steady_state_kalman",
+    "riccati_residual",
+    "unstable_unobservable_modes",
+    "is_detectable",
+    "is_stabilizable",
+    "check_detectable",
+    "check_stabilizable",
+]
+
+Method = Literal["auto", "sda", "scipy"]
+
+#: relative Riccati residual above which a computed solution is rejected
+RESIDUAL_RTOL = 1e-8
+#: relative tolerance of the PBH rank test (scaled by max(||A||_F, ||C||_F))
+PBH_RTOL = 1e-8
+#: eigenvalues with |lambda| >= 1 - margin - UNIT_CIRCLE_TOL count as unstable,
+#: so that marginal modes computed as 0.9999999999999998 are not missed
+UNIT_CIRCLE_TOL = float(np.sqrt(np.finfo(float).eps))
+#: eigenvalues closer than this (relative to max(1, |lambda|)) are tested as one cluster
+_CLUSTER_RTOL = 1e-6
+#: above this many unstable eigenvalues, simple eigenvalues are tested with
+#: their eigenvectors (O(k^3) in all) instead of one k x k SVD each (O(k^4))
+_SVD_MAX_K = 96
+
+
+class _OptionError(TeamkfError, ValueError):
+    """A keyword option has an unsupported value."""
+
+
+# ----------------------------------------------------------------------------
+# input handling
+# ----------------------------------------------------------------------------
+
+
+def _square(x: ArrayLike, name: str) -> FloatArray:
+    a = V.matrix(x, name)
+    if a.shape[0] != a.shape[1]:
+        raise ShapeError(f"{name}: expected a square (d_x x d_x) state matrix, found {V.shape_str(a.shape)}")
+    return a
+
+
+def _system(
+    A: ArrayLike, C: ArrayLike, Q: ArrayLike, R: ArrayLike
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Validate (A, C, Q, R): A dx x dx, C dy x dx, Q dx x dx PSD, R dy x dy PD."""
+    A_ = _square(A, "A")
+    dx = A_.shape[0]
+    C_ = V.matrix(C, "C", (None, dx))
+    dy = C_.shape[0]
+    Q_ = V.covariance(Q, "Q", dx)
+    R_ = V.covariance(R, "R", dy, definite=True)
+    return A_, C_, Q_, R_
+
+
+def _psd_factor_rows(Q: FloatArray) -> FloatArray:
+    """Rows ``F`` with ``F.T @ F == Q`` (Q symmetric PSD), zero directions dropped."""
+    w, U = np.linalg.eigh(Q)
+    scale = max(float(w[-1]), 0.0) if w.size else 0.0
+    keep = w > max(scale, np.finfo(float).tiny) * Q.shape[0] * np.finfo(float).eps
+    return (U[:, keep] * np.sqrt(w[keep])).T
+
+
+# ----------------------------------------------------------------------------
+# detectability / stabilizability
+# ----------------------------------------------------------------------------
+
+
+def _quasi_triangular_eigvals(T: FloatArray) -> np.ndarray:
+    """Eigenvalues of a real quasi-upper-triangular (real Schur) matrix, in diagonal order."""
+    n = T.shape[0]
+    out = np.empty(n, dtype=complex)
+    i = 0
+    while i < n:
+        if i + 1 < n and T[i + 1, i] != 0.0:
+            out[i : i + 2] = np.linalg.eigvals(T[i : i + 2, i : i + 2])
+            if out[i].imag < out[i + 1].imag:
+                out[i], out[i + 1] = out[i + 1], out[i]
+            i += 2
+        else:
+            out[i] = T[i, i]
+            i += 1
+    return out
+
+
+def _schur_select(A: FloatArray, thr: float) -> tuple[FloatArray, FloatArray, np.ndarray]:
+    """Real Schur form ``A = Z T Z'`` and the mask of diagonal positions with |lambda| >= thr."""
+    T, Z = sla.schur(A, output="real")
+    lam = _quasi_triangular_eigvals(T)
+    sel = np.abs(lam) >= thr
+    # a complex pair has one modulus, but keep the two halves consistent anyway
+    i = 0
+    n = T.shape[0]
+    while i < n:
+        if i + 1 < n and T[i + 1, i] != 0.0:
+            sel[i] = sel[i + 1] = bool(sel[i] or sel[i + 1])
+            i += 2
+        else:
+            i += 1
+    return T, Z, sel
+
+
+def _reorder(T: FloatArray, Z: FloatArray, sel: np.ndarray) -> tuple[FloatArray, FloatArray, int] | None:
+    """Move the selected eigenvalues to the top-left (LAPACK ``dtrsen``); None if that fails."""
+    if not sel.any() or sel.all():
+        return T, Z, int(sel.sum())
+    ts, qs, _wr, _wi, m, _s, _sep, info = sla.lapack.dtrsen(sel.astype(np.int32), T, Z, job="N")
+    if info != 0 or int(m) != int(sel.sum()):
+        return None
+    return ts, qs, int(m)
+
+
+def _cluster(lams: np.ndarray) -> list[list[int]]:
+    """Group indices of (upper-half-plane) eigenvalues closer than _CLUSTER_RTOL."""
+    clusters: list[list[int]] = []
+    reps: list[complex] = []
+    for i in np.argsort(-np.abs(lams), kind="stable"):
+        lam = complex(lams[i])
+        for c, rep in zip(clusters, reps):
+            if abs(lam - rep) <= _CLUSTER_RTOL * max(1.0, abs(rep)):
+                c.append(int(i))
+                break
+        else:
+            clusters.append([int(i)])
+            reps.append(lam)
+    return clusters
+
+
+def _pbh_offenders(T11: np.ndarray, Cr: np.ndarray, lams: np.ndarray, tol: float) -> list[complex]:
+    """Eigenvalues ``lam`` of T11 (given) at which ``[T11 - lam I; Cr]`` is rank deficient.
+
+    ``lams`` are the eigenvalues to test (complex pairs both listed); only the
+    member with non-negative imaginary part is tested, its conjugate follows.
+    """
+    k = T11.shape[0]
+    if k == 0 or lams.size == 0:
+        return []
+    if Cr.shape[0] > k:  # same singular values of the stack with Cr replaced by its R factor
+        Cr = np.linalg.qr(Cr, mode="r")
+    upper = lams[lams.imag >= 0.0]
+    eye = np.eye(k)
+
+    def sigma_min(lam: complex) -> float:
+        if lam.imag == 0.0:
+            M = np.vstack([T11 - lam.real * eye, Cr])
+        else:
+            M = np.vstack([T11 - lam * eye, Cr.astype(complex)])
+        return float(np.linalg.svd(M, compute_uv=False)[-1])
+
+    eig_vectors: tuple[np.ndarray, np.ndarray] | None = None
+    if k > _SVD_MAX_K:
+        w, Vr = np.linalg.eig(T11)
+        eig_vectors = (w, Vr)
+
+    bad: list[complex] = []
+    for cl in _cluster(upper):
+        members = upper[cl]
+        mean = complex(np.mean(members))
+        if abs(mean.imag) <= 1e-14 * max(1.0, abs(mean)):
+            mean = complex(mean.real, 0.0)
+        if eig_vectors is not None and len(cl) == 1:
+            w, Vr = eig_vectors
+            j = int(np.argmin(np.abs(w - mean)))
+            v = Vr[:, j]
+            offending = float(np.linalg.norm(Cr @ v)) <= tol * float(np.linalg.norm(v))
+        else:
+            tests = [mean] + [complex(m) for m in members if abs(m - mean) > 64 * np.finfo(float).eps * max(1.0, abs(mean))]
+            offending = any(sigma_min(lam) <= tol for lam in tests)
+        if offending:
+            bad.append(mean)
+            if mean.imag != 0.0:
+                bad.append(mean.conjugate())
+    return bad
+
+
+def _modes_from_subspace(
+    T: FloatArray, Z: FloatArray, sel: np.ndarray, C: FloatArray, tol: float, *, left: bool
+) -> list[complex]:
+    """Offending modes of a pair, given the Schur form of A and the unstable mask.
+
+    ``left=False``: (A, C), unstable right invariant subspace (unstable first).
+    ``left=True``: (A', C), obtained from the same Schur form of A: with the
+    *stable* eigenvalues first, ``A = Z [S11 S12; 0 S22] Z'`` gives
+    ``A' Z2 = Z2 S22'``, so Z2 spans the unstable invariant subspace of A'.
+    """
+    lam_all = _quasi_triangular_eigvals(T)
+    r = _reorder(T, Z, ~sel if left else sel)
+    if r is None:  # reordering failed (near-equal eigenvalues): test on the full form
+        M = T.T if left else T
+        return _pbh_offenders(M, C @ Z, lam_all[sel], tol)
+    Ts, Zs, m = r
+    if left:
+        k = T.shape[0] - m
+        T11 = Ts[m:, m:].T
+        U1 = Zs[:, m:]
+    else:
+        k = m
+        T11 = Ts[:k, :k]
+        U1 = Zs[:, :k]
+    if k == 0:
+        return []
+    lams = _quasi_triangular_eigvals(Ts[m:, m:] if left else T11)
+    return _pbh_offenders(T11, C @ U1, lams, tol)
+
+
+def _tol(A: FloatArray, C: FloatArray) -> float:
+    scale = max(float(np.linalg.norm(A)), float(np.linalg.norm(C)), np.finfo(float).tiny)
+    return PBH_RTOL * scale
+
+
+def unstable_unobservable_modes(A: ArrayLike, C: ArrayLike, *, margin: float = 0.0) -> list[complex]:
+    r"""Eigenvalues of ``A`` with :math:`|\lambda| \ge 1 - \text{margin}` that ``C`` cannot see.
+
+    The pair :math:`(A, C)` is detectable iff every eigenvalue with
+    :math:`|\lambda| \ge 1` is observable, i.e. (PBH/Hautus test)
+
+    .. math::
+
+        \operatorname{rank} \begin{bmatrix} A - \lambda I \\ C \end{bmatrix} = d_x .
+
+    The test is restricted to the unstable invariant subspace: an ordered real
+    Schur form :math:`A = [U_1\ U_2] \begin{bmatrix} T_{11} & T_{12} \\ 0 & T_{22}
+    \end{bmatrix} [U_1\ U_2]^\top` with the :math:`k` unstable eigenvalues in
+    :math:`T_{11}`, then, for each distinct eigenvalue :math:`\lambda` of
+    :math:`T_{11}`, the smallest singular value of
+    :math:`[T_{11} - \lambda I;\ C U_1]` is compared with
+    ``PBH_RTOL * max(||A||_F, ||C||_F)``. Cost: one Schur decomposition
+    (:math:`O(d_x^3)`) plus a :math:`2k \times k` SVD per distinct unstable
+    eigenvalue (for :math:`k >` 96, simple eigenvalues use their eigenvectors,
+    :math:`O(k^3)` in all).
+
+    Parameters
+    ----------
+    A : (d_x, d_x) array_like
+        State matrix.
+    C : (d_y, d_x) array_like
+        Output matrix (``d_y = 0`` allowed: then every unstable mode is returned).
+    margin : float, optional
+        Also test modes with :math:`1 - \text{margin} \le |\lambda| < 1`
+        (nearly unstable). Eigenvalues within ``UNIT_CIRCLE_TOL`` (~1.5e-8)
+        below the threshold are included too, so marginal modes computed with
+        round-off are never missed.
+
+    Returns
+    -------
+    list of complex
+        The offending eigenvalues (one entry per distinct eigenvalue; complex
+        pairs appear as both members), largest modulus first; empty iff the
+        pair is detectable.
+    """
+    A_ = _square(A, "A")
+    C_ = V.matrix(C, "C", (None, A_.shape[0]))
+    if A_.shape[0] == 0:
+        return []
+    T, Z, sel = _schur_select(A_, 1.0 - float(margin) - UNIT_CIRCLE_TOL)
+    if not sel.any():
+        return []
+    return _modes_from_subspace(T, Z, sel, C_, _tol(A_, C_), left=False)
+
+
+def _stabilizability_modes(A_: FloatArray, Q_: FloatArray, margin: float = 0.0) -> list[complex]:
+    D = _psd_factor_rows(Q_)  # D' D = Q
+    if A_.shape[0] == 0:
+        return []
+    T, Z, sel = _schur_select(A_, 1.0 - float(margin) - UNIT_CIRCLE_TOL)
+    if not sel.any():
+        return []
+    return _modes_from_subspace(T, Z, sel, D, _tol(A_, D), left=True)
+
+
+def is_detectable(A: ArrayLike, C: ArrayLike) -> bool:
+    """True iff every eigenvalue of ``A`` with ``|lambda| >= 1`` is observable through ``C``.
+
+    See :func:`unstable_unobservable_modes` for the test.
+    """
+    return not unstable_unobservable_modes(A, C)
+
+
+def is_stabilizable(A: ArrayLike, Q: ArrayLike) -> bool:
+    r"""True iff :math:`(A, Q^{1/2})` is stabilizable (noise excites every unstable mode).
+
+    With :math:`D D^\top = Q`, :math:`(A, D)` is stabilizable iff
+    :math:`(A^\top, D^\top)` is detectable; and :math:`D^\top v = 0 \iff Q v = 0`
+    for :math:`Q \succeq 0`, so the test is :func:`unstable_unobservable_modes`
+    on :math:`(A^\top, D^\top)`, sharing one Schur decomposition of :math:`A`.
+    """
+    A_ = _square(A, "A")
+    Q_ = V.covariance(Q, "Q", A_.shape[0])
+    return not _stabilizability_modes(A_, Q_)
+
+
+def _fmt_modes(modes: list[complex]) -> str:
+    parts = []
+    for lam in modes:
+        if lam.imag == 0.0:
+            parts.append(f"{lam.real:.6g}")
+        else:
+            parts.append(f"{lam.real:.6g}{lam.imag:+.6g}j (|lambda|={abs(lam):.6g})")
+    return ", ".join(parts)
+
+
+def check_detectable(A: ArrayLike, C: ArrayLike, *, what: str = "(A, C)") -> None:
+    """Raise :class:`~teamkf.exceptions.DetectabilityError` unless ``(A, C)`` is detectable.
+
+    The message names the pair (``what``), lists the unstable eigenvalues that
+    the measurements cannot see, and suggests fixes.
+    """
+    modes = unstable_unobservable_modes(A, C)
+    if modes:
+        raise DetectabilityError(_detectability_message(what, modes))
+
+
+def _detectability_message(what: str, modes: list[complex]) -> str:
+    return (
+        f"{what} is not detectable: the unstable eigenvalue(s) {_fmt_modes(modes)} of A are invisible to C "
+        "(PBH rank test [A - lambda I; C] fails). Add a measurement of the mode (a row of C with a component "
+        "along its eigenvector), or stabilize it; a steady-state design needs assumption (A5) of the team-MMSE "
+        "paper -- use a finite horizon instead."
+    )
+
+
+def check_stabilizable(A: ArrayLike, Q: ArrayLike, *, what: str = "(A, Q^1/2)") -> None:
+    """Raise :class:`~teamkf.exceptions.DetectabilityError` unless ``(A, Q^1/2)`` is stabilizable."""
+    A_ = _square(A, "A")
+    Q_ = V.covariance(Q, "Q", A_.shape[0])
+    modes = _stabilizability_modes(A_, Q_)
+    if modes:
+        raise DetectabilityError(_stabilizability_message(what, modes))
+
+
+def _stabilizability_message(what: str, modes: list[complex]) -> str:
+    return (
+        f"{what} is not stabilizable: the process noise Q does not excite the unstable eigenvalue(s) "
+        f"{_fmt_modes(modes)} of A (PBH test on (A', Q^1/2) fails), so the steady-state Riccati solution is not "
+        "stabilizing. Add process noise along the mode (make Q positive definite there), or use a finite horizon "
+        "instead: a steady-state design needs assumption (A5) of the team-MMSE paper."
+    )
+
+
+def _check_pair(A_: FloatArray, C_: FloatArray, Q_: FloatArray) -> None:
+    """Detectability of (A, C) and stabilizability of (A, Q^1/2) from one Schur form."""
+    n = A_.shape[0]
+    if n == 0:
+        return
+    T, Z, sel = _schur_select(A_, 1.0 - UNIT_CIRCLE_TOL)
+    if not sel.any():
+        return
+    modes = _modes_from_subspace(T, Z, sel, C_, _tol(A_, C_), left=False)
+    if modes:
+        raise DetectabilityError(_detectability_message("(A, C)", modes))
+    D = _psd_factor_rows(Q_)
+    modes = _modes_from_subspace(T, Z, sel, D, _tol(A_, D), left=True)
+    if modes:
+        raise DetectabilityError(_stabilizability_message("(A, Q^1/2)", modes))
+
+
+# ----------------------------------------------------------------------------
+# Riccati solvers
+# ----------------------------------------------------------------------------
+
+
+def _gain_and_filtered(A: FloatArray, C: FloatArray, R: FloatArray, P: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """K = P C' (C P C' + R)^-1 and P - K C P (symmetrized)."""
+    S = C @ P @ C.T + R
+    S = 0.5 * (S + S.T)
+    PCt = P @ C.T
+    try:
+        cf = sla.cho_factor(S, lower=True, check_finite=False)
+        K = sla.cho_solve(cf, PCt.T, check_finite=False).T
+    except np.linalg.LinAlgError:
+        K = np.linalg.solve(S, PCt.T).T
+    Pf = P - K @ PCt.T
+    return K, 0.5 * (Pf + Pf.T)
+
+
+def riccati_residual(A: ArrayLike, C: ArrayLike, Q: ArrayLike, R: ArrayLike, P: ArrayLike) -> float:
+    r"""Relative residual of the filter Riccati equation at ``P``.
+
+    .. math::
+
+        \frac{\| A (P - P C^\top (C P C^\top + R)^{-1} C P) A^\top + Q - P \|_F}
+             {\|A P A^\top\|_F + \|Q\|_F + \|P\|_F}
+    """
+    A_, C_, Q_, R_ = _system(A, C, Q, R)
+    P_ = V.matrix(P, "P", A_.shape)
+    return _residual(A_, C_, Q_, R_, P_)[0]
+
+
+def _residual(A: FloatArray, C: FloatArray, Q: FloatArray, R: FloatArray, P: FloatArray) -> tuple[float, FloatArray, FloatArray]:
+    K, Pf = _gain_and_filtered(A, C, R, P)
+    APAt = A @ P @ A.T
+    res = A @ Pf @ A.T + Q - P
+    den = float(np.linalg.norm(APAt)) + float(np.linalg.norm(Q)) + float(np.linalg.norm(P))
+    rel = float(np.linalg.norm(res)) / max(den, np.finfo(float).tiny)
+    return rel, K, Pf
+
+
+def _spectral_radius(M: FloatArray) -> float:
+    if M.shape[0] == 0:
+        return 0.0
+    return float(np.max(np.abs(np.linalg.eigvals(M))))
+
+
+def _verify(
+    A: FloatArray, C: FloatArray, Q: FloatArray, R: FloatArray, P: FloatArray, what: str
+) -> tuple[FloatArray, FloatArray, float, float]:
+    """Reject a candidate solution with a large residual or a non-Schur closed loop."""
+    if not np.all(np.isfinite(P)):
+        raise ConvergenceError(f"{what}: the solution has NaN or inf entries")
+    rel, K, Pf = _residual(A, C, Q, R, P)
+    rho = _spectral_radius(A - (A @ K) @ C)
+    if not rel <= RESIDUAL_RTOL:
+        raise ConvergenceError(
+            f"{what}: relative Riccati residual {rel:.3g} exceeds {RESIDUAL_RTOL:g} "
+            f"(closed-loop spectral radius {rho:.6g})"
+        )
+    if not rho < 1.0:
+        raise ConvergenceError(
+            f"{what}: the solution is not stabilizing, closed-loop spectral radius rho(A - A K C) = {rho:.6g} >= 1 "
+            f"(relative residual {rel:.3g}); check detectability of (A, C) and stabilizability of (A, Q^1/2)"
+        )
+    return K, Pf, rel, rho
+
+
+def _sda(A: FloatArray, G: FloatArray, H: FloatArray, tol: float, max_iter: int) -> tuple[FloatArray, int, float]:
+    r"""Structure-preserving doubling for X = Ahat' X (I + G X)^-1 Ahat + H, here Ahat = A'.
+
+    Returns (X, iterations, last relative change). Raises ConvergenceError on
+    non-finite iterates or when ``max_iter`` is reached.
+    """
+    n = A.shape[0]
+    Ak = np.array(A.T, order="C")
+    Gk = G.copy()
+    Hk = H.copy()
+    eye = np.eye(n)
+    rel = np.inf
+    prev = np.inf
+    for it in range(1, max_iter + 1):
+        # W = (I + G H)^-1, applied through one LU factorization
+        lu = sla.lu_factor(eye + Gk @ Hk, check_finite=False)
+        Y = sla.lu_solve(lu, np.hstack([Ak, Gk]), check_finite=False)
+        WA, WG = Y[:, :n], Y[:, n:]
+        A_next = Ak @ WA
+        G_next = Gk + Ak @ WG @ Ak.T
+        H_next = Hk + Ak.T @ (Hk @ WA)
+        G_next = 0.5 * (G_next + G_next.T)
+        H_next = 0.5 * (H_next + H_next.T)
+        if not (np.all(np.isfinite(H_next)) and np.all(np.isfinite(A_next)) and np.all(np.isfinite(G_next))):
+            raise ConvergenceError(
+                f"SDA for the filter Riccati equation produced NaN or inf after {it} iterations "
+                f"(last relative change {rel:.3g}); the system is badly scaled or not detectable/stabilizable"
+            )
+        dH = float(np.linalg.norm(H_next - Hk))
+        nH = float(np.linalg.norm(H_next))
+        rel = dH / nH if nH > 0 else dH
+        Ak, Gk, Hk = A_next, G_next, H_next
+        if rel <= tol:
+            return Hk, it, rel
+        # round-off floor: quadratic convergence has stopped, the residual check decides
+        if rel <= 1e-8 and rel >= 0.5 * prev:
+            return Hk, it, rel
+        prev = rel
+    raise ConvergenceError(
+        f"SDA for the filter Riccati equation did not converge in {max_iter} iterations "
+        f"(relative change of H {rel:.3g} > tol {tol:g}); raise max_iter or use method='scipy'"
+    )
+
+
+def _solve_sda(A: FloatArray, C: FloatArray, Q: FloatArray, R: FloatArray, tol: float, max_iter: int) -> FloatArray:
+    # G = C' R^-1 C through a Cholesky factor of R: B = L^-1 C, G = B' B
+    try:
+        L = sla.cholesky(R, lower=True, check_finite=False)
+    except np.linalg.LinAlgError:  # pragma: no cover - covariance() already checked R > 0
+        raise NotPositiveDefiniteError("R: Cholesky factorization failed; R must be positive definite") from None
+    B = sla.solve_triangular(L, C, lower=True, check_finite=False)
+    G = B.T @ B
+    G = 0.5 * (G + G.T)
+    P, it, rel = _sda(A, G, Q, tol, max_iter)
+    _verify(A, C, Q, R, P, f"SDA ({it} iterations, last relative change {rel:.3g})")
+    return P
+
+
+def _solve_scipy(A: FloatArray, C: FloatArray, Q: FloatArray, R: FloatArray) -> FloatArray:
+    # scipy solves X = a' X a - a' X b (r + b' X b)^-1 b' X a + q; a = A', b = C' gives eq. 37
+    try:
+        P = sla.solve_discrete_are(A.T, C.T, Q, R)
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        raise ConvergenceError(f"scipy.linalg.solve_discrete_are failed: {exc}") from None
+    P = 0.5 * (P + P.T)
+    _verify(A, C, Q, R, P, "scipy.linalg.solve_discrete_are")
+    return P
+
+
+def solve_filter_dare(
+    A: ArrayLike,
+    C: ArrayLike,
+    Q: ArrayLike,
+    R: ArrayLike,
+    *,
+    method: Method = "auto",
+    tol: float = 1e-13,
+    max_iter: int = 200,
+    check: bool = True,
+) -> FloatArray:
+    r"""Stabilizing solution of the filter algebraic Riccati equation (team-MMSE paper eq. 37).
+
+    Solves
+
+    .. math::
+
+        \bar P = A \bar P A^\top - A \bar P C^\top (C \bar P C^\top + R)^{-1} C \bar P A^\top + Q
+
+    for the stabilizing :math:`\bar P \succeq 0`, the steady-state one-step
+    predictor error covariance :math:`\operatorname{cov}(x(t+1) \mid y(1{:}t))`.
+
+    With :math:`G = C^\top R^{-1} C` the equation reads
+    :math:`\bar P = A \bar P (I + G \bar P)^{-1} A^\top + Q`, which the
+    structure-preserving doubling algorithm (Chu, Fan & Lin 2005) solves from
+    :math:`\hat A_0 = A^\top,\ G_0 = G,\ H_0 = Q`:
+
+    .. math::
+
+        W_k &= (I + G_k H_k)^{-1}, \\
+        \hat A_{k+1} &= \hat A_k W_k \hat A_k, \\
+        G_{k+1} &= G_k + \hat A_k W_k G_k \hat A_k^\top, \\
+        H_{k+1} &= H_k + \hat A_k^\top H_k W_k \hat A_k \;\to\; \bar P,
+
+    quadratically, with one LU factorization of :math:`I + G_k H_k` per step.
+    Every result (SDA or scipy) is verified: the relative Riccati residual
+    (:func:`riccati_residual`) must be below ``RESIDUAL_RTOL`` and the closed
+    loop :math:`A - A \bar K C`, :math:`\bar K = \bar P C^\top (C \bar P C^\top + R)^{-1}`,
+    must be Schur stable.
+
+    Parameters
+    ----------
+    A : (d_x, d_x) array_like
+        State matrix.
+    C : (d_y, d_x) array_like
+        Stacked output matrix of all agents.
+    Q : (d_x, d_x) array_like or float
+        Process-noise covariance, positive semi-definite (a scalar means ``q I``).
+    R : (d_y, d_y) array_like or float
+        Measurement-noise covariance, positive definite (a scalar means ``r I``).
+    method : {"auto", "sda", "scipy"}
+        ``"sda"``: doubling; ``"scipy"``: :func:`scipy.linalg.solve_discrete_are`
+        on ``(A', C', Q, R)``; ``"auto"``: SDA, falling back to scipy when SDA
+        raises :class:`~teamkf.exceptions.ConvergenceError`.
+    tol : float
+        SDA stops when :math:`\|H_{k+1} - H_k\|_F \le \text{tol}\, \|H_{k+1}\|_F`
+        (or when the change stalls at round-off level below 1e-8).
+    max_iter : int
+        Maximum number of SDA steps.
+    check : bool
+        First check that :math:`(A, C)` is detectable and :math:`(A, Q^{1/2})`
+        stabilizable (assumption (A5)); a failing system raises
+        :class:`~teamkf.exceptions.DetectabilityError` instead of a
+        convergence failure.
+
+    Returns
+    -------
+    (d_x, d_x) ndarray
+        The stabilizing solution :math:`\bar P` (symmetric).
+
+    Raises
+    ------
+    ShapeError, NotSymmetricError, NotPositiveDefiniteError
+        Invalid inputs; the message names the argument.
+    DetectabilityError
+        ``check=True`` and assumption (A5) fails.
+    ConvergenceError
+        No verified solution was found.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> A = np.array([[1.1, 0.2], [0.0, 0.7]]); C = np.array([[1.0, 0.0]])
+    >>> P = solve_filter_dare(A, C, np.eye(2), 0.1)
+    >>> riccati_residual(A, C, np.eye(2), 0.1, P) < 1e-12
+    True
+    """
+    A_, C_, Q_, R_ = _system(A, C, Q, R)
+    return _solve(A_, C_, Q_, R_, method, tol, max_iter, check)
+
+
+def _solve(
+    A_: FloatArray, C_: FloatArray, Q_: FloatArray, R_: FloatArray, method: str, tol: float, max_iter: int, check: bool
+) -> FloatArray:
+    if method not in ("auto", "sda", "scipy"):
+        raise _OptionError(f"method: expected 'auto', 'sda' or 'scipy', found {method!r}")
+    tol_ = float(tol)
+    if not (np.isfinite(tol_) and tol_ > 0):
+        raise _OptionError(f"tol: expected a positive tolerance, found {tol!r}")
+    max_iter_ = V.positive_int(max_iter, "max_iter")
+    if check:
+        _check_pair(A_, C_, Q_)
+    if A_.shape[0] == 0:
+        return np.zeros((0, 0))
+    if method == "scipy":
+        return _solve_scipy(A_, C_, Q_, R_)
+    if method == "sda":
+        return _solve_sda(A_, C_, Q_, R_, tol_, max_iter_)
+    try:
+        return _solve_sda(A_, C_, Q_, R_, tol_, max_iter_)
+    except ConvergenceError as sda_exc:
+        try:
+            return _solve_scipy(A_, C_, Q_, R_)
+        except ConvergenceError as sp_exc:
+            raise ConvergenceError(f"both solvers failed. {sda_exc}. Fallback: {sp_exc}") from None
+
+
+def steady_state_kalman(
+    A: ArrayLike,
+    C: ArrayLike,
+    Q: ArrayLike,
+    R: ArrayLike,
+    *,
+    method: Method = "auto",
+    tol: float = 1e-13,
+    max_iter: int = 200,
+    check: bool = True,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    r"""Steady-state centralized Kalman filter: predictor covariance, gain, filtered covariance.
+
+    .. math::
+
+        \bar K = \bar P C^\top (C \bar P C^\top + R)^{-1}, \qquad
+        \bar P_{\mathrm{filt}} = \bar P - \bar K C \bar P ,
+
+    with :math:`\bar P` from :func:`solve_filter_dare`. :math:`\bar K` is the
+    gain of the paper's eq. 21, used as
+    :math:`\hat x(t+1) = A \hat x(t) + A \bar K (y(t) - C \hat x(t))`;
+    :math:`\bar P_{\mathrm{filt}} = \operatorname{cov}(x(t) \mid y(1{:}t))`.
+
+    Parameters are those of :func:`solve_filter_dare`.
+
+    Returns
+    -------
+    P_pred : (d_x, d_x) ndarray
+        :math:`\bar P`.
+    K : (d_x, d_y) ndarray
+        :math:`\bar K`.
+    P_filt : (d_x, d_x) ndarray
+        :math:`\bar P - \bar K C \bar P` (symmetrized).
+    """
+    A_, C_, Q_, R_ = _system(A, C, Q, R)
+    P = _solve(A_, C_, Q_, R_, method, tol, max_iter, check)
+    K, Pf = _gain_and_filtered(A_, C_, R_, P)
+    return P, K, Pf
