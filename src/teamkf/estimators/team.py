@@ -123,7 +123,7 @@ def static_team_estimate(joint_cov: Any, dims: Sequence[int], cost: TeamCost, *,
     >>> from teamkf import TeamCost, static_team_estimate
     >>> s2 = 1.0
     >>> Sig = np.array([[1, 1, 1], [1, 1 + s2, 1], [1, 1, 1 + s2]])
-    >>> est = static_team_estimate(Sig, (1, 0, 1, 1), TeamCost.average_tracking(2, 4.0))
+    >>> est = static_team_estimate(Sig, (1, 0, 1, 1), TeamCost.common_target(2, 1, 4.0))
     >>> round(est.cost, 6)  # (2 + lam) alpha s2 / (1 + alpha s2), alpha = 2/3
     2.4
     """

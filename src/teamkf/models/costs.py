@@ -10,7 +10,7 @@ S             [S_ij], n d_z x n d_z, symmetric positive definite (A1)
 
 Builders: :meth:`TeamCost.average_tracking` (eq. 5), :meth:`TeamCost.platoon`
 (eq. 6), :meth:`TeamCost.ring` (the closed formation the paper mentions after
-eq. 6) and :meth:`TeamCost.mse` (every agent estimates the whole state; the
+eq. 6), :meth:`TeamCost.common_target` (eq. 1) and :meth:`TeamCost.mse` (every agent estimates the whole state; the
 paper's example 3 with S = I). S and L may be time-varying (a sequence indexed
 by the step), as the decentralized-LQG application needs.
 """
@@ -161,6 +161,19 @@ class TeamCost:
         D = _difference_matrix(n, closed=True)
         S = np.kron(np.eye(n) + lam * D.T @ D, np.eye(d))
         return cls(S=S, L=np.eye(n * d), n_agents=n)
+
+    @classmethod
+    def common_target(cls, n_agents: int, dx: int, lam: float) -> "TeamCost":
+        """Every agent estimates the whole state x, and the mean estimate should be close to x.
+
+        sum_i ||x - z_i||^2 + lam ||x - mean_i z_i||^2: S = (I + lam/n^2 11') (x) I, L = 1 (x) I.
+        With n = 2 and a scalar x this is the introduction's example, eq. (1).
+        """
+        n = V.positive_int(n_agents, "n_agents")
+        dx = V.positive_int(dx, "dx")
+        lam = _nonneg(lam, "lambda")
+        S = np.kron(np.eye(n) + lam / n**2, np.eye(dx))
+        return cls(S=S, L=np.kron(np.ones((n, 1)), np.eye(dx)), n_agents=n)
 
     @classmethod
     def mse(cls, n_agents: int, dx: int) -> "TeamCost":
