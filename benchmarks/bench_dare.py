@@ -21,6 +21,10 @@ and reports the speed-up scipy/sda, the relative difference of the two solutions
 (Frobenius) and both relative Riccati residuals. Times are the best of a few
 repeats (fewer for large n).
 
+BLAS threading matters: on a small (2 vCPU) machine multi-threaded OpenBLAS made
+small-n timings erratic (up to 100x slower); set ``OPENBLAS_NUM_THREADS=1`` (or
+``OMP_NUM_THREADS=1``) for stable numbers. The JSON records these variables.
+
 Usage::
 
     PYTHONPATH=src python3 benchmarks/bench_dare.py [--sizes 10 100 300 1000]
@@ -31,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import sys
 import time
@@ -127,7 +132,8 @@ def main(argv: list[str] | None = None) -> int:
         )
     if args.json:
         meta = {"numpy": np.__version__, "scipy": scipy.__version__, "python": platform.python_version(),
-                "machine": platform.machine(), "argv": sys.argv}
+                "machine": platform.machine(), "cpu_count": os.cpu_count(), "argv": sys.argv,
+                "threads_env": {k: os.environ.get(k) for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}}
         with open(args.json, "w") as fh:
             json.dump({"meta": meta, "rows": rows}, fh, indent=2)
     return 0

@@ -483,7 +483,10 @@ def _sda(A: FloatArray, G: FloatArray, H: FloatArray, tol: float, max_iter: int)
     for it in range(1, max_iter + 1):
         # W = (I + G H)^-1, applied through one LU factorization
         lu = sla.lu_factor(eye + Gk @ Hk, check_finite=False)
-        Y = sla.lu_solve(lu, np.hstack([Ak, Gk]), check_finite=False)
+        rhs = np.empty((n, 2 * n), order="F")  # LAPACK's layout: no copy inside lu_solve
+        rhs[:, :n] = Ak
+        rhs[:, n:] = Gk
+        Y = sla.lu_solve(lu, rhs, overwrite_b=True, check_finite=False)
         WA, WG = Y[:, :n], Y[:, n:]
         A_next = Ak @ WA
         G_next = Gk + Ak @ WG @ Ak.T

@@ -33,11 +33,15 @@ __all__ = ["LinearGaussianSystem"]
 
 
 def _maybe_sequence(x: Any) -> bool:
-    """True when ``x`` is a time sequence of matrices (converts to a 3-D array)."""
-    try:
-        return np.asarray(x, dtype=float).ndim == 3
-    except (TypeError, ValueError):
-        return False
+    """True when ``x`` is a time sequence of matrices (a 3-D array or a list of 2-D ones)."""
+    if isinstance(x, np.ndarray):
+        return x.ndim == 3
+    if isinstance(x, (list, tuple)) and len(x) > 0:
+        try:
+            return np.asarray(x[0], dtype=float).ndim == 2
+        except (TypeError, ValueError):
+            return False
+    return False
 
 
 def _stack(x: Any, name: str, shape: tuple[int | None, int | None], *, cov: bool = False, definite: bool = False) -> FloatArray:
