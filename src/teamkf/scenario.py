@@ -196,7 +196,10 @@ def load_scenario(path: str | Path) -> Scenario:
         scenario (the message starts with the key path).
     """
     p = Path(path)
-    text = p.read_text(encoding="utf-8")
+    try:
+        text = p.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(f"{p}: expected a UTF-8 text file (TOML or JSON), found undecodable bytes at position {exc.start}") from None
     if p.suffix.lower() == ".json":
         try:
             data = json.loads(text)
@@ -322,10 +325,14 @@ def _numeric(x: Any, key: str, *, scalar_ok: bool = True) -> Any:
         shapes = [walk(e, f"{where}[{i}]") for i, e in enumerate(v)]
         for i, s in enumerate(shapes):
             if s != shapes[0]:
+                def size(sh: tuple[int, ...]) -> str:
+                    return "a number" if not sh else (f"{sh[0]} entries" if len(sh) == 1 else f"shape {V.shape_str(sh)}")
+
                 raise _fail(
                     key,
-                    f"expected rows of equal length, found {where or 'the matrix'}[0] of shape {V.shape_str(shapes[0])} "
-                    f"and {where}[{i}] of shape {V.shape_str(s)}",
+                    f"expected rows of equal length, found {where}[0] with {size(shapes[0])} and {where}[{i}] with {size(s)}"
+                    if where else
+                    f"expected rows of equal length, found row 0 with {size(shapes[0])} and row {i} with {size(s)}",
                 )
         return (len(v), *shapes[0])
 
@@ -406,7 +413,11 @@ def _system(sys_tab: Any, agents: Any) -> LinearGaussianSystem:
     try:
         return LinearGaussianSystem(A=A, Q=Q, Sigma_x=Sx, C=C, R=R)
     except TeamkfError as exc:
-        raise _rekey(exc, "system", _SYSTEM_RULES) from None
+        err = _rekey(exc, "system", _SYSTEM_RULES)
+        if re.match(r"agents\[\d+\]\.C: expected a kx\d+ matrix", str(err)):
+            err = ScenarioError(f"{err} (every C_i needs d_x columns; d_x is the size of system.A)")
+            err.key = str(err).split(":")[0]  # type: ignore[attr-defined]
+        raise err from exc
 
 
 def _graph(g_tab: Any, n: int) -> CommGraph:
@@ -427,6 +438,9 @@ def _graph(g_tab: Any, n: int) -> CommGraph:
                 hint = f"did you mean {close[0]!r}? " if close else ""
                 raise _fail("graph.kind", f"unknown graph kind {kind!r}; {hint}expected one of: {', '.join(_GRAPH_KINDS)}")
             extra = {"ring": ("directed",), "star": ("center",)}.get(kind, ())
+            for opt, owner in (("directed", "ring"), ("center", "star")):
+                if opt in g and kind != owner:
+                    raise _fail(f"graph.{opt}", f'only used with kind = "{owner}", found kind = "{kind}"; remove it')
             _check_keys(g, ("kind", "delay", *extra), "graph.")
             delay = g.get("delay", 1)
             if isinstance(delay, bool) or not isinstance(delay, (int, float)):
@@ -446,7 +460,7 @@ def _graph(g_tab: Any, n: int) -> CommGraph:
     except ScenarioError:
         raise
     except TeamkfError as exc:
-        raise _rekey(exc, "graph", _GRAPH_RULES) from None
+        raise _rekey(exc, "graph", _GRAPH_RULES) from exc
     return graph
 
 
@@ -463,6 +477,8 @@ def _cost(c_tab: Any, system: LinearGaussianSystem) -> TeamCost:
                 hint = f"did you mean {close[0]!r}? " if close else ""
                 raise _fail("cost.kind", f"unknown cost kind {kind!r}; {hint}expected one of: {', '.join(_COST_KINDS)}")
             if kind == "mse":
+                if "lambda" in c:
+                    raise _fail("cost.lambda", "the 'mse' cost (S = I, every agent estimates the whole state) has no lambda; remove it")
                 _check_keys(c, ("kind",), "cost.")
                 cost = TeamCost.mse(n, dx)
             else:
@@ -497,7 +513,7 @@ def _cost(c_tab: Any, system: LinearGaussianSystem) -> TeamCost:
     except ScenarioError:
         raise
     except TeamkfError as exc:
-        raise _rekey(exc, "cost", _COST_RULES) from None
+        raise _rekey(exc, "cost", _COST_RULES) from exc
     return cost
 
 
@@ -523,7 +539,7 @@ def _information(i_tab: Any, n: int, graph: CommGraph) -> InformationStructure:
         st = InformationStructure(n, t["common_lag"], local)
         st.validate_on(graph)
     except TeamkfError as exc:
-        raise _rekey(exc, "information", _INFO_RULES) from None
+        raise _rekey(exc, "information", _INFO_RULES) from exc
     return st
 
 
@@ -536,7 +552,7 @@ def _check_horizon(system: LinearGaussianSystem, cost: TeamCost, horizon: int | 
             system.require_horizon(horizon)
             cost.require_horizon(horizon)
     except TeamkfError as exc:
-        raise _rekey(exc, "horizon", _SYSTEM_RULES + _COST_RULES) from None
+        raise _rekey(exc, "horizon", _SYSTEM_RULES + _COST_RULES) from exc
 
 
 def _check_estimator(name: Any, key: str) -> str:
@@ -669,7 +685,8 @@ def packaged_scenarios() -> dict[str, Any]:
         entries = list(root.iterdir())
     except (FileNotFoundError, NotADirectoryError):  # pragma: no cover - broken install
         return {}
-    return {e.name[: -len(".toml")]: e for e in sorted(entries, key=lambda e: e.name) if e.name.endswith(".toml")}
+    found = {e.name[: -len(".toml")]: e for e in entries if e.name.endswith(".toml")}
+    return {name: found[name] for name in sorted(found)}
 
 
 def load_packaged(name: str) -> Scenario:

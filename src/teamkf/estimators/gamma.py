@@ -20,7 +20,11 @@ all (Remark 8) when S is sparse. Small problems assemble Gamma densely (a
 Hadamard product per pair of d_z components, no Kronecker product) and use a
 Cholesky factorization; large ones use preconditioned conjugate gradients
 with the block-Jacobi preconditioner Gamma_ii^-1 X = S_ii^-1 X Sigma_ii^-1.
-The crossover is set by memory (``dense_max_bytes``); see docs/performance.md.
+``method="auto"`` picks CG when dense Gamma would exceed ``dense_max_bytes``
+(1 GiB) or when ~150 operator applications cost fewer flops than the
+Cholesky factorization (sparse S, long windows: the 10-vehicle platoon);
+dense otherwise (dense S, short windows: the UAV formation). The measured
+crossover is in docs/performance.md.
 """
 
 from __future__ import annotations
@@ -125,10 +129,22 @@ class GammaProblem:
         return G
 
     # --- solving -------------------------------------------------------------
+    def flop_estimates(self, cg_iterations: int = 150) -> tuple[float, float]:
+        """Rough flop counts of the dense Cholesky path and of ``cg_iterations`` operator applications."""
+        N, D = float(self.size), float(self.Sigma.shape[0])
+        nnz_S = float(self._S_op.nnz if sp.issparse(self._S_op) else self.S.size)
+        dense = N**3 / 3.0 + 2.0 * N**2
+        cg = cg_iterations * 2.0 * (self.dz * self.D_loc * D + nnz_S * D)
+        return dense, cg
+
     def choose(self, method: Method = "auto", dense_max_bytes: int = DENSE_MAX_BYTES) -> str:
+        """The solver: dense Cholesky unless Gamma would not fit in ``dense_max_bytes`` or the operator is cheaper."""
         if method != "auto":
             return method
-        return "dense" if 8 * self.size**2 <= dense_max_bytes else "cg"
+        if 8 * self.size**2 > dense_max_bytes:
+            return "cg"
+        dense, cg = self.flop_estimates()
+        return "cg" if cg < dense else "dense"
 
     def solve(self, eta: list[FloatArray], method: Method = "auto", *, rtol: float = 1e-12,
               max_iter: int | None = None, dense_max_bytes: int = DENSE_MAX_BYTES) -> list[FloatArray]:

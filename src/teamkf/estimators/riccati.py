@@ -431,13 +431,19 @@ def riccati_residual(A: ArrayLike, C: ArrayLike, Q: ArrayLike, R: ArrayLike, P: 
     return _residual(A_, C_, Q_, R_, P_)[0]
 
 
-def _residual(A: FloatArray, C: FloatArray, Q: FloatArray, R: FloatArray, P: FloatArray) -> tuple[float, FloatArray, FloatArray]:
+def _residual(
+    A: FloatArray, C: FloatArray, Q: FloatArray, R: FloatArray, P: FloatArray
+) -> tuple[float, FloatArray, FloatArray, FloatArray]:
+    """(relative residual, K, P_filt, A K)."""
     K, Pf = _gain_and_filtered(A, C, R, P)
-    APAt = A @ P @ A.T
-    res = A @ Pf @ A.T + Q - P
+    AP = A @ P
+    APAt = AP @ A.T
+    AK = A @ K
+    # A P_filt A' = A P A' - (A K)(A P C')'
+    res = APAt - AK @ (AP @ C.T).T + Q - P
     den = float(np.linalg.norm(APAt)) + float(np.linalg.norm(Q)) + float(np.linalg.norm(P))
     rel = float(np.linalg.norm(res)) / max(den, np.finfo(float).tiny)
-    return rel, K, Pf
+    return rel, K, Pf, AK
 
 
 def _spectral_radius(M: FloatArray) -> float:
@@ -452,8 +458,8 @@ def _verify(
     """Reject a candidate solution with a large residual or a non-Schur closed loop."""
     if not np.all(np.isfinite(P)):
         raise ConvergenceError(f"{what}: the solution has NaN or inf entries")
-    rel, K, Pf = _residual(A, C, Q, R, P)
-    rho = _spectral_radius(A - (A @ K) @ C)
+    rel, K, Pf, AK = _residual(A, C, Q, R, P)
+    rho = _spectral_radius(A - AK @ C)
     if not rel <= RESIDUAL_RTOL:
         raise ConvergenceError(
             f"{what}: relative Riccati residual {rel:.3g} exceeds {RESIDUAL_RTOL:g} "
@@ -503,6 +509,10 @@ def _sda(A: FloatArray, G: FloatArray, H: FloatArray, tol: float, max_iter: int)
         rel = dH / nH if nH > 0 else dH
         Ak, Gk, Hk = A_next, G_next, H_next
         if rel <= tol:
+            return Hk, it, rel
+        # H W = (I + H G)^-1 H is PSD and <= H (Loewner), so the next change
+        # A' (H W) A is at most ||A||_F^2 ||H||_F: stop one step early when that is below tol
+        if float(np.linalg.norm(Ak)) ** 2 <= tol:
             return Hk, it, rel
         # round-off floor: quadratic convergence has stopped, the residual check decides
         if rel <= 1e-8 and rel >= 0.5 * prev:
@@ -594,8 +604,10 @@ def solve_filter_dare(
         on ``(A', C', Q, R)``; ``"auto"``: SDA, falling back to scipy when SDA
         raises :class:`~teamkf.exceptions.ConvergenceError`.
     tol : float
-        SDA stops when :math:`\|H_{k+1} - H_k\|_F \le \text{tol}\, \|H_{k+1}\|_F`
-        (or when the change stalls at round-off level below 1e-8).
+        SDA stops when :math:`\|H_{k+1} - H_k\|_F \le \text{tol}\, \|H_{k+1}\|_F`,
+        or when :math:`\|\hat A_{k+1}\|_F^2 \le \text{tol}` (which bounds the
+        next relative change, since :math:`0 \preceq H W \preceq H`), or when the
+        change stalls at round-off level below 1e-8.
     max_iter : int
         Maximum number of SDA steps.
     check : bool
@@ -653,7 +665,12 @@ def _solve(
         try:
             return _solve_scipy(A_, C_, Q_, R_)
         except ConvergenceError as sp_exc:
-            raise ConvergenceError(f"both solvers failed. {sda_exc}. Fallback: {sp_exc}") from None
+            raise ConvergenceError(
+                f"both solvers failed. {sda_exc}. Fallback: {sp_exc}. The Riccati equation is probably "
+                "ill-conditioned in double precision (modes that are nearly undetectable or nearly unexcited, "
+                "e.g. many strongly unstable modes seen through few outputs); rescale the state, add measurements, "
+                "or use a finite horizon"
+            ) from None
 
 
 def steady_state_kalman(

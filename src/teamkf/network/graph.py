@@ -178,6 +178,11 @@ class CommGraph:
                 f"edges: expected an iterable of (source, target, delay) triples, found {type(raw).__name__}; "
                 "write edges as e.g. [[0, 1, 1], [1, 0, 2]]"
             )
+        fast = self._fast_edges(raw, n)
+        if fast is not None:
+            object.__setattr__(self, "n_agents", n)
+            object.__setattr__(self, "edges", fast)
+            return
         seen: dict[tuple[int, int], tuple[int, int]] = {}
         out: list[Edge] = []
         for k, e in enumerate(raw):
@@ -209,6 +214,24 @@ class CommGraph:
             out.append((s, t, d))
         object.__setattr__(self, "n_agents", n)
         object.__setattr__(self, "edges", tuple(sorted(out)))
+
+    @staticmethod
+    def _fast_edges(raw: Any, n: int) -> tuple[Edge, ...] | None:
+        """Vectorized validation of a large, well-formed integer edge list; None sends it to the detailed loop."""
+        try:
+            arr = np.asarray(raw)
+        except (TypeError, ValueError):
+            return None
+        if arr.ndim != 2 or arr.shape[1] != 3 or arr.shape[0] < 64 or arr.dtype.kind not in "iu":
+            return None
+        s, t, d = arr[:, 0], arr[:, 1], arr[:, 2]
+        if (s < 0).any() or (s >= n).any() or (t < 0).any() or (t >= n).any() or (s == t).any() or (d < 1).any():
+            return None
+        key = s.astype(np.int64) * n + t
+        if np.unique(key).size != key.size:
+            return None
+        order = np.lexsort((d, t, s))
+        return tuple(map(tuple, arr[order].tolist()))
 
     # caches live in __dict__ (cached_property); keep them out of pickles
     def __getstate__(self) -> dict[str, Any]:
@@ -394,7 +417,8 @@ class CommGraph:
     def complete(cls, n: int, delay: int = 1) -> CommGraph:
         """Every ordered pair ``i != j`` linked with the same delay (``l_ij = delay``)."""
         n, d = _count(n, "n"), _delay(delay, "delay")
-        return cls(n, tuple((i, j, d) for i in range(n) for j in range(n) if i != j))
+        ii, jj = np.nonzero(~np.eye(n, dtype=bool))
+        return cls(n, np.column_stack([ii, jj, np.full(ii.size, d)]))  # type: ignore[arg-type]
 
     @classmethod
     def line(cls, n: int, delay: int = 1) -> CommGraph:

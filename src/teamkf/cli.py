@@ -1,0 +1,416 @@
+"""The ``teamkf`` command.
+
+::
+
+    teamkf evaluate SCENARIO [--json] [--monte-carlo RUNS] [--seed S] [--plot OUT.png]
+    teamkf design   SCENARIO [--json] [--out GAINS.npz]
+    teamkf demo     [--out DIR] [--quick]
+    teamkf reproduce ...      (a later version)
+    teamkf sweep ...          (a later version)
+    teamkf --version
+
+``SCENARIO`` is a scenario file (TOML, or JSON by its ``.json`` extension) or
+the name of a packaged scenario (``platoon-4``, ``uav-10``, ...). ``--debug``
+(before or after the command) shows the traceback of an error; without it an
+error is one line ``teamkf: error: <message>`` on stderr and exit status 2.
+The formats are a contract: see ``design/scenario-and-cli.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import traceback
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from .exceptions import ScenarioError, TeamkfError
+
+__all__ = ["main", "build_parser"]
+
+
+def _version() -> str:
+    from . import __version__
+
+    return str(__version__)
+
+
+def _short_version() -> str:
+    return ".".join(_version().split(".")[:2])
+
+
+# ---------------------------------------------------------------------------
+# helpers
+# ---------------------------------------------------------------------------
+def _load(arg: str) -> Any:
+    """A scenario from a path, or from the name of a packaged scenario."""
+    from .scenario import load_packaged, load_scenario, packaged_scenarios
+
+    p = Path(arg)
+    if p.exists():
+        if p.is_dir():
+            raise ScenarioError(f"{arg}: is a directory; expected a scenario file (.toml or .json)")
+        return load_scenario(p)
+    packaged = packaged_scenarios()
+    if arg in packaged:
+        return load_packaged(arg)
+    raise ScenarioError(f"{arg}: no such scenario file (packaged scenarios: {', '.join(packaged)})")
+
+
+def _cost_value(design: Any) -> float:
+    return float(design.total_cost) if design.horizon is not None else float(design.average_cost)
+
+
+def _cost_label(horizon: int | None) -> str:
+    return "J_T" if horizon is not None else "average cost"
+
+
+def _fmt(x: float) -> str:
+    if x is None or not np.isfinite(x):
+        return str(x)
+    ax = abs(x)
+    if ax != 0 and (ax >= 1e7 or ax < 1e-3):
+        return f"{x:.4e}"
+    return f"{x:.2f}" if ax >= 100 else f"{x:.4f}"
+
+
+def format_table(headers: Sequence[str], rows: Sequence[Sequence[Any]], *, indent: str = "  ", align: str | None = None) -> str:
+    """Plain-text table; ``align`` has one letter per column ("l" or "r"), default: first left, the others right."""
+    cells = [[str(h) for h in headers]] + [[str(c) for c in r] for r in rows]
+    widths = [max(len(r[k]) for r in cells) for k in range(len(headers))]
+    al = align or ("l" + "r" * (len(headers) - 1))
+    lines = []
+    for n, r in enumerate(cells):
+        parts = [c.ljust(w) if a == "l" else c.rjust(w) for c, w, a in zip(r, widths, al)]
+        lines.append(indent + "  ".join(parts).rstrip())
+        if n == 0:
+            lines.append(indent + "  ".join("-" * w for w in widths))
+    return "\n".join(lines)
+
+
+def dumps_json(obj: Any) -> str:
+    """JSON with objects indented and lists of numbers kept on one line."""
+
+    def enc(x: Any, level: int) -> str:
+        pad, inner = "  " * level, "  " * (level + 1)
+        if isinstance(x, dict):
+            if not x:
+                return "{}"
+            items = [f"{inner}{json.dumps(str(k))}: {enc(v, level + 1)}" for k, v in x.items()]
+            return "{\n" + ",\n".join(items) + "\n" + pad + "}"
+        if isinstance(x, (list, tuple)):
+            if all(not isinstance(v, (dict, list, tuple)) for v in x):
+                return "[" + ", ".join(json.dumps(v) for v in x) + "]"
+            return "[\n" + ",\n".join(inner + enc(v, level + 1) for v in x) + "\n" + pad + "]"
+        return json.dumps(x)
+
+    return enc(obj, 0)
+
+
+def _header(sc: Any) -> str:
+    if sc.horizon is not None:
+        what = f"horizon T = {sc.horizon}, J_T = sum over t of E[c(x(t), z(t))]"
+    else:
+        what = "infinite horizon (steady state), average cost per step"
+    info = "reduced information structure from [information]" if sc.has_reduced_information else "full information structure of the graph"
+    return (f"scenario {sc.name}: {sc.n_agents} agents, d_x = {sc.system.dx}, {what}\n"
+            f"  graph: {sc.graph!r}; {info} (common lag {sc.information.common_lag})")
+
+
+# ---------------------------------------------------------------------------
+# evaluate
+# ---------------------------------------------------------------------------
+def _cmd_evaluate(args: argparse.Namespace) -> int:
+    from . import _validation as V
+
+    sc = _load(args.scenario)
+    runs = args.monte_carlo
+    if runs is not None:
+        if sc.horizon is None:
+            raise ScenarioError(
+                f"horizon: --monte-carlo needs a finite horizon, but scenario {sc.name!r} has none (steady state); "
+                "add horizon = T to the scenario"
+            )
+        if runs < 2:
+            raise ScenarioError(f"--monte-carlo: expected at least 2 runs (for a confidence interval), found {runs}")
+    if args.plot:
+        V.require("matplotlib", "plot")  # fail before the work, with the install command
+
+    designs = sc.designs()
+    mc: dict[str, Any] = {}
+    seed = args.seed
+    if runs is not None:
+        from .simulation.monte_carlo import monte_carlo
+
+        if seed is None:
+            seed = int(np.random.SeedSequence().entropy % (2**32))  # type: ignore[operator]
+        mc = monte_carlo(designs, sc.horizon, runs, rng=seed)
+
+    notes: list[str] = []
+    if args.plot:
+        notes.append(_plot_stage_costs(designs, sc, args.plot))
+
+    if args.json:
+        out: dict[str, Any] = {"scenario": sc.name, "horizon": sc.horizon, "estimators": {}}
+        for name, d in designs.items():
+            entry = d.summary()
+            if name in mc:
+                r = mc[name]
+                lo, hi = r.ci95
+                merged: dict[str, Any] = {}
+                for k, v in entry.items():
+                    merged[k] = v
+                    if k in ("total_cost", "average_cost"):
+                        merged["mc_cost"] = float(r.total_mean)
+                        merged["mc_ci95"] = [float(lo), float(hi)]
+                entry = merged
+            out["estimators"][name] = entry
+        print(dumps_json(out))
+        for n in notes:
+            print(n, file=sys.stderr)
+        return 0
+
+    ref = designs.get("mtmse")
+    headers = ["estimator", _cost_label(sc.horizon)]
+    if ref is not None:
+        headers.append("vs mtmse")
+    if mc:
+        headers += ["MC mean", "MC 95% CI"]
+    rows = []
+    for name, d in designs.items():
+        v = _cost_value(d)
+        row = [name, _fmt(v)]
+        if ref is not None:
+            row.append(f"{100.0 * (v - _cost_value(ref)) / _cost_value(ref):+.2f} %")
+        if mc:
+            r = mc[name]
+            lo, hi = r.ci95
+            row += [_fmt(r.total_mean), f"[{_fmt(lo)}, {_fmt(hi)}]"]
+        rows.append(row)
+    print(_header(sc))
+    print()
+    print(format_table(headers, rows))
+    if mc:
+        print(f"\n  Monte Carlo: {runs} runs, seed {seed} (online agents on sampled paths; analytic values in the {_cost_label(sc.horizon)} column)")
+    for n in notes:
+        print(n)
+    return 0
+
+
+def _plot_stage_costs(designs: dict[str, Any], sc: Any, out: str) -> str:
+    from .plotting import stage_cost_axes
+
+    ax = stage_cost_axes(list(designs.values()), title=f"{sc.name}: stage costs")
+    fig = ax.figure
+    fig.tight_layout()
+    path = Path(out)
+    if path.parent and not path.parent.exists():
+        path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return f"plot written to {path}"
+
+
+# ---------------------------------------------------------------------------
+# design
+# ---------------------------------------------------------------------------
+def _gain_arrays(name: str, d: Any) -> dict[str, np.ndarray]:
+    """The arrays of one design for ``--out`` (npz keys ``name/...``)."""
+    out: dict[str, np.ndarray] = {}
+    if d.horizon is not None:
+        out[f"{name}/stage_costs"] = np.asarray(d.stage_costs, dtype=float)
+        out[f"{name}/total_cost"] = np.asarray(d.total_cost, dtype=float)
+    else:
+        out[f"{name}/average_cost"] = np.asarray(d.average_cost, dtype=float)
+    out[f"{name}/K"] = np.asarray(d.K, dtype=float)
+    if name == "centralized":
+        return out
+    for k, step in enumerate(d.gains):
+        for i, F in enumerate(step):
+            out[f"{name}/F_{i}_t{k}"] = np.asarray(F, dtype=float)
+    if d.steady_gains is not None:
+        for i, F in enumerate(d.steady_gains):
+            out[f"{name}/F_{i}"] = np.asarray(F, dtype=float)
+    st = d.structure
+    for i in range(st.n_agents):
+        out[f"{name}/local_{i}"] = np.asarray(st.local_lags(i), dtype=np.int64).reshape(-1, 2)
+    return out
+
+
+def _gain_shapes(name: str, d: Any) -> dict[str, list[int]]:
+    if name == "centralized":
+        K = np.asarray(d.K)
+        return {"K": list(K.shape[-2:])}
+    last = d.steady_gains if d.steady_gains is not None else d.gains[-1]
+    return {f"F_{i}": list(np.asarray(F).shape) for i, F in enumerate(last)}
+
+
+def _design_summary(name: str, d: Any, sc: Any) -> dict[str, Any]:
+    entry = {k: v for k, v in d.summary().items() if k != "stage_costs"}
+    if name == "centralized":
+        entry["local_dims"] = None
+    else:
+        entry["local_dims"] = list(d.structure.local_dims(sc.system.dy))
+    entry["gain_shapes"] = _gain_shapes(name, d)
+    return entry
+
+
+def _cmd_design(args: argparse.Namespace) -> int:
+    sc = _load(args.scenario)
+    designs = sc.designs()
+    notes = []
+    if args.out:
+        arrays: dict[str, np.ndarray] = {"scenario": np.asarray(sc.name), "horizon": np.asarray(-1 if sc.horizon is None else sc.horizon)}
+        for name, d in designs.items():
+            arrays.update(_gain_arrays(name, d))
+        path = Path(args.out)
+        if path.parent and not path.parent.exists():
+            path.parent.mkdir(parents=True, exist_ok=True)
+        with open(path, "wb") as fh:  # np.savez would append .npz to a name without it
+            np.savez(fh, **arrays)
+        notes.append(f"gains written to {path} ({len(arrays)} arrays; keys like "
+                     f"'{next(iter(designs))}/...'; horizon -1 means steady state)")
+    if args.json:
+        out = {"scenario": sc.name, "horizon": sc.horizon,
+               "estimators": {name: _design_summary(name, d, sc) for name, d in designs.items()}}
+        print(dumps_json(out))
+        for n in notes:
+            print(n, file=sys.stderr)
+        return 0
+    when = f"gains at the last step t = {sc.horizon}" if sc.horizon is not None else "steady-state gains"
+    print(_header(sc))
+    print()
+    rows = []
+    for name, d in designs.items():
+        s = _design_summary(name, d, sc)
+        dims = "all (centralized)" if s["local_dims"] is None else ", ".join(map(str, s["local_dims"]))
+        shapes = ", ".join(f"{k} {'x'.join(map(str, v))}" for k, v in s["gain_shapes"].items())
+        rows.append([name, _fmt(_cost_value(d)), dims, shapes])
+    print(format_table(["estimator", _cost_label(sc.horizon), "local dims (scalars per agent)", f"gain shapes ({when})"], rows,
+                       align="lrll"))
+    for n in notes:
+        print(n)
+    return 0
+
+
+# ---------------------------------------------------------------------------
+# demo and later commands
+# ---------------------------------------------------------------------------
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from .demo import run_demo
+
+    run_demo(out_dir=args.out, quick=args.quick, echo=True)
+    return 0
+
+
+def _cmd_not_yet(args: argparse.Namespace) -> int:
+    print(f"teamkf: {args.command} is not available yet in teamkf {_short_version()}", file=sys.stderr)
+    return 2
+
+
+# ---------------------------------------------------------------------------
+# parser and main
+# ---------------------------------------------------------------------------
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, found {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, found {v}")
+    return v
+
+
+def _seed(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer seed, found {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer seed, found {v}")
+    return v
+
+
+def build_parser() -> argparse.ArgumentParser:
+    debug_help = "show the full traceback of an error"
+    parser = argparse.ArgumentParser(
+        prog="teamkf",
+        description="Design and evaluate decentralized team estimators (MTMSE, per-agent MMSE, centralized Kalman) from scenario files.",
+        epilog="SCENARIO is a .toml/.json scenario file or a packaged scenario name (platoon-4, platoon-4-is1, "
+               "platoon-4-steady, uav-4, uav-10).",
+    )
+    parser.add_argument("--version", action="version", version=f"teamkf {_version()}")
+    parser.add_argument("--debug", action="store_true", help=debug_help)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+
+    def add(name: str, help: str) -> argparse.ArgumentParser:
+        p = sub.add_parser(name, help=help, description=help)
+        p.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=debug_help)
+        return p
+
+    p = add("evaluate", "design every estimator of a scenario and compare their team costs")
+    p.add_argument("scenario", metavar="SCENARIO")
+    p.add_argument("--json", action="store_true", help="print one JSON object (scenario, horizon, estimators)")
+    p.add_argument("--monte-carlo", type=_positive_int, metavar="RUNS", help="also simulate RUNS runs of the online agents (finite horizon)")
+    p.add_argument("--seed", type=_seed, metavar="S", help="seed of the Monte Carlo runs (default: fresh, printed)")
+    p.add_argument("--plot", metavar="OUT.png", help="plot the stage costs of every estimator (needs matplotlib)")
+    p.set_defaults(func=_cmd_evaluate)
+
+    p = add("design", "compute the gains of every estimator of a scenario")
+    p.add_argument("scenario", metavar="SCENARIO")
+    p.add_argument("--json", action="store_true", help="print one JSON object (costs, local dimensions, gain shapes)")
+    p.add_argument("--out", metavar="GAINS.npz", help="save the gains (numpy .npz, keys like 'mtmse/F_0_t5', 'mtmse/K')")
+    p.set_defaults(func=_cmd_design)
+
+    p = add("demo", "the headline comparisons of the team-MMSE paper, with plots")
+    p.add_argument("--out", default="results", metavar="DIR", help="folder for the plots (default: results)")
+    p.add_argument("--quick", action="store_true", help="a shorter horizon, for a fast look")
+    p.set_defaults(func=_cmd_demo)
+
+    p = add("reproduce", f"a paper figure or table (not available yet in teamkf {_short_version()})")
+    p.add_argument("name", nargs="?", metavar="NAME")
+    p.add_argument("--list", action="store_true")
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--out", metavar="DIR")
+    p.set_defaults(func=_cmd_not_yet)
+
+    p = add("sweep", f"a parameter sweep (not available yet in teamkf {_short_version()})")
+    p.add_argument("sweep", nargs="?", metavar="SWEEP.toml")
+    p.add_argument("--scheduler", metavar="ADDRESS")
+    p.add_argument("--out", metavar="RESULTS")
+    p.add_argument("--resume", action="store_true")
+    p.set_defaults(func=_cmd_not_yet)
+    return parser
+
+
+def _one_line(exc: BaseException) -> str:
+    if isinstance(exc, OSError) and exc.strerror:
+        where = f"{exc.filename}: " if exc.filename else ""
+        return f"{where}{exc.strerror}"
+    text = " ".join(str(exc).split())
+    return text or type(exc).__name__
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the ``teamkf`` command; returns the exit status (0 success, 2 error)."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(list(argv) if argv is not None else None)
+    except SystemExit as exc:  # --help, --version, usage errors
+        return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
+    try:
+        return int(args.func(args))
+    except (TeamkfError, OSError) as exc:
+        if getattr(args, "debug", False):
+            traceback.print_exc()
+        print(f"teamkf: error: {_one_line(exc)}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:  # pragma: no cover - interactive
+        print("teamkf: interrupted", file=sys.stderr)
+        return 130
