@@ -272,7 +272,7 @@ def _cmd_design(args: argparse.Namespace) -> int:
         if path.parent and not path.parent.exists():
             path.parent.mkdir(parents=True, exist_ok=True)
         with open(path, "wb") as fh:  # np.savez would append .npz to a name without it
-            np.savez(fh, **arrays)
+            np.savez(fh, **arrays)  # type: ignore[arg-type]
         notes.append(f"gains written to {path} ({len(arrays)} arrays; keys like "
                      f"'{next(iter(designs))}/...'; horizon -1 means steady state)")
     if args.json:

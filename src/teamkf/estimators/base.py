@@ -89,5 +89,5 @@ class Design:
 
         return stage_cost_axes([self], ax=ax, **kwargs)
 
-    def agents(self) -> list[OnlineAgent]:  # pragma: no cover - overridden
+    def agents(self) -> Sequence[OnlineAgent]:  # pragma: no cover - overridden
         raise NotImplementedError

@@ -132,7 +132,7 @@ class GammaProblem:
     def flop_estimates(self, cg_iterations: int = 150) -> tuple[float, float]:
         """Rough flop counts of the dense Cholesky path and of ``cg_iterations`` operator applications."""
         N, D = float(self.size), float(self.Sigma.shape[0])
-        nnz_S = float(self._S_op.nnz if sp.issparse(self._S_op) else self.S.size)
+        nnz_S = float(self._S_op.nnz) if sp.issparse(self._S_op) else float(self.S.size)  # type: ignore[union-attr]
         dense = N**3 / 3.0 + 2.0 * N**2
         cg = cg_iterations * 2.0 * (self.dz * self.D_loc * D + nnz_S * D)
         return dense, cg
@@ -204,7 +204,7 @@ class GammaProblem:
         x, info = spla.cg(A, b, rtol=rtol, atol=0.0, maxiter=maxiter, M=self._preconditioner(), callback=cb)
         self.iterations = count[0]
         if info != 0:
-            res = float(np.linalg.norm(self.apply_flat(x) - b) / max(np.linalg.norm(b), 1e-300))
+            res = float(np.linalg.norm(self.apply_flat(x) - b)) / max(float(np.linalg.norm(b)), 1e-300)
             raise ConvergenceError(
                 f"Gamma F = eta: conjugate gradients stopped after {count[0]} iterations with relative residual {res:.3g} "
                 f"(asked {rtol:g}); raise max_iter or use method='dense' if Gamma fits in memory"

@@ -181,7 +181,7 @@ def _pbh_offenders(T11: np.ndarray, Cr: np.ndarray, lams: np.ndarray, tol: float
     if k == 0 or lams.size == 0:
         return []
     if Cr.shape[0] > k:  # same singular values of the stack with Cr replaced by its R factor
-        Cr = np.linalg.qr(Cr, mode="r")
+        Cr = np.asarray(np.linalg.qr(Cr, mode="r"))
     upper = lams[lams.imag >= 0.0]
     eye = np.eye(k)
 

@@ -90,7 +90,7 @@ class StaticTeamEstimate:
     mmse_cost: float
     P0: FloatArray
     Theta_hat: list[FloatArray] = field(repr=False, default_factory=list)
-    Sigma_hat: FloatArray = field(repr=False, default=None)  # type: ignore[assignment]
+    Sigma_hat: FloatArray | None = field(repr=False, default=None)
 
     def estimate(self, y0: FloatArray | None, y: Sequence[FloatArray], L: FloatArray, dz: int) -> FloatArray:
         """Apply the strategy to measurements (batched along the first axis): returns z, (..., n d_z)."""

@@ -67,7 +67,7 @@ def _as_int(x: Any, name: str, expected: str, fix: str) -> int:
     if isinstance(x, (Integral, np.integer)):
         return int(x)
     if isinstance(x, (Real, np.floating)) and np.isfinite(float(x)) and float(x).is_integer():
-        return int(x)
+        return int(float(x))
     raise GraphError(f"{name}: expected {expected}, found {x!r}; {fix}")
 
 

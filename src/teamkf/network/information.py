@@ -186,7 +186,7 @@ class InformationStructure:
         ell = np.asarray(graph.geodesic_delays())
         c = self.common_lag
         if ell.size and ell.max() > c:
-            j, i = np.unravel_index(int(np.argmax(ell)), ell.shape)
+            j, i = (int(v) for v in np.unravel_index(int(np.argmax(ell)), ell.shape))
             raise InformationStructureError(
                 f"common_lag: {c} is not realizable on this graph: y_{j}(s) reaches agent {i} only {int(ell[j, i])} steps later "
                 f"(weighted diameter tau* = {int(ell.max())}); use common_lag >= {int(ell.max())}"

@@ -67,7 +67,9 @@ def monte_carlo(designs: Mapping[str, Any], n_steps: int, n_runs: int, *, rng: n
     R_ = V.positive_int(n_runs, "n_runs", minimum=2)
     first = next(iter(designs.values()))
     system, cost = first.system, first.cost
-    seq = rng.bit_generator.seed_seq if isinstance(rng, np.random.Generator) else np.random.SeedSequence(rng)  # type: ignore[attr-defined]
+    seq = rng.bit_generator.seed_seq if isinstance(rng, np.random.Generator) else np.random.SeedSequence(rng)
+    if not isinstance(seq, np.random.SeedSequence):
+        raise ValueError("rng: expected a seed or a Generator created from a seed, found one without a SeedSequence")
     per_run = seq.spawn(R_)
     costs = {name: np.empty((R_, T)) for name in designs}
     for start in range(0, R_, batch):
