@@ -230,7 +230,8 @@ def _gain_arrays(name: str, d: Any) -> dict[str, np.ndarray]:
     out[f"{name}/K"] = np.asarray(d.K, dtype=float)
     if name == "centralized":
         return out
-    for k, step in enumerate(d.gains):
+    steps = d.gains if d.horizon is not None else [d.gain_at(k) for k in range(d.structure.common_lag)]
+    for k, step in enumerate(steps):
         for i, F in enumerate(step):
             out[f"{name}/F_{i}_t{k}"] = np.asarray(F, dtype=float)
     if d.steady_gains is not None:

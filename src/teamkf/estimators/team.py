@@ -265,8 +265,9 @@ class TeamDesign(Design):
     ----------
     structure : InformationStructure
     gains : tuple over steps of tuples over agents of (d_z, d_i(k)) arrays
-        F_i(k) for k = 0..T-1 (finite horizon); for the steady state the
-        exact gains of the first c steps (anchor x(0), P(0) = Sigma_x).
+        F_i(k) for k = 0..T-1 (finite horizon). For the steady state use
+        :meth:`gain_at`: the exact gains of the first c steps (anchor x(0),
+        P(0) = Sigma_x) are computed on first use, F-bar afterwards.
     steady_gains : tuple of (d_z, d_i) arrays or None
         F-bar_i of Theorem 3, used for k >= c.
     K : KF gain schedule (T, d_x, d_y), or K-bar (d_x, d_y)
@@ -280,11 +281,18 @@ class TeamDesign(Design):
     steady_gains: tuple | None = None
     K: Any = None
     P_pred: Any = None
+    warmup: Any = field(default=None, repr=False)
 
     def gain_at(self, k: int) -> tuple:
-        if self.horizon is None and k >= len(self.gains):
+        """F_i(k) for every agent (steady state: the exact transient gains for k < c, then F-bar)."""
+        if self.horizon is not None:
+            return self.gains[k]  # type: ignore[no-any-return]
+        if k >= self.structure.common_lag:
             return self.steady_gains  # type: ignore[return-value]
-        return self.gains[k]  # type: ignore[no-any-return]
+        cache = self.info.setdefault("_warmup_gains", {})
+        if k not in cache:
+            cache[k] = self.warmup(k)
+        return cache[k]  # type: ignore[no-any-return]
 
     def K_at(self, m: int) -> FloatArray:
         return self.K if self.horizon is None else self.K[m]  # type: ignore[no-any-return]
@@ -355,13 +363,13 @@ def _design(kind: Kind, system: LinearGaussianSystem, cost: TeamCost, structure:
     want = "mtmse" if kind == "mtmse" else "mmse"
     info: dict[str, Any] = {"common_lag": c, "local_dims": st.local_dims(system.dy)}
 
-    def step(k: int, a: int, P_a: FloatArray) -> tuple[tuple, float]:
+    def step(k: int, a: int, P_a: FloatArray, record: bool = True) -> tuple[tuple, float]:
         Sigma_W, Theta_W, P0 = window_covariances(system, k, a, P_a)
         idx = [_local_index(system, st, i, k, a) for i in range(n)]
         ginfo: dict[str, Any] = {}
         F, J, Jm = _solve_step(cost.S_at(k), cost.L_at(k), Sigma_W, Theta_W, P0, idx, dz, method=method,
                                dense_max_bytes=dense_max_bytes, want=want, gamma_info=ginfo)
-        if ginfo:
+        if ginfo and record:
             info["gamma"] = ginfo  # the last (largest) step
         return tuple(F), (J if kind == "mtmse" else Jm)
 
@@ -369,9 +377,9 @@ def _design(kind: Kind, system: LinearGaussianSystem, cost: TeamCost, structure:
         system.require_time_invariant()
         cost.require_time_invariant()
         P_bar, K_bar, _ = steady_state(system, check=check)
-        warm = [step(k, 0, system.Sigma_x) for k in range(c)]
         F_bar, J_bar = step(c - 1, 0, P_bar)  # full window of length c, anchor covariance P-bar (eqs. 38-40)
-        return TeamDesign(kind, None, None, J_bar, info, system, cost, st, tuple(g for g, _ in warm), F_bar, K_bar, P_bar)
+        return TeamDesign(kind, None, None, J_bar, info, system, cost, st, (), F_bar, K_bar, P_bar,
+                          warmup=lambda k: step(k, 0, system.Sigma_x, record=False)[0])
     T = V.positive_int(horizon, "horizon")
     system.require_horizon(T)
     cost.require_horizon(T)
