@@ -152,13 +152,21 @@ def test_local_terms_match_window_and_paper_uav_example():
 
 
 def test_line_graph_local_noise_overlaps():
-    """Errata: on a line graph the local windows overlap, so P^v_ij != 0 for neighbours."""
+    """Errata: on a line graph the local windows overlap, so P^v_ij != 0 for neighbours; cross blocks match too."""
     sys, cost, g = platoon()
-    d = design_mtmse(sys, cost, g, horizon=5)
-    k = 4
-    a, P = d.P_anchor(k)
-    i0, i1 = (set(d.structure.local_pairs(i, k)) for i in (0, 1))
-    assert i0 & i1  # shared measurements -> shared noise
+    d = design_mtmse(sys, cost, g, horizon=6)
+    for k in (1, 4, 5):
+        a, P = d.P_anchor(k)
+        Sig, _, _ = window_covariances(sys, k, a, P)
+        idx = [_local_index(sys, d.structure, i, k, a) for i in range(4)]
+        for i in range(4):
+            for j in range(4):
+                cov = d.local_covariances(i, j, k)
+                np.testing.assert_allclose(cov["Sigma_hat"], Sig[np.ix_(idx[i], idx[j])], rtol=1e-12, atol=1e-12)
+    cov01 = d.local_covariances(0, 1, 5)
+    assert np.abs(cov01["P_v"]).max() > 0  # shared measurements -> shared noise
+    # agents 0 and 3 (three hops apart) share y_1(k-2) and y_2(k-2): two 4x4 blocks R = 0.1 I
+    assert np.count_nonzero(d.local_covariances(0, 3, 5)["P_v"]) == 2 * 4
 
 
 def test_gains_depend_on_S():

@@ -49,24 +49,21 @@ def kalman_covariances(system: LinearGaussianSystem, n_steps: int) -> tuple[Floa
 
     Returns
     -------
-    P_pred : (n_steps + 1, d_x, d_x)   P(k) = var(x(k) | y(0:k-1)), k = 0..n_steps
+    P_pred : (n_steps, d_x, d_x)       P(k) = var(x(k) | y(0:k-1)), k = 0..n_steps-1
     K : (n_steps, d_x, d_y)            Kalman gains (eq. 21)
     P_filt : (n_steps, d_x, d_x)       P(k|k)
     """
-    T = V.positive_int(n_steps, "n_steps", minimum=0)
+    T = V.positive_int(n_steps, "n_steps")
     system.require_horizon(T)
     dx, dy = system.dx, system.dy_total
-    P_pred = np.empty((T + 1, dx, dx))
+    P_pred = np.empty((T, dx, dx))
     K = np.empty((T, dx, dy))
     P_filt = np.empty((T, dx, dx))
     P_pred[0] = system.Sigma_x
     for k in range(T):
         K[k], P_filt[k] = kalman_step(P_pred[k], system.C_stack(k), system.R_stack(k))
-        if k + 1 <= T:
-            A = system.A_at(k) if (system.A.shape[0] == 1 or k < system.A.shape[0]) else None
-            if A is None:
-                P_pred[k + 1] = np.nan  # beyond the given dynamics; never used
-                continue
+        if k + 1 < T:
+            A = system.A_at(k)
             Pn = A @ P_filt[k] @ A.T + system.Q_at(k)
             P_pred[k + 1] = 0.5 * (Pn + Pn.T)
     return P_pred, K, P_filt

@@ -304,39 +304,64 @@ class TeamDesign(Design):
             return a, (self.system.Sigma_x if a == 0 else self.P_pred)
         return a, self.P_pred[a]
 
-    def local_terms(self, i: int, k: int) -> dict[str, FloatArray]:
-        """C_i^loc, P^w_ii, P^v_ii, P^sigma_i and Sigma^w of eqs. (27)-(31) for agent i at step k.
-
-        Built explicitly from the primitive noises (independently of the
-        window recursion used for the gains); ``local_terms(i, k)['Sigma_hat']``
-        equals C^loc P C^loc' + P^w + P^v (eq. 30).
-        """
-        sys, st = self.system, self.structure
-        a, P = self.P_anchor(k)
-        pairs = st.local_pairs(i, k)
-        dx = sys.dx
-        nw = k - a  # noises w(a..k-1)
-        C_loc, W_rows, V_rows = [], [], []
+    def _local_maps(self, i: int, k: int) -> tuple[FloatArray, FloatArray, list[tuple[int, int]]]:
+        """C_i^loc and the map W_i from w(a..k-1) to w_i^loc (eq. 27), with agent i's local pairs."""
+        sys = self.system
+        a, _ = self.P_anchor(k)
+        pairs = self.structure.local_pairs(i, k)
+        dx, nw = sys.dx, k - a
+        C_loc, W_rows = [np.zeros((0, dx))], [np.zeros((0, nw * dx))]
         for (j, s) in pairs:
             Cj = sys.C_at(j, s)
             C_loc.append(Cj @ sys.transition(s, a))
             Wr = np.zeros((Cj.shape[0], nw * dx))
-            for r in range(a, s):
+            for r in range(a, s):  # y_j(s) contains C_j Phi(s, r+1) w(r)
                 Wr[:, (r - a) * dx : (r - a + 1) * dx] = Cj @ sys.transition(s, r + 1)
             W_rows.append(Wr)
-            V_rows.append((j, s))
-        Qbig = sla.block_diag(*[sys.Q_at(r) for r in range(a, k)]) if nw else np.zeros((0, 0))
-        Wx = np.hstack([sys.transition(k, r + 1) for r in range(a, k)]) if nw else np.zeros((dx, 0))
-        Cl = np.vstack(C_loc) if C_loc else np.zeros((0, dx))
-        Wl = np.vstack(W_rows) if W_rows else np.zeros((0, nw * dx))
-        Pv = sla.block_diag(*[sys.R_at(j, s) for (j, s) in V_rows]) if V_rows else np.zeros((0, 0))
-        Pw = Wl @ Qbig @ Wl.T
-        Psig = Wx @ Qbig @ Wl.T
+        return np.vstack(C_loc), np.vstack(W_rows), pairs
+
+    def local_covariances(self, i: int, j: int, k: int) -> dict[str, FloatArray]:
+        """P^w_ij, P^v_ij and Sigma^_ij (eq. 30) for agents i, j at step k, built from the primitive noises.
+
+        This is independent of the window recursion used for the gains; tests
+        hold the two against each other. P^v_ij is non-zero whenever the two
+        agents' local vectors share a measurement (e.g. neighbours on a line).
+        """
+        sys = self.system
+        a, P = self.P_anchor(k)
+        Ci, Wi, pi = self._local_maps(i, k)
+        Cj, Wj, pj = self._local_maps(j, k)
+        Qbig = sla.block_diag(*[sys.Q_at(r) for r in range(a, k)]) if k > a else np.zeros((0, 0))
+        P_w = Wi @ Qbig @ Wj.T
+        oi = np.concatenate([[0], np.cumsum([sys.dy[m] for m, _ in pi])]).astype(int)
+        oj = np.concatenate([[0], np.cumsum([sys.dy[m] for m, _ in pj])]).astype(int)
+        P_v = np.zeros((oi[-1], oj[-1]))
+        where_j = {p: q for q, p in enumerate(pj)}
+        for q, p in enumerate(pi):  # the same y_m(s) in both vectors shares v_m(s)
+            if p in where_j:
+                r = where_j[p]
+                P_v[oi[q] : oi[q + 1], oj[r] : oj[r + 1]] = sys.R_at(p[0], p[1])
+        return {"P_w": P_w, "P_v": P_v, "Sigma_hat": Ci @ P @ Cj.T + P_w + P_v}
+
+    def local_terms(self, i: int, k: int) -> dict[str, FloatArray]:
+        """C_i^loc, P^w_ii, P^v_ii, P^sigma_i, Sigma^w, Sigma^_ii, Theta^_i and P_0 (eqs. 27-31, 36) at step k.
+
+        Built explicitly from the primitive noises for any structure (the
+        paper derives them by hand for its two examples only).
+        """
+        sys = self.system
+        a, P = self.P_anchor(k)
+        C_loc, W_loc, _ = self._local_maps(i, k)
+        dx = sys.dx
+        Qbig = sla.block_diag(*[sys.Q_at(r) for r in range(a, k)]) if k > a else np.zeros((0, 0))
+        Wx = np.hstack([sys.transition(k, r + 1) for r in range(a, k)]) if k > a else np.zeros((dx, 0))
+        Psig = Wx @ Qbig @ W_loc.T  # cov(w^(c-1)(0, k), w_i^loc)
         Sw = Wx @ Qbig @ Wx.T
         Phi = sys.transition(k, a)
+        cov = self.local_covariances(i, i, k)
         return {
-            "C_loc": Cl, "P_w": Pw, "P_v": Pv, "P_sigma": Psig, "Sigma_w": Sw,
-            "Sigma_hat": Cl @ P @ Cl.T + Pw + Pv, "Theta_hat": Phi @ P @ Cl.T + Psig, "P0": Phi @ P @ Phi.T + Sw,
+            "C_loc": C_loc, "P_w": cov["P_w"], "P_v": cov["P_v"], "P_sigma": Psig, "Sigma_w": Sw,
+            "Sigma_hat": cov["Sigma_hat"], "Theta_hat": Phi @ P @ C_loc.T + Psig, "P0": Phi @ P @ Phi.T + Sw,
         }
 
     def agents(self) -> list["TeamAgent"]:
