@@ -137,30 +137,32 @@ class TeamCost:
 
     # --- builders ----------------------------------------------------------
     @classmethod
+    def _local_states(cls, n_agents: int, lam: float, d: int, coupling: str) -> "TeamCost":
+        """x = vec(x_1..x_n), x_i in R^d, L = I, S = (I + lam W) (x) I_d for an n x n coupling W."""
+        n = V.positive_int(n_agents, "n_agents")
+        d = V.positive_int(d, "d")
+        lam = _nonneg(lam, "lambda")
+        if coupling == "average":
+            W = np.ones((n, n)) / n**2
+        else:
+            D = _difference_matrix(n, closed=coupling == "ring")
+            W = D.T @ D
+        return cls(S=np.kron(np.eye(n) + lam * W, np.eye(d)), L=np.eye(n * d), n_agents=n)
+
+    @classmethod
     def average_tracking(cls, n_agents: int, lam: float, d: int = 1) -> "TeamCost":
         """Eq. (5): sum_i ||x_i - z_i||^2 + lam ||mean(x) - mean(z)||^2; S_ij = (delta_ij + lam/n^2) I, L = I."""
-        n = V.positive_int(n_agents, "n_agents")
-        lam = _nonneg(lam, "lambda")
-        S = np.kron(np.eye(n) + lam / n**2, np.eye(d))
-        return cls(S=S, L=np.eye(n * d), n_agents=n)
+        return cls._local_states(n_agents, lam, d, "average")
 
     @classmethod
     def platoon(cls, n_agents: int, lam: float, d: int = 1) -> "TeamCost":
         """Eq. (6): sum_i ||x_i - z_i||^2 + lam sum_{i<n} ||(x_i - x_{i+1}) - (z_i - z_{i+1})||^2."""
-        n = V.positive_int(n_agents, "n_agents")
-        lam = _nonneg(lam, "lambda")
-        D = _difference_matrix(n, closed=False)
-        S = np.kron(np.eye(n) + lam * D.T @ D, np.eye(d))
-        return cls(S=S, L=np.eye(n * d), n_agents=n)
+        return cls._local_states(n_agents, lam, d, "platoon")
 
     @classmethod
     def ring(cls, n_agents: int, lam: float, d: int = 1) -> "TeamCost":
         """Closed formation: as :meth:`platoon` plus the pair (n, 1) (for n >= 3)."""
-        n = V.positive_int(n_agents, "n_agents")
-        lam = _nonneg(lam, "lambda")
-        D = _difference_matrix(n, closed=True)
-        S = np.kron(np.eye(n) + lam * D.T @ D, np.eye(d))
-        return cls(S=S, L=np.eye(n * d), n_agents=n)
+        return cls._local_states(n_agents, lam, d, "ring")
 
     @classmethod
     def common_target(cls, n_agents: int, dx: int, lam: float) -> "TeamCost":
