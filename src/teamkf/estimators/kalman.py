@@ -29,7 +29,7 @@ from ..exceptions import ShapeError
 from ..models import LinearGaussianSystem, TeamCost
 from .base import Design, Packet
 
-__all__ = ["kalman_covariances", "design_centralized", "CentralizedDesign", "CentralizedAgent", "kalman_step"]
+__all__ = ["kalman_covariances", "design_centralized", "CentralizedDesign", "CentralizedAgent", "kalman_step", "predictor_errors"]
 
 Form = Literal["filter", "predictor"]
 
@@ -77,6 +77,24 @@ def steady_state(system: LinearGaussianSystem, *, check: bool = True) -> tuple[F
     return steady_state_kalman(system.A_at(0), system.C_stack(0), system.Q_at(0), system.R_stack(0), check=check)
 
 
+def predictor_errors(system: LinearGaussianSystem, K_at: Any, paths: Any, n_steps: int | None = None) -> FloatArray:
+    """eps(m) = x(m) - x^(m) of the one-step predictor (eq. 20) with gains ``K_at(m)``, from the primitive noises.
+
+    eps(0) = x(0) (x^(0) = 0) and eps(m+1) = A(m)[eps(m) - K(m)(C(m) eps(m) + v(m))] + w(m):
+    no state appears, so the recursion stays accurate when A is unstable.
+    Returns (n_runs, T, d_x) with T = ``n_steps`` (default: the paths' length).
+    """
+    T = paths.n_steps if n_steps is None else n_steps
+    v = paths.v_stack
+    eps = np.empty((paths.n_runs, T, system.dx))
+    eps[:, 0] = paths.x[:, 0]
+    for m in range(T - 1):
+        e = eps[:, m]
+        e = e - (e @ system.C_stack(m).T + v[:, m]) @ K_at(m).T
+        eps[:, m + 1] = e @ system.A_at(m).T + paths.w[:, m]
+    return eps
+
+
 @dataclass(frozen=True, eq=False)
 class CentralizedDesign(Design):
     """Centralized Kalman filter (or predictor) design.
@@ -97,6 +115,23 @@ class CentralizedDesign(Design):
 
     def K_at(self, k: int) -> FloatArray:
         return self.K if self.horizon is None else self.K[k]  # type: ignore[no-any-return]
+
+    def errors(self, paths: Any) -> FloatArray:
+        """L x(k) - z(k) for sampled paths, from the filter's error recursion (no cancellation).
+
+        eps(k) = x(k) - x^(k|k-1):  eps(0) = x(0),
+        eps(k+1) = A [eps(k) - K (C eps(k) + v(k))] + w(k)   (stable: A(I - KC) is)
+        filter error eps(k) - K (C eps(k) + v(k)).
+        """
+        sys, cost = self.system, self.cost
+        eps = predictor_errors(sys, self.K_at, paths)
+        out = []
+        for k in range(paths.n_steps):
+            e = eps[:, k]
+            if self.form == "filter":
+                e = e - (e @ sys.C_stack(k).T + paths.v_stack[:, k]) @ self.K_at(k).T
+            out.append(e @ cost.L_at(k).T)
+        return np.stack(out, axis=1)
 
     def agents(self) -> list["CentralizedAgent"]:
         """One agent per team member; each holds every measurement at once (a bound, not a network)."""

@@ -50,7 +50,7 @@ from ..models import LinearGaussianSystem, TeamCost
 from ..network.information import InformationStructure
 from .base import Design, Packet
 from .gamma import DENSE_MAX_BYTES, GammaProblem
-from .kalman import kalman_covariances, steady_state
+from .kalman import kalman_covariances, predictor_errors, steady_state
 
 __all__ = [
     "StaticTeamEstimate",
@@ -363,6 +363,38 @@ class TeamDesign(Design):
             "C_loc": C_loc, "P_w": cov["P_w"], "P_v": cov["P_v"], "P_sigma": Psig, "Sigma_w": Sw,
             "Sigma_hat": cov["Sigma_hat"], "Theta_hat": Phi @ P @ C_loc.T + Psig, "P0": Phi @ P @ Phi.T + Sw,
         }
+
+    def errors(self, paths: Any) -> FloatArray:
+        """L x(k) - z(k) on sampled paths, computed from the primitive noises (no cancellation).
+
+        With eps(m) = x(m) - x^(m) the common predictor's error (:func:`predictor_errors`),
+        the window errors eps(s+1) = A eps(s) + w(s) from eps(anchor), the
+        innovations y~(s) = C eps(s) + v(s), and e_i(k) = L_i eps(k) - F_i(k) I~_i(k):
+        exactly what the online agents produce, but without subtracting two
+        large numbers when A is unstable.
+        """
+        sys, cost, st = self.system, self.cost, self.structure
+        n, dz = sys.n_agents, cost.dz
+        eps_pred = predictor_errors(sys, self.K_at, paths, max(paths.n_steps - st.common_lag + 1, 1))
+        v = paths.v_stack
+        out = np.empty((paths.n_runs, paths.n_steps, n * dz))
+        for k in range(paths.n_steps):
+            a = max(0, k - st.common_lag + 1)
+            eps = eps_pred[:, a]
+            innov = []
+            for s in range(a, k + 1):
+                if s > a:
+                    eps = eps @ sys.A_at(s - 1).T + paths.w[:, s - 1]
+                innov.append(eps @ sys.C_stack(s).T + v[:, s])
+            Yw = np.concatenate(innov, axis=1)
+            e = eps @ cost.L_at(k).T
+            F = self.gain_at(k)
+            for i in range(n):
+                idx = _local_index(sys, st, i, k, a)
+                if idx.size:
+                    e[:, i * dz : (i + 1) * dz] -= Yw[:, idx] @ F[i].T
+            out[:, k] = e
+        return out
 
     def agents(self) -> list["TeamAgent"]:
         return [TeamAgent(self, i) for i in range(self.system.n_agents)]
