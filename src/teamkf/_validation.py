@@ -89,8 +89,9 @@ def covariance(
     arr = 0.5 * (arr + arr.T)
     if arr.size:
         lam_min = float(np.linalg.eigvalsh(arr)[0])
-        tol = SYM_RTOL * scale * arr.shape[0]
-        if definite and lam_min <= tol:
+        tol = SYM_RTOL * scale * arr.shape[0]  # round-off allowance for PSD
+        tol_pd = 10 * arr.shape[0] * np.finfo(float).eps * scale  # numerically singular for PD
+        if definite and lam_min <= tol_pd:
             raise NotPositiveDefiniteError(
                 f"{name}: expected a symmetric positive definite matrix, found smallest eigenvalue {lam_min:.3g}; "
                 "every noise covariance that is inverted must be strictly positive (add a small multiple of I)"

@@ -337,6 +337,30 @@ def _seed(text: str) -> int:
     return v
 
 
+def _cmd_reproduce(args: argparse.Namespace) -> int:
+    from . import experiments
+
+    if args.list or not args.name:
+        if not args.list:
+            print("teamkf: error: reproduce needs an experiment NAME (or --list)", file=sys.stderr)
+            return 2
+        for name in experiments.names():
+            print(f"{name:14s} {experiments.get(name).title}")
+        return 0
+    res = experiments.run(args.name, args.out, quick=args.quick)
+    if args.json:
+        print(json.dumps(res.to_json(), indent=2, default=float))
+        return 0
+    print(res.title)
+    print(res.format_table())
+    if res.notes:
+        print("\n" + res.notes)
+    if args.out:
+        where = ", ".join(res.figures) if res.figures else "no plots (pip install 'teamkf[plot]' for them)"
+        print(f"\nwritten to {args.out}: {res.name}.csv, {res.name}.json; {where}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     debug_help = "show the full traceback of an error"
     parser = argparse.ArgumentParser(
@@ -374,12 +398,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="a shorter horizon, for a fast look")
     p.set_defaults(func=_cmd_demo)
 
-    p = add("reproduce", f"a paper figure or table (not available yet in teamkf {_short_version()})")
+    p = add("reproduce", "regenerate a paper figure or table (teamkf reproduce --list)")
     p.add_argument("name", nargs="?", metavar="NAME")
-    p.add_argument("--list", action="store_true")
-    p.add_argument("--json", action="store_true")
-    p.add_argument("--out", metavar="DIR")
-    p.set_defaults(func=_cmd_not_yet)
+    p.add_argument("--list", action="store_true", help="list the experiments")
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.add_argument("--out", metavar="DIR", help="write the table (CSV, JSON) and plots (PNG) into DIR")
+    p.add_argument("--quick", action="store_true", help="a coarser grid, for a fast look")
+    p.set_defaults(func=_cmd_reproduce)
 
     p = add("sweep", f"a parameter sweep (not available yet in teamkf {_short_version()})")
     p.add_argument("sweep", nargs="?", metavar="SWEEP.toml")

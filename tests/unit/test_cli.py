@@ -222,7 +222,19 @@ def test_version(capsys):
     assert capsys.readouterr().out.strip() == f"teamkf {__version__}"
 
 
-@pytest.mark.parametrize("args", [["reproduce", "table1"], ["reproduce", "--list"], ["sweep", "s.toml", "--resume"]])
+def test_reproduce_list_run_and_unknown(capsys, tmp_path):
+    assert main(["reproduce", "--list"]) == 0
+    assert "fig1" in capsys.readouterr().out
+    assert main(["reproduce", "fig1", "--quick", "--json", "--out", str(tmp_path)]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["name"] == "fig1" and res["rows"]
+    assert (tmp_path / "fig1.csv").exists()
+    assert main(["reproduce", "no-such-figure"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("teamkf: error: reproduce: unknown experiment 'no-such-figure'")
+
+
+@pytest.mark.parametrize("args", [["sweep", "s.toml", "--resume"]])
 def test_later_commands_not_available_yet(capsys, args):
     assert main(args) == 2
     err = capsys.readouterr().err.strip().splitlines()

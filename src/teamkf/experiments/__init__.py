@@ -1,0 +1,150 @@
+"""Paper reproductions, one module per figure or table, registered by name.
+
+Every module in this package that calls :func:`register` is discovered
+automatically (no central list to edit). An experiment computes everything
+from the model parameters; published numbers may appear only as a labelled
+comparison column.
+
+>>> from teamkf.experiments import names
+>>> "fig1" in names()
+True
+"""
+
+from __future__ import annotations
+
+import csv
+import importlib
+import json
+import pkgutil
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+__all__ = ["Experiment", "ExperimentResult", "register", "get", "names", "run"]
+
+
+@dataclass(frozen=True, eq=False)
+class ExperimentResult:
+    """What an experiment produced.
+
+    Attributes
+    ----------
+    name, title : str
+    rows : list of dicts      the printed table (also written as ``<name>.csv``)
+    columns : list of str     column order of the table
+    notes : str               what to know when reading it (model choices, gaps to the paper)
+    figures : list of paths   PNG files written (empty without an output folder or matplotlib)
+    data : dict               extra arrays for plots and tests
+    """
+
+    name: str
+    title: str
+    rows: list[dict[str, Any]]
+    columns: list[str]
+    notes: str = ""
+    figures: list[str] = field(default_factory=list)
+    data: dict[str, Any] = field(default_factory=dict)
+
+    def format_table(self) -> str:
+        def fmt(v: Any) -> str:
+            if isinstance(v, float):
+                return f"{v:.6g}"
+            return "" if v is None else str(v)
+
+        cells = [[fmt(r.get(c)) for c in self.columns] for r in self.rows]
+        widths = [max([len(c)] + [len(row[j]) for row in cells]) for j, c in enumerate(self.columns)]
+        lines = ["  ".join(c.ljust(w) for c, w in zip(self.columns, widths)), "  ".join("-" * w for w in widths)]
+        lines += ["  ".join(v.rjust(w) for v, w in zip(row, widths)) for row in cells]
+        return "\n".join(lines)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"name": self.name, "title": self.title, "columns": self.columns, "rows": self.rows,
+                "notes": self.notes, "figures": self.figures}
+
+    def write_csv(self, out_dir: Path) -> Path:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        path = out_dir / f"{self.name}.csv"
+        with open(path, "w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=self.columns, extrasaction="ignore")
+            w.writeheader()
+            for r in self.rows:
+                w.writerow(r)
+        return path
+
+
+@dataclass(frozen=True)
+class Experiment:
+    name: str
+    title: str
+    func: Callable[..., ExperimentResult]
+
+
+_REGISTRY: dict[str, Experiment] = {}
+_LOADED = False
+
+
+def register(name: str, title: str) -> Callable[[Callable[..., ExperimentResult]], Callable[..., ExperimentResult]]:
+    """Decorator: ``@register("fig1", "...")`` on ``run(out_dir: Path | None, quick: bool) -> ExperimentResult``."""
+
+    def deco(func: Callable[..., ExperimentResult]) -> Callable[..., ExperimentResult]:
+        _REGISTRY[name] = Experiment(name, title, func)
+        return func
+
+    return deco
+
+
+def _load() -> None:
+    global _LOADED
+    if not _LOADED:
+        for m in pkgutil.iter_modules(__path__):
+            if not m.name.startswith("_"):
+                importlib.import_module(f"{__name__}.{m.name}")
+        _LOADED = True
+
+
+def names() -> list[str]:
+    _load()
+    return sorted(_REGISTRY)
+
+
+def get(name: str) -> Experiment:
+    from ..exceptions import ScenarioError
+
+    _load()
+    if name not in _REGISTRY:
+        raise ScenarioError(f"reproduce: unknown experiment {name!r}; available: {', '.join(sorted(_REGISTRY))} (teamkf reproduce --list)")
+    return _REGISTRY[name]
+
+
+def run(name: str, out_dir: str | Path | None = None, *, quick: bool = False) -> ExperimentResult:
+    """Run one experiment; with ``out_dir`` write its CSV (and PNG plots when matplotlib is installed)."""
+    exp = get(name)
+    out = Path(out_dir) if out_dir is not None else None
+    res = exp.func(out, quick)
+    if out is not None:
+        res.write_csv(out)
+        with open(out / f"{name}.json", "w") as fh:
+            json.dump(res.to_json(), fh, indent=1, default=float)
+    return res
+
+
+def plotting_available() -> bool:
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def save_figure(fig: Any, out_dir: Path | None, name: str, figures: Sequence[str] | list[str]) -> None:
+    """Save a matplotlib figure as ``out_dir/name.png`` and record the path."""
+    if out_dir is None:
+        return
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / f"{name}.png"
+    fig.savefig(path, dpi=120, bbox_inches="tight")
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    if isinstance(figures, list):
+        figures.append(str(path))
