@@ -11,6 +11,8 @@ from importlib.metadata import PackageNotFoundError, version
 from .estimators import (
     CentralizedDesign,
     Design,
+    KCFDesign,
+    design_kcf,
     StaticTeamEstimate,
     TeamDesign,
     design_centralized,
@@ -39,6 +41,8 @@ __all__ = [
     "TeamDesign",
     "StaticTeamEstimate",
     "design_centralized",
+    "design_kcf",
+    "KCFDesign",
     "design_mtmse",
     "design_mmse",
     "static_team_estimate",

@@ -142,12 +142,20 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     designs = sc.designs()
     mc: dict[str, Any] = {}
     seed = args.seed
+    from .simulation.evaluate import DEFAULT_MC_RUNS
+
+    mc_only = [name for name, d in designs.items() if d.stage_costs is None and d.average_cost is None]  # e.g. kcf
+    if runs is None and mc_only:
+        runs = DEFAULT_MC_RUNS
+        simulate = {name: designs[name] for name in mc_only}
+    else:
+        simulate = designs
     if runs is not None:
         from .simulation.monte_carlo import monte_carlo
 
         if seed is None:
             seed = int(np.random.SeedSequence().entropy % (2**32))  # type: ignore[operator]
-        mc = monte_carlo(designs, sc.horizon, runs, rng=seed)
+        mc = monte_carlo(simulate, sc.horizon, runs, rng=seed)
 
     notes: list[str] = []
     if args.plot:
@@ -156,6 +164,9 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     if args.json:
         out: dict[str, Any] = {"scenario": sc.name, "horizon": sc.horizon, "estimators": {}}
         for name, d in designs.items():
+            if name in mc_only:
+                out["estimators"][name] = {**mc[name].summary(), **({"variant": d.info["variant"]} if "variant" in d.info else {})}
+                continue
             entry = d.summary()
             if name in mc:
                 r = mc[name]
@@ -179,16 +190,20 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         headers.append("vs mtmse")
     if mc:
         headers += ["MC mean", "MC 95% CI"]
+    ref_value = _cost_value(ref) if ref is not None else None
     rows = []
     for name, d in designs.items():
-        v = _cost_value(d)
-        row = [name, _fmt(v)]
+        v = mc[name].total_mean if name in mc_only else _cost_value(d)
+        label = f"{name} [{d.info['variant']}]" if "variant" in d.info else name
+        row = [label, _fmt(v) + (" (MC)" if name in mc_only else "")]
         if ref is not None:
-            row.append(f"{100.0 * (v - _cost_value(ref)) / _cost_value(ref):+.2f} %")
+            row.append(f"{100.0 * (v - ref_value) / ref_value:+.2f} %")
         if mc:
-            r = mc[name]
-            lo, hi = r.ci95
-            row += [_fmt(r.total_mean), f"[{_fmt(lo)}, {_fmt(hi)}]"]
+            if name in mc:
+                lo, hi = mc[name].ci95
+                row += [_fmt(mc[name].total_mean), f"[{_fmt(lo)}, {_fmt(hi)}]"]
+            else:
+                row += ["", ""]
         rows.append(row)
     print(_header(sc))
     print()

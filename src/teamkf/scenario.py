@@ -70,11 +70,11 @@ __all__ = [
 ]
 
 #: estimators this version of teamkf can design from a scenario
-AVAILABLE_ESTIMATORS: tuple[str, ...] = ("mtmse", "mmse", "centralized")
+AVAILABLE_ESTIMATORS: tuple[str, ...] = ("mtmse", "mmse", "centralized", "kcf")
 #: names kept for estimators of later versions (Kalman-consensus, Consensus+Innovations KF)
-RESERVED_ESTIMATORS: tuple[str, ...] = ("kcf", "cikf")
+RESERVED_ESTIMATORS: tuple[str, ...] = ("cikf",)
 
-_TOP_KEYS = ("name", "horizon", "description", "system", "agents", "graph", "cost", "information", "estimators")
+_TOP_KEYS = ("name", "horizon", "description", "system", "agents", "graph", "cost", "information", "estimators", "kcf")
 _SYSTEM_KEYS = ("A", "Q", "Sigma_x")
 _AGENT_KEYS = ("C", "R")
 _GRAPH_KINDS = ("complete", "line", "ring", "star")
@@ -174,10 +174,34 @@ def _design_centralized(sc: Scenario, T: int | None) -> Any:
     return design_centralized(sc.system, sc.cost, T)
 
 
+def _kcf_options(raw: Mapping[str, Any]) -> dict[str, Any]:
+    """``[kcf]``: epsilon (> 0, default 0.1) and variant ("honest" | "ideal", default "honest")."""
+    t = raw.get("kcf", {})
+    if not isinstance(t, Mapping):
+        raise _fail("kcf", f"expected a table (epsilon = 0.1, variant = \"honest\"), found {_describe(t)}")
+    _check_keys(t, ("epsilon", "variant"), "kcf.")
+    eps = t.get("epsilon", 0.1)
+    if isinstance(eps, bool) or not isinstance(eps, (int, float)) or not eps > 0 or eps != eps or eps == float("inf"):
+        raise _fail("kcf.epsilon", f"expected a positive number (the consensus step), found {eps!r}")
+    variant = t.get("variant", "honest")
+    if variant not in ("honest", "ideal"):
+        raise _fail("kcf.variant", f'expected "honest" (messages over the graph, with delays) or "ideal" (exchange within the step), found {variant!r}')
+    return {"epsilon": float(eps), "variant": variant}
+
+
+def _design_kcf(sc: Scenario, T: int | None) -> Any:
+    from .estimators.consensus import design_kcf
+
+    if T is None:
+        raise _fail("horizon", "the Kalman-consensus filter (kcf) is evaluated by Monte Carlo over a finite horizon; give horizon = T")
+    return design_kcf(sc.system, sc.cost, sc.graph, T, **_kcf_options(sc.raw))
+
+
 _DESIGNERS: dict[str, Callable[[Scenario, int | None], Any]] = {
     "mtmse": _design_mtmse,
     "mmse": _design_mmse,
     "centralized": _design_centralized,
+    "kcf": _design_kcf,
 }
 
 
@@ -248,6 +272,10 @@ def scenario_from_dict(d: Mapping[str, Any], source: str = "<dict>") -> Scenario
         information = InformationStructure.from_graph(graph)
     _check_horizon(system, cost, horizon)
     estimators = _estimators(raw["estimators"])
+    if "kcf" in raw:
+        _kcf_options(raw)
+    if "kcf" in estimators and horizon is None:
+        raise _fail("estimators", "kcf needs a finite horizon (it is evaluated by Monte Carlo); give horizon = T or remove kcf")
     return Scenario(name, horizon, system, cost, graph, information, estimators, raw, source)
 
 

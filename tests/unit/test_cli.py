@@ -171,7 +171,7 @@ def test_debug_shows_traceback(tmp_path, where):
 @pytest.mark.parametrize("case, expected", [
     ("missing", "teamkf: error: {dir}/nope.toml: no such scenario file"),
     ("syntax", "teamkf: error: {dir}/syntax.toml: invalid TOML: "),
-    ("kcf", "teamkf: error: estimators[1]: estimator 'kcf' is not available in this version of teamkf"),
+    ("cikf", "teamkf: error: estimators[1]: estimator 'cikf' is not available in this version of teamkf"),
     ("typo", "teamkf: error: cost.lamda: unknown key; did you mean 'lambda'?"),
     ("graph", "teamkf: error: graph: expected a strongly connected graph"),
     ("population", "teamkf: error: population: population scenarios are not supported yet in this version"),
@@ -182,8 +182,8 @@ def test_errors_in_process(tmp_path, capsys, case, expected):
         p = tmp_path / "nope.toml"
     elif case == "syntax":
         p = write_scenario(tmp_path, "syntax", replace={"lambda = 100.0": "lambda = = 100.0"})
-    elif case == "kcf":
-        p = write_scenario(tmp_path, "kcf", replace={'estimators = ["mtmse", "mmse", "centralized"]': 'estimators = ["mtmse", "kcf"]'})
+    elif case == "cikf":
+        p = write_scenario(tmp_path, "cikf", replace={'estimators = ["mtmse", "mmse", "centralized"]': 'estimators = ["mtmse", "cikf"]'})
     elif case == "typo":
         p = write_scenario(tmp_path, "typo", replace={"lambda = 100.0": "lamda = 100.0"})
     elif case == "graph":

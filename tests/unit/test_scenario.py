@@ -399,7 +399,26 @@ def test_bad_input_names_the_key(mutate, prefix):
     assert msg.startswith(prefix), msg
 
 
-@pytest.mark.parametrize("name", ["kcf", "cikf"])
+def test_kcf_in_scenarios():
+    d = base_dict()
+    d["estimators"] = ["mtmse", "kcf"]
+    d["kcf"] = {"epsilon": 0.05, "variant": "ideal"}
+    sc = scenario_from_dict(d)
+    k = sc.design("kcf")
+    assert k.info["variant"] == "ideal" and k.epsilon == 0.05
+    for bad, prefix in [({"epsilon": -1.0}, "kcf.epsilon: expected a positive number"),
+                        ({"variant": "fast"}, "kcf.variant: expected"), ({"eps": 1.0}, "kcf.eps: unknown key")]:
+        d2 = base_dict()
+        d2["estimators"] = ["kcf"]
+        d2["kcf"] = bad
+        assert error_of(d2).startswith(prefix)
+    d3 = base_dict()
+    d3.pop("horizon", None)
+    d3["estimators"] = ["mtmse", "kcf"]
+    assert error_of(d3).startswith("estimators: kcf needs a finite horizon")
+
+
+@pytest.mark.parametrize("name", ["cikf"])
 def test_reserved_estimators(name):
     d = base_dict()
     d["estimators"] = ["mtmse", name]

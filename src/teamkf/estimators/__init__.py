@@ -1,11 +1,14 @@
 """Estimators: centralized Kalman filter, MTMSE (Theorems 1-3) and the per-agent MMSE baseline."""
 
 from .base import Design
+from .consensus import KCFDesign, design_kcf
 from .kalman import CentralizedDesign, design_centralized, kalman_covariances
 from .team import StaticTeamEstimate, TeamDesign, design_mmse, design_mtmse, static_team_estimate
 
 __all__ = [
     "Design",
+    "KCFDesign",
+    "design_kcf",
     "CentralizedDesign",
     "TeamDesign",
     "StaticTeamEstimate",

@@ -68,6 +68,11 @@ class Design:
             raise ValueError(f"{self.estimator}: an infinite-horizon design has no total cost; use average_cost")
         return float(np.sum(self.stage_costs))
 
+    @property
+    def cost_value(self) -> float:
+        """total_cost for a finite horizon, average_cost for the steady state."""
+        return self.total_cost if self.horizon is not None else float(self.average_cost)  # type: ignore[arg-type]
+
     def summary(self) -> dict[str, Any]:
         """A JSON-ready summary in the `teamkf evaluate --json` format."""
         if self.horizon is None:

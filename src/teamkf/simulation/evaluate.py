@@ -13,6 +13,8 @@ __all__ = ["evaluate_point", "ANALYTIC"]
 
 #: estimators with an analytic team cost
 ANALYTIC = ("mtmse", "mmse", "centralized")
+#: Monte Carlo runs for estimators without a closed form when none are asked for (the paper uses 1000)
+DEFAULT_MC_RUNS = 1000
 
 
 def evaluate_point(scenario: Any, estimators: Sequence[str] | None = None, runs: int = 0, seed: int = 0) -> list[dict[str, Any]]:
@@ -28,7 +30,8 @@ def evaluate_point(scenario: Any, estimators: Sequence[str] | None = None, runs:
     designs = scenario.designs(names)
     key = "total_cost" if scenario.horizon is not None else "average_cost"
     rows: list[dict[str, Any]] = []
-    mc = monte_carlo(designs, scenario.horizon, runs, rng=seed) if (runs and scenario.horizon is not None) else {}
+    mc_runs = runs or (DEFAULT_MC_RUNS if any(n not in ANALYTIC for n in names) else 0)
+    mc = monte_carlo(designs, scenario.horizon, mc_runs, rng=seed) if (mc_runs and scenario.horizon is not None) else {}
     for name, d in designs.items():
         row: dict[str, Any] = {"estimator": name, "runs": int(runs), "seed": int(seed)}
         if name in ANALYTIC:
@@ -39,6 +42,6 @@ def evaluate_point(scenario: Any, estimators: Sequence[str] | None = None, runs:
                 row.update({"mc_cost": mc[name].total_mean, "mc_ci95_low": lo, "mc_ci95_high": hi})
         else:
             lo, hi = mc[name].ci95
-            row.update({"method": "monte-carlo", key: mc[name].total_mean, "ci95_low": lo, "ci95_high": hi})
+            row.update({"method": "monte-carlo", key: mc[name].total_mean, "ci95_low": lo, "ci95_high": hi, "runs": mc_runs})
         rows.append(row)
     return rows

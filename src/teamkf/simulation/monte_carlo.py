@@ -93,6 +93,7 @@ class MonteCarloResult:
 def _team_errors(design: Any, paths: Any, path: str, graph: Any) -> FloatArray:
     if path == "errors":
         return design.errors(paths)  # type: ignore[no-any-return]
+    graph = graph if graph is not None else getattr(design, "graph", None)
     if graph is not None:
         from .runtime import graph_agents, run_graph
 
