@@ -6,7 +6,7 @@
     teamkf design   SCENARIO [--json] [--out GAINS.npz]
     teamkf demo     [--out DIR] [--quick]
     teamkf reproduce ...      (a later version)
-    teamkf sweep ...          (a later version)
+    teamkf sweep    SWEEP.toml [--scheduler ADDRESS|local|serial] [--out RESULTS] [--resume] [--no-progress] [--json]
     teamkf --version
 
 ``SCENARIO`` is a scenario file (TOML, or JSON by its ``.json`` extension) or
@@ -324,6 +324,48 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    from .simulation.sweep import load_sweep, run_sweep
+
+    spec = load_sweep(args.sweep)  # everything is checked before anything is written
+    out = Path(args.out) if args.out else Path(f"{Path(args.sweep).stem}.parquet")
+    scheduler = args.scheduler or "local"
+    try:
+        res = run_sweep(spec, out, scheduler=scheduler, resume=args.resume, progress=not args.no_progress,
+                        n_workers=args.workers)
+    except KeyboardInterrupt:
+        print(f"teamkf: interrupted; the finished points are kept in {out}; run the same command with --resume to continue",
+              file=sys.stderr)
+        return 130
+    key = res.cost_key
+    if args.json:
+        print(dumps_json({
+            "sweep": spec.name, "scenario": spec.scenario, "out": str(out), "points": spec.n_points,
+            "computed": res.n_computed, "resumed": res.n_resumed, "runs": spec.runs, "seed": spec.seed,
+            "estimators": list(spec.estimators), "grid": {k: list(v) for k, v in spec.grid.items()},
+            "rows": [dict(r) for r in res.rows],
+        }))
+        return 0
+    where = {"serial": "in-process (serial)", "local": "Dask LocalCluster"}.get(str(scheduler), f"Dask scheduler {scheduler}")
+    print(f"sweep {spec.name}: {spec.n_points} points x {len(spec.estimators)} estimators, base scenario {spec.base.name}, "
+          f"runs {spec.runs}, seed {spec.seed}; {where}")
+    print()
+    by_point: dict[str, dict[str, Any]] = {}
+    for r in res.rows:
+        by_point.setdefault(r["point_id"], {k: r[k] for k in res.grid_keys})[r["estimator"]] = r.get(key)
+    limit = 30
+    table = [[*(p[k] for k in res.grid_keys), *(_fmt(p[e]) if p.get(e) is not None else "-" for e in spec.estimators)]
+             for p in list(by_point.values())[:limit]]
+    print(format_table([*res.grid_keys, *spec.estimators], table, align="r" * (len(res.grid_keys) + len(spec.estimators))))
+    if len(by_point) > limit:
+        print(f"  ... and {len(by_point) - limit} more points")
+    mc = " (Monte Carlo means for estimators without one; analytic estimators also have mc_cost)" if spec.runs else ""
+    print(f"\n  {_cost_label(spec.base.horizon) if key == 'total_cost' else 'average cost'} per estimator{mc}")
+    print(f"\nresults: {out} ({len(res.rows)} rows; {res.n_computed} points computed now, {res.n_resumed} already there); "
+          f"read them with pandas.read_parquet({str(out)!r}) or teamkf.simulation.results.SweepResult.load")
+    return 0
+
+
 def _cmd_not_yet(args: argparse.Namespace) -> int:
     print(f"teamkf: {args.command} is not available yet in teamkf {_short_version()}", file=sys.stderr)
     return 2
@@ -421,12 +463,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="a coarser grid, for a fast look")
     p.set_defaults(func=_cmd_reproduce)
 
-    p = add("sweep", f"a parameter sweep (not available yet in teamkf {_short_version()})")
-    p.add_argument("sweep", nargs="?", metavar="SWEEP.toml")
-    p.add_argument("--scheduler", metavar="ADDRESS")
-    p.add_argument("--out", metavar="RESULTS")
-    p.add_argument("--resume", action="store_true")
-    p.set_defaults(func=_cmd_not_yet)
+    p = add("sweep", "run a parameter sweep of a scenario (in-process or on Dask) and write the results as Parquet")
+    p.add_argument("sweep", metavar="SWEEP.toml", help="sweep file: base scenario, [grid] of dotted keys, runs, seed, estimators")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="'local' (default: a Dask LocalCluster, one worker per core), 'serial' (in-process) "
+                        "or the address of a Dask scheduler (tcp://host:8786)")
+    p.add_argument("--out", metavar="RESULTS", help="results folder of Parquet parts (default: <sweep file stem>.parquet)")
+    p.add_argument("--resume", action="store_true", help="keep the points already in RESULTS and compute the missing ones")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--workers", type=_positive_int, metavar="N", help="worker processes of the local cluster (default: one per core)")
+    p.add_argument("--json", action="store_true", help="print one JSON object (counts and every row)")
+    p.set_defaults(func=_cmd_sweep)
     return parser
 
 

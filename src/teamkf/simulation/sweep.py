@@ -606,8 +606,13 @@ def run_sweep(
     points = spec.points
     todo = [p for p in points if p.point_id not in done]
     writer = _Writer(spec, out, pa)
-    bar = _Progress(len(points), len(points) - len(todo), progress and bool(todo), f"sweep {spec.name}")
+    bar = _Progress(len(points), len(points) - len(todo), False, f"sweep {spec.name}")
     n_ok = 0
+
+    def start() -> None:
+        nonlocal bar
+        writer.create()
+        bar = _Progress(len(points), len(points) - len(todo), progress, f"sweep {spec.name}")
 
     def finish(p: SweepPoint, rows: list[dict[str, Any]]) -> None:
         nonlocal n_ok
@@ -625,7 +630,7 @@ def run_sweep(
 
     try:
         if todo and serial:
-            writer.create()
+            start()
             for p in todo:
                 sc = spec.scenario_for(p)
                 try:
@@ -639,7 +644,7 @@ def run_sweep(
             try:
                 from distributed import as_completed
 
-                writer.create()
+                start()
                 token = uuid.uuid4().hex[:8]
                 by_key: dict[Any, SweepPoint] = {}
                 for p in todo:
