@@ -14,7 +14,8 @@ import pytest
 
 from teamkf import __version__
 from teamkf.cli import dumps_json, format_table, main
-from teamkf.demo import PUBLISHED_TABLE_I, platoon_rows, run_demo, shedding_rows, uav_rows
+from teamkf import experiments
+from teamkf.demo import run_demo
 
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGED = ROOT / "src" / "teamkf" / "scenarios"
@@ -299,55 +300,31 @@ def test_demo_quick_cli(tmp_path, capsys):
     out_dir = tmp_path / "plots"
     assert main(["demo", "--quick", "--out", str(out_dir)]) == 0
     text = capsys.readouterr().out
-    for part in ("1. UAV formation", "2. Vehicular platoon", "3. Information shedding", "published (paper, Table I)",
-                 "180.46", "193.72", "252.09", "cannot come from the model"):
+    for part in ("1. UAV formation", "2. Vehicular platoon", "3. Information shedding", "J_T*/lambda (paper, Table I)",
+                 "180.46", "193.72", "252.09", "cannot come from the stated model", "KCF"):
         assert part in text, part
     if HAS_MPL:
-        assert (out_dir / "uav_delta_mmse.png").exists() and (out_dir / "platoon_delta_mmse.png").exists()
+        assert (out_dir / "fig3.png").exists() and (out_dir / "fig5.png").exists() and (out_dir / "table1.png").exists()
     else:
         assert "pip install 'teamkf[plot]'" in text
         assert not out_dir.exists()
 
 
-def test_demo_rows_ordering():
-    rows = uav_rows(horizon=30) + platoon_rows(horizon=30)
-    assert len(rows) == 6 + 4
-    for r in rows:
-        assert r["centralized"] <= r["mtmse"] <= r["mmse"], r
-        assert r["delta_mmse_pct"] == pytest.approx(100 * (r["mmse"] - r["mtmse"]) / r["mtmse"])
-    uav = [r for r in rows if "lambda_over_n2" in r]
-    assert {(r["n_agents"], r["lambda_over_n2"]) for r in uav} == {(n, x) for n in (4, 10) for x in (0.1, 1.0, 10.0)}
-    for r in uav:
-        assert r["lambda"] == pytest.approx(r["lambda_over_n2"] * r["n_agents"] ** 2)
-
-
 def test_demo_uav_row_equals_packaged_scenario():
-    """The demo's lambda/n^2 = 10 row is `teamkf evaluate uav-4`."""
+    """The demo's UAV n = 4, lambda/n^2 = 10 row is `teamkf evaluate uav-4`."""
     from teamkf.scenario import load_packaged
 
-    row = [r for r in uav_rows(ns=(4,), lambda_over_n2=(10.0,))][0]
+    rows = experiments.run("fig3", quick=True).rows
+    row = [r for r in rows if r["n"] == 4 and r["lambda/n^2"] == 10.0][0]
     ds = load_packaged("uav-4").designs()
-    assert row["mtmse"] == pytest.approx(ds["mtmse"].total_cost, rel=1e-12)
-    assert row["mmse"] == pytest.approx(ds["mmse"].total_cost, rel=1e-12)
-
-
-def test_demo_shedding_rows():
-    rows = {r["structure"]: r for r in shedding_rows(horizon=30)}
-    assert list(rows) == ["IS0", "IS1", "IS2"]
-    assert rows["IS0"]["local_vectors"] == (6, 8, 8, 6)  # Table I: 6 for agents 1 and 4, 8 for 2 and 3
-    assert rows["IS1"]["local_vectors"] == (3, 4, 4, 3)
-    assert rows["IS2"]["local_vectors"] == (3, 3, 3, 3)
-    assert rows["IS0"]["local_scalars"] == (24, 32, 32, 24)
-    assert rows["IS0"]["J_over_lambda"] <= rows["IS1"]["J_over_lambda"]
-    assert rows["IS0"]["J_over_lambda"] <= rows["IS2"]["J_over_lambda"]
-    for k, v in PUBLISHED_TABLE_I.items():
-        assert rows[k]["published"] == v
+    assert row["J* (MTMSE)"] == pytest.approx(ds["mtmse"].total_cost, rel=1e-12)
+    assert row["J mmse"] == pytest.approx(ds["mmse"].total_cost, rel=1e-12)
 
 
 def test_run_demo_returns_text(tmp_path, capsys):
     text = run_demo(out_dir=tmp_path / "d", quick=True, echo=False)
     assert capsys.readouterr().out == ""
-    assert "Delta^mmse" in text and "Computed in" in text
+    assert "Delta mmse" in text and "Computed in" in text
 
 
 # ---------------------------------------------------------------------------
