@@ -235,13 +235,6 @@ def test_reproduce_list_run_and_unknown(capsys, tmp_path):
     assert len(err) == 1 and err[0].startswith("teamkf: error: reproduce: unknown experiment 'no-such-figure'")
 
 
-@pytest.mark.parametrize("args", [["sweep", "s.toml", "--resume"]])
-def test_later_commands_not_available_yet(capsys, args):
-    assert main(args) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].endswith(f"is not available yet in teamkf {SHORT_VERSION}")
-
-
 # ---------------------------------------------------------------------------
 # design
 # ---------------------------------------------------------------------------
