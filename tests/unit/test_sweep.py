@@ -517,15 +517,18 @@ seed = 3
     try:
         pids = client.run(os.getpid)
         killed: list[int] = []
+        lost: list[str] = []
 
         def kill_one(point, rows):
-            if not killed:
-                victim = sorted(pids.values())[0]
-                os.kill(victim, signal.SIGKILL)
-                killed.append(victim)
+            if not killed:  # after the first point: kill a worker that is running a point
+                busy = {addr: tasks for addr, tasks in client.processing().items() if tasks}
+                addr = sorted(busy)[0]
+                os.kill(pids[addr], signal.SIGKILL)
+                killed.append(pids[addr])
+                lost.extend(busy[addr])
 
         res = run_sweep(spec, tmp_path / "dask", client, progress=False, evaluate=slow_evaluate, on_point_done=kill_one)
-        assert killed and res.n_computed == spec.n_points
+        assert killed and lost and res.n_computed == spec.n_points
         client.wait_for_workers(1, timeout=30)
         assert killed[0] not in client.run(os.getpid).values()  # the worker really died
     finally:
