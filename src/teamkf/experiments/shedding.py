@@ -49,18 +49,25 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
         from ..plotting import _pyplot
 
         plt = _pyplot()
-        fig, ax = plt.subplots(figsize=(6.5, 4.5))
-        ax.scatter(dims, [j / LAMBDA for j in J], s=18, color="0.6", label="hop-window structures")
+        fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
         fr = sorted(front, key=lambda i: dims[i])
-        ax.plot([dims[i] for i in fr], [J[i] / LAMBDA for i in fr], "o-", color="C0", label="Pareto front (dim, J)")
-        for i, h in enumerate(cands):
-            if h.m in NAMED:
-                ax.annotate(NAMED[h.m], (dims[i], J[i] / LAMBDA), textcoords="offset points", xytext=(5, 5), color="C3")
-        ax.set_yscale("log")
-        ax.set_xlabel("total local dimension (scalars)")
-        ax.set_ylabel("J_T*/lambda")
-        ax.set_title("Information shedding on the platoon (lambda = 100)")
-        ax.legend()
+        jmin = min(J) / LAMBDA
+        for ax, zoom in zip(axes, (False, True)):
+            ax.scatter(dims, [j / LAMBDA for j in J], s=18, color="0.6", label="hop-window structures")
+            ax.plot([dims[i] for i in fr], [J[i] / LAMBDA for i in fr], "o-", color="C0", label="Pareto front (dim, J)")
+            for i, h in enumerate(cands):
+                if h.m in NAMED:
+                    ax.annotate(NAMED[h.m], (dims[i], J[i] / LAMBDA), textcoords="offset points", xytext=(5, 5), color="C3")
+            ax.set_xlabel("total local dimension (scalars)")
+            ax.set_ylabel("J_T*/lambda")
+            if zoom:
+                ax.set_ylim(0.98 * jmin, 1.2 * jmin)
+                ax.set_title("zoom near the optimum")
+            else:
+                ax.set_yscale("log")
+                ax.set_title("all structures")
+                ax.legend()
+        fig.suptitle(f"Information shedding on the platoon (lambda = {LAMBDA:g})")
         save_figure(fig, out_dir, "shedding", figures)
     return ExperimentResult(
         "shedding", f"Hop-window structures on the platoon: size vs J_T*/lambda (lambda = 100, T = {horizon})", rows,
