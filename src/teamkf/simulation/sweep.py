@@ -394,9 +394,9 @@ def sweep_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", source:
     else:
         estimators = tuple(base.estimators)
     if runs == 0:
-        for k, e in enumerate(estimators):
+        for idx, e in enumerate(estimators):
             if e not in ANALYTIC:
-                raise _fail(f"estimators[{k}]", f"{e!r} has no analytic cost; set runs >= 2 to evaluate it by Monte Carlo")
+                raise _fail(f"estimators[{idx}]", f"{e!r} has no analytic cost; set runs >= 2 to evaluate it by Monte Carlo")
 
     grid, kinds = _grid(data["grid"])
     spec = SweepSpec(scenario, runs, seed, estimators, grid, base, name=name, description=description,

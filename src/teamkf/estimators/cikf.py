@@ -1,0 +1,1042 @@
+r"""Consensus+Innovations Kalman filter (CIKF) with optimized gains (Das & Moura, IEEE TSP 2016).
+
+Every agent n keeps an estimate of the *pseudo-state* y = G x and of the
+state x. At step k it combines its own pseudo-observation with its
+neighbours' previous pseudo-state predictions (one exchange per step, unit
+delay), then updates its state estimate from its pseudo-state estimate:
+
+.. math::
+
+    \hat y^n_{k|k} &= \hat y^n_{k|k-1} + \sum_{l \in \Omega_n} B^{nl}_k (\hat y^l_{k|k-1} - \hat y^n_{k|k-1})
+                      + B^{nn}_k (\tilde z^n_k - \tilde H_n \hat y^n_{k|k-1} - \check H_n \hat x^n_{k|k-1})   \quad (21) \\
+    \hat x^n_{k|k} &= \hat x^n_{k|k-1} + K^n_k (\hat y^n_{k|k} - G \hat x^n_{k|k-1})                        \quad (22) \\
+    \hat y^n_{k+1|k} &= \tilde A \hat y^n_{k|k} + \check A \hat x^n_{k|k}, \qquad
+    \hat x^n_{k+1|k} = A \hat x^n_{k|k}                                                                   \quad (23, 24)
+
+Notation (paper -> teamkf; steps 0-based, the paper's i is our k)
+-----------------------------------------------------------------
+================================  ==============================================================
+paper                             here
+================================  ==============================================================
+M, N                              ``system.dx``, ``system.n_agents``
+A, V, Sigma_0                     ``system.A``, ``system.Q``, ``system.Sigma_x`` (x̄_0 = 0)
+H_n, R_n, z^n_i                   ``system.C[n]``, ``system.R[n]``, y_n(k)
+H̄_n = H_n' R_n^-1 H_n             ``model.H_bar[n]``                                   (5)
+G = sum_n H̄_n                     ``model.G``                                          (7)
+G†, Ĩ = I - G† G                  ``model.G_pinv``, ``model.I_tilde``                  (15)
+Ã = G A G†, Ǎ = G A Ĩ             ``model.A_tilde``, ``model.A_check``                 (11, 13)
+H̃_n = H̄_n G†, Ȟ_n = H̄_n Ĩ        ``model.H_tilde[n]``, ``model.H_check[n]``           (12, 14)
+λ_1, λ_m                          smallest / largest non-zero eigenvalue of G (Theorem 3)
+Ω_n                               ``graph.in_neighbors(n)`` (every edge must have delay 1)
+B^{nl}, B^{nn}, K^n               :meth:`CIKFDesign.paper_gains` (full coordinates)
+P, Σ, Π, Γ                        pseudo-state, state and cross error covariances (34)-(40)
+================================  ==============================================================
+
+Reduced coordinates (how G need not be invertible)
+--------------------------------------------------
+Let G = U Λ U' with U (M x r) an orthonormal basis of range(G) (eigenvalues
+below ``G_RTOL`` times the largest count as zero). Every pseudo-state error
+lies in range(G) (e_{0|-1} = G(x_0 - x̄_0), and (32) maps into range(G)),
+and so does every gain's output, so the filter runs on y_r = U' y in R^r:
+
+* G_r = Λ U' (r x M), Ã_r = U' Ã U = Λ U' A U Λ^-1, Ǎ_r = U' Ǎ = Λ U' A Ĩ;
+* Ȟ_n = 0 identically: null(G) is the intersection of the null spaces of
+  the PSD H̄_n, so H̄_n Ĩ = 0 and H_n Ĩ = 0 — the Ȟ terms of (21), (30),
+  (41)-(42) and Theorem 4 drop out (checked literally in the tests);
+* the M-dimensional innovation z̃^n - H̃_n ŷ^n = H_n' R_n^-1 u^n is a
+  full-column-rank image of the M_n-dimensional u^n = z^n - C̃_n ŷ_r^n with
+  C̃_n = H_n U Λ^-1, so the Theorem-4 gain on it is B_u^n = B^{nn} H_n' R_n^-1
+  (r x M_n) and the estimate is the same; :meth:`CIKFDesign.paper_gains`
+  maps back to B^{nn} = U B_u^n (H_n' R_n^-1)†, B^{nl} = U B_r^{nl} U',
+  K^n = K_r^n U'.
+
+In these coordinates Σ_ν̃ has size d_n r + M_n instead of (d_n + 1) M and
+its innovation block C̃ P C̃' + R_n is positive definite.
+
+The corrected covariance iterations (Algorithm 2)
+-------------------------------------------------
+Derived from Lemma 2, eqs. (30)-(33), and the definitions (34)-(40); with
+M_k = I - B^C - B^I D̃_H (block-sparse, the graph's pattern), F_k = I - K (I ⊗ G)
+(block-diagonal):
+
+.. math::
+
+    \Gamma &= \Pi_{k|k-1} M_k^\top                                                   && (41) \\
+    P_{k|k} &= M_k P_{k|k-1} M_k^\top + B^I \bar D_H B^{I\top}                         && (42) \\
+    \Sigma_{k|k} &= F \Sigma_{k|k-1} F^\top + F \Gamma K^\top + K \Gamma^\top F^\top + K P_{k|k} K^\top  && (43)^* \\
+    \Pi_{k|k} &= F \Gamma + K P_{k|k}                                                 && (44) \\
+    P_{k+1|k} &= \tilde A P \tilde A^\top + \check A \Sigma \check A^\top + \tilde A \Pi^\top \check A^\top
+                 + \check A \Pi \tilde A^\top + (1 1^\top) \otimes (G V G)              && (45)^* \\
+    \Sigma_{k+1|k} &= A \Sigma A^\top + (1 1^\top) \otimes V                          && (46) \\
+    \Pi_{k+1|k} &= A \Pi \tilde A^\top + A \Sigma \check A^\top + (1 1^\top) \otimes (V G)   && (47)
+
+(all Ã, Ǎ, A act blockwise, I_N ⊗ ·; the filter-step covariances on the
+right of (45)-(47)). Corrections to the extracted text (*): in (43) the cross
+terms need Γ_k, not Π_{k|k-1} (ε_{k|k} = F ε_{k|k-1} + K e_{k|k} and
+E[ε_{k|k-1} e_{k|k}'] = Γ_k, eq. 40); in (45) the Σ and cross terms need Ǎ,
+not Ã (e_{k+1|k} = Ã e_{k|k} + Ǎ ε_{k|k} + G v_k, eq. 32); the initial
+conditions are (1 1') ⊗ Σ_0, (1 1') ⊗ (G Σ_0 G), (1 1') ⊗ (Σ_0 G) (the
+printed J ⊗ Σ_0 with J = (1 1') ⊗ I has the wrong size). These forms hold
+for *any* gains (Joseph-like), so the iteration gives the true covariance of
+the filter that is run, whatever the pseudo-inverse cut-off.
+
+Theorem 4 (the gains), in reduced coordinates, with ν̃^n = [e^n - e^{l_1}; ...;
+e^n - e^{l_d}; u^n], u^n = C̃_n e^n + r^n and ν^n = G_r ε^n_{k|k-1} - e^n_{k|k}:
+
+.. math::
+
+    \hat B^n = \Sigma_{e\tilde\nu} \Sigma_{\tilde\nu}^{+}, \quad
+    \Sigma_{e\tilde\nu} = [P^{nn} - P^{nl_1}, \dots, P^{nn} - P^{nl_d}, P^{nn} \tilde C_n^\top], \\
+    [\Sigma_{\tilde\nu}]_{qs} = P^{nn} - P^{nl_s} - P^{l_q n} + P^{l_q l_s}, \quad
+    [\Sigma_{\tilde\nu}]_{q,u} = (P^{nn} - P^{l_q n}) \tilde C_n^\top, \quad
+    [\Sigma_{\tilde\nu}]_{u,u} = \tilde C_n P^{nn} \tilde C_n^\top + R_n, \\
+    K^n = (\Sigma^{nn} G_r^\top - \Gamma^{nn}) \Sigma_\nu^{+}, \quad
+    \Sigma_\nu = G_r \Sigma^{nn} G_r^\top - G_r \Gamma^{nn} - \Gamma^{nn\top} G_r^\top + P^{nn}_{k|k}.
+
+The paper writes Σ_{yν̃} = E[(y - ȳ) ν̃'] and drops E[(ŷ^n - ȳ) ν̃'] — the
+MSE-minimizing gain is E[e^n ν̃'] Σ_ν̃^+, which is what its block formulas
+(and ours) compute.
+
+The pseudo-inverse cut-off
+--------------------------
+Σ_ν̃ is singular at k = 0 (all agents start from the same prior, so every
+difference e^n - e^l is exactly 0) and, later, its difference blocks are
+formed by cancellation (P^{nn} - P^{nl} - P^{ln} + P^{ll} of nearly equal
+blocks), so their smallest eigenvalues carry absolute errors of order
+eps ||P||. ``_psd_solve`` keeps eigen-directions above ``rcond`` times the
+largest eigenvalue. A near-exact cut-off (1e-12) amplifies those
+round-off directions into large gains; the default ``rcond = 1e-9`` drops
+them and costs far less than 0.01 dB (``docs/cikf.md``, tested).
+
+Cost (M = N = 50: NM = 2500)
+----------------------------
+M_k has N + 2|E| non-zero M x M blocks and K, F, I ⊗ Ã, I ⊗ Ǎ are
+block-diagonal, so every product is done block-wise: one GEMM per agent over
+its closed neighbourhood for M_k, batched GEMMs for the block-diagonal
+factors. No NM x NM matrix is ever multiplied by another as a dense matrix
+(``method="dense"`` does exactly that, as the benchmark's baseline).
+
+References
+----------
+.. [1] S. Das and J. M. F. Moura, "Consensus+Innovations Distributed Kalman
+   Filter with Optimized Gains", IEEE Trans. Signal Processing, 2016 (eqs.
+   cited above; Algorithms 1-2; Theorems 3-4).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any, Literal, Sequence
+
+import numpy as np
+import scipy.linalg as sla
+
+from .. import _validation as V
+from .._validation import FloatArray
+from ..exceptions import DetectabilityError, GraphError, InformationStructureError, ShapeError
+from ..models import LinearGaussianSystem, TeamCost
+from ..network.graph import CommGraph
+from .base import Design
+
+__all__ = [
+    "PseudoStateModel",
+    "pseudo_state_model",
+    "CIKFDesign",
+    "CIKFAgent",
+    "design_cikf",
+    "TrackingCapacity",
+    "tracking_bound",
+    "tracking_capacity",
+    "G_RTOL",
+    "DEFAULT_RCOND",
+]
+
+#: eigenvalues of G below G_RTOL * lambda_max(G) count as zero (rank of G)
+G_RTOL = 1e-10
+#: default relative cut-off of the pseudo-inverses in Theorem 4 (see the module docstring)
+DEFAULT_RCOND = 1e-9
+
+Form = Literal["filter", "predictor"]
+Method = Literal["structured", "dense"]
+
+
+# ---------------------------------------------------------------------------
+# Proposition 1: the pseudo-state model
+# ---------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class PseudoStateModel:
+    r"""The pseudo-state model of Proposition 1, eqs. (4)-(16), for any (A, H) — G may be singular.
+
+    Full (paper) coordinates: ``G``, ``G_pinv`` (G†), ``I_tilde`` (Ĩ), ``A_tilde``
+    (Ã), ``A_check`` (Ǎ), ``H_bar``, ``H_tilde``, ``H_check`` (one M x M matrix per
+    agent, stacked on the first axis). Reduced coordinates on range(G):
+    ``U`` (M x r), ``lam`` (the r non-zero eigenvalues of G), ``G_r`` = Λ U',
+    ``A_tilde_r``, ``A_check_r``, ``C_tilde`` (per agent, M_n x r) and
+    ``innov_map`` (per agent, H_n' R_n^-1, M x M_n).
+    """
+
+    G: FloatArray
+    G_pinv: FloatArray
+    I_tilde: FloatArray
+    A_tilde: FloatArray
+    A_check: FloatArray
+    H_bar: FloatArray
+    H_tilde: FloatArray
+    H_check: FloatArray
+    U: FloatArray
+    lam: FloatArray
+    G_r: FloatArray
+    A_tilde_r: FloatArray
+    A_check_r: FloatArray
+    C_tilde: tuple
+    innov_map: tuple
+
+    @property
+    def rank(self) -> int:
+        """rank(G) = r."""
+        return int(self.lam.size)
+
+    @property
+    def dx(self) -> int:
+        return int(self.G.shape[0])
+
+    @property
+    def invertible(self) -> bool:
+        """Whether G is invertible (distributed observability, [5] of the paper)."""
+        return self.rank == self.dx
+
+    @property
+    def lambda_1(self) -> float:
+        """Smallest non-zero eigenvalue of G (Theorem 3)."""
+        return float(self.lam.min())
+
+    @property
+    def lambda_m(self) -> float:
+        """Largest eigenvalue of G (Theorem 3)."""
+        return float(self.lam.max())
+
+
+def _frozen_stack(mats: Sequence[FloatArray]) -> FloatArray:
+    return V.frozen(np.stack(mats)) if len(mats) else V.frozen(np.zeros((0, 0, 0)))
+
+
+def pseudo_state_model(system: LinearGaussianSystem, *, rtol: float = G_RTOL) -> PseudoStateModel:
+    """Build G, G†, Ĩ, Ã, Ǎ, H̄_n, H̃_n, Ȟ_n (Proposition 1) and the reduced coordinates on range(G).
+
+    Parameters
+    ----------
+    system : LinearGaussianSystem (time-invariant)
+    rtol : float
+        Eigenvalues of G below ``rtol * lambda_max(G)`` count as zero.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from teamkf import LinearGaussianSystem
+    >>> from teamkf.estimators.cikf import pseudo_state_model
+    >>> sys = LinearGaussianSystem(A=np.eye(3), Q=1.0, Sigma_x=1.0, C=[[[1.0, 0, 0]], [[0, 1.0, 0]]], R=1.0)
+    >>> m = pseudo_state_model(sys)
+    >>> m.rank, m.invertible, float(np.abs(m.H_check).max())
+    (2, False, 0.0)
+    """
+    if not isinstance(system, LinearGaussianSystem):
+        raise ShapeError(f"system: expected a LinearGaussianSystem, found {type(system).__name__}")
+    system.require_time_invariant("the CIKF (its pseudo-state model, Proposition 1)")
+    M, N = system.dx, system.n_agents
+    A = system.A_at(0)
+    H_bar, maps = [], []
+    for n in range(N):
+        C, R = system.C_at(n, 0), system.R_at(n, 0)
+        Hm = sla.cho_solve(sla.cho_factor(R, lower=True), C).T  # H_n' R_n^-1 (M x M_n)
+        Hb = Hm @ C
+        H_bar.append(0.5 * (Hb + Hb.T))
+        maps.append(Hm)
+    G = np.sum(H_bar, axis=0)
+    G = 0.5 * (G + G.T)
+    w, Q = np.linalg.eigh(G)
+    top = max(float(w[-1]), 0.0)
+    if top <= 0.0:
+        raise DetectabilityError("system: expected at least one observed direction (G = sum_n H_n' R_n^-1 H_n != 0), found G = 0; "
+                                 "give some agent a non-zero C")
+    keep = w > float(rtol) * top
+    U, lam = Q[:, keep], w[keep]
+    G_pinv = (U / lam) @ U.T
+    I_tilde = np.eye(M) - U @ U.T
+    A_tilde = G @ A @ G_pinv
+    A_check = G @ A @ I_tilde
+    G_r = lam[:, None] * U.T
+    A_tilde_r = (lam[:, None] * (U.T @ A @ U)) / lam[None, :]
+    A_check_r = lam[:, None] * (U.T @ A @ I_tilde)
+    C_tilde = tuple(V.frozen((system.C_at(n, 0) @ U) / lam[None, :]) for n in range(N))
+    return PseudoStateModel(
+        V.frozen(G), V.frozen(G_pinv), V.frozen(I_tilde), V.frozen(A_tilde), V.frozen(A_check),
+        _frozen_stack(H_bar), _frozen_stack([Hb @ G_pinv for Hb in H_bar]), _frozen_stack([Hb @ I_tilde for Hb in H_bar]),
+        V.frozen(U), V.frozen(lam), V.frozen(G_r), V.frozen(A_tilde_r), V.frozen(A_check_r), C_tilde,
+        tuple(V.frozen(m) for m in maps),
+    )
+
+
+# ---------------------------------------------------------------------------
+# numerical kernels
+# ---------------------------------------------------------------------------
+def _psd_solve(S_xy: FloatArray, S_yy: FloatArray, rcond: float) -> FloatArray:
+    """S_xy S_yy^+ with a truncated eigen pseudo-inverse (directions below rcond * lambda_max dropped)."""
+    S = 0.5 * (S_yy + S_yy.T)
+    w, Q = sla.eigh(S, driver="evr", check_finite=False)
+    top = float(w[-1]) if w.size else 0.0
+    if not np.isfinite(top):
+        raise FloatingPointError("CIKF gain design: a covariance overflowed (the error dynamics diverge; see tracking_capacity)")
+    keep = w > rcond * max(top, np.finfo(float).tiny)
+    Qk = Q[:, keep]
+    return ((S_xy @ Qk) / w[keep]) @ Qk.T  # type: ignore[no-any-return]
+
+
+def _sym(X: FloatArray) -> FloatArray:
+    X += X.T
+    X *= 0.5
+    return X
+
+
+class _Structured:
+    """Block products that never form an NM x NM operator: M_k by closed neighbourhoods, the rest block-diagonally."""
+
+    def __init__(self, N: int, r: int, hoods: Sequence[np.ndarray], r_idx: Sequence[np.ndarray]):
+        self.N, self.r, self.hoods, self.r_idx = N, r, hoods, r_idx
+
+    def m_right(self, X: FloatArray, rows: Sequence[FloatArray]) -> FloatArray:
+        """X M' (M given by its block rows over closed neighbourhoods)."""
+        r = self.r
+        out = np.empty((X.shape[0], self.N * r))
+        for n, row in enumerate(rows):
+            out[:, n * r : (n + 1) * r] = X[:, self.r_idx[n]] @ row.T
+        return out
+
+    def m_left(self, rows: Sequence[FloatArray], X: FloatArray) -> FloatArray:
+        """M X."""
+        r = self.r
+        out = np.empty((self.N * r, X.shape[1]))
+        for n, row in enumerate(rows):
+            out[n * r : (n + 1) * r] = row @ X[self.r_idx[n]]
+        return out
+
+    def bd_left(self, B: FloatArray, X: FloatArray) -> FloatArray:
+        """blockdiag(B) X; B is (N, a, b) or one shared (a, b)."""
+        b = B.shape[-1]
+        C = X.shape[1]
+        X3 = np.ascontiguousarray(X).reshape(self.N, b, C)
+        return np.matmul(B, X3).reshape(-1, C)  # type: ignore[no-any-return]
+
+    def bd_right(self, X: FloatArray, B: FloatArray) -> FloatArray:
+        """X blockdiag(B)'; B is (N, a, b) or one shared (a, b)."""
+        Rr = X.shape[0]
+        b = B.shape[-1]
+        X3 = np.ascontiguousarray(X).reshape(Rr, self.N, b)
+        if B.ndim == 2:
+            return (X3.reshape(-1, b) @ B.T).reshape(Rr, -1)  # type: ignore[no-any-return]
+        Y = np.matmul(X3.transpose(1, 0, 2), B.transpose(0, 2, 1))  # (N, Rr, a)
+        return np.ascontiguousarray(Y.transpose(1, 0, 2)).reshape(Rr, -1)
+
+
+class _Dense(_Structured):
+    """The same products with every operator formed as a dense NM x NM matrix (benchmark baseline)."""
+
+    def _m(self, rows: Sequence[FloatArray]) -> FloatArray:
+        r = self.r
+        Mf = np.zeros((self.N * r, self.N * r))
+        for n, row in enumerate(rows):
+            Mf[n * r : (n + 1) * r, self.r_idx[n]] = row
+        return Mf
+
+    def _bd(self, B: FloatArray) -> FloatArray:
+        if B.ndim == 2:
+            return np.kron(np.eye(self.N), B)
+        return sla.block_diag(*B)  # type: ignore[no-any-return]
+
+    def m_right(self, X: FloatArray, rows: Sequence[FloatArray]) -> FloatArray:
+        return X @ self._m(rows).T  # type: ignore[no-any-return]
+
+    def m_left(self, rows: Sequence[FloatArray], X: FloatArray) -> FloatArray:
+        return self._m(rows) @ X  # type: ignore[no-any-return]
+
+    def bd_left(self, B: FloatArray, X: FloatArray) -> FloatArray:
+        return self._bd(B) @ X  # type: ignore[no-any-return]
+
+    def bd_right(self, X: FloatArray, B: FloatArray) -> FloatArray:
+        return X @ self._bd(B).T  # type: ignore[no-any-return]
+
+
+def _diag_blocks(X: FloatArray, N: int, a: int) -> FloatArray:
+    """The N diagonal a x a blocks of an Na x Na matrix, (N, a, a)."""
+    X4 = X.reshape(N, a, N, a)
+    return np.ascontiguousarray(X4[np.arange(N), :, np.arange(N), :])
+
+
+# ---------------------------------------------------------------------------
+# the design
+# ---------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class CIKFDesign(Design):
+    r"""Gains (Algorithm 2, Theorem 4) and error covariances (corrected eqs. 41-47) of the CIKF.
+
+    Attributes
+    ----------
+    system, cost, graph
+    model : PseudoStateModel
+    form : "filter" (ẑ_n(k) = L_n x̂^n_{k|k}) or "predictor" (ẑ_n(k) = L_n x̂^n_{k|k-1})
+    rcond : float             pseudo-inverse cut-off of Theorem 4
+    neighbors : tuple         Ω_n, in the order of the consensus gain blocks
+    B_cons : tuple over steps of tuples over agents of (r, d_n r) arrays
+        [B_r^{n l_1}, ..., B_r^{n l_d}] in reduced coordinates.
+    B_innov : tuple over steps of tuples over agents of (r, M_n) arrays    B_u^n
+    K : (T, N, M, r)          state gains K_r^n
+    Sigma_pred, Sigma_filt : (T, N, M, M)   agent n's Σ^{nn}_{k|k-1} and Σ^{nn}_{k|k}
+    P_pred_trace : (T, N)     tr P^{nn}_{k|k-1} (pseudo-state MSE, reduced = full coordinates)
+    stage_costs : (T,)        E[c(x(k), ẑ(k))] of the chosen form (sum over agents of the MSE for the default cost)
+    """
+
+    system: Any = None
+    cost: Any = None
+    graph: Any = None
+    model: Any = None
+    form: str = "filter"
+    rcond: float = DEFAULT_RCOND
+    neighbors: tuple = ()
+    B_cons: tuple = ()
+    B_innov: tuple = ()
+    K: Any = None
+    Sigma_pred: Any = None
+    Sigma_filt: Any = None
+    P_pred_trace: Any = None
+
+    @property
+    def n_agents(self) -> int:
+        return int(self.system.n_agents)
+
+    # --- analytic MSE -------------------------------------------------------
+    def mse(self, form: Form | None = None, *, per_agent: bool = False) -> FloatArray:
+        """tr Σ^{nn} per step: (T, N) with ``per_agent``, else the average over agents (T,).
+
+        ``form="predictor"``: Σ_{k|k-1} (the paper's Fig. 4 plots tr Σ_{i+1|i}, i.e. entries 1..T-1);
+        ``form="filter"``: Σ_{k|k}.
+        """
+        f = self.form if form is None else form
+        if f not in ("filter", "predictor"):
+            raise ShapeError(f"form: expected 'filter' or 'predictor', found {f!r}")
+        S = self.Sigma_filt if f == "filter" else self.Sigma_pred
+        t = np.trace(S, axis1=2, axis2=3)
+        return t if per_agent else t.mean(axis=1)  # type: ignore[no-any-return]
+
+    # --- gains --------------------------------------------------------------
+    def gains(self, k: int) -> dict[str, Any]:
+        """Reduced-coordinate gains at step k: ``B_cons`` (per agent (r, d_n r)), ``B_innov`` (per agent (r, M_n)), ``K`` (N, M, r)."""
+        k = self._step(k)
+        return {"B_cons": self.B_cons[k], "B_innov": self.B_innov[k], "K": self.K[k]}
+
+    def _step(self, k: int) -> int:
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k < self.horizon:  # type: ignore[operator]
+            raise ShapeError(f"k: expected a step in 0..{self.horizon - 1} (horizon = {self.horizon}), found {k!r}")  # type: ignore[operator]
+        return int(k)
+
+    def m_rows(self, k: int) -> list[FloatArray]:
+        """Block rows of M_k = I - B^C - B^I D̃_H in reduced coordinates over each closed neighbourhood [n, l_1, ..., l_d]."""
+        k = self._step(k)
+        r = self.model.rank
+        rows = []
+        for n in range(self.n_agents):
+            Bc, Bu = self.B_cons[k][n], self.B_innov[k][n]
+            d = len(self.neighbors[n])
+            row = np.empty((r, (d + 1) * r))
+            row[:, :r] = np.eye(r) - Bu @ self.model.C_tilde[n] - Bc.reshape(r, d, r).sum(axis=1)
+            row[:, r:] = Bc
+            rows.append(row)
+        return rows
+
+    def paper_gains(self, k: int) -> dict[str, FloatArray]:
+        """B^C, B^I and K of eqs. (60)-(63) in the paper's full coordinates, as dense NM x NM matrices (small problems).
+
+        B^{nl} = U B_r^{nl} U', B^{nn} = U B_u^n (H_n' R_n^-1)†, K^n = K_r^n U'. They act on the
+        paper's M-dimensional pseudo-state and pseudo-observations; the estimate they give is the
+        reduced-coordinate filter's (module docstring).
+        """
+        k = self._step(k)
+        m, N, M = self.model, self.n_agents, self.system.dx
+        U = m.U
+        BC = np.zeros((N * M, N * M))
+        BI = np.zeros((N * M, N * M))
+        K = np.zeros((N * M, N * M))
+        r = m.rank
+        for n in range(N):
+            sl = slice(n * M, (n + 1) * M)
+            Bc = self.B_cons[k][n]
+            for q, l in enumerate(self.neighbors[n]):
+                Bnl = U @ Bc[:, q * r : (q + 1) * r] @ U.T
+                BC[sl, l * M : (l + 1) * M] = -Bnl
+                BC[sl, sl] += Bnl
+            BI[sl, sl] = U @ self.B_innov[k][n] @ np.linalg.pinv(m.innov_map[n])
+            K[sl, sl] = self.K[k, n] @ U.T
+        return {"B_C": BC, "B_I": BI, "K": K}
+
+    # --- online: graph agents -------------------------------------------------
+    def graph_agents(self) -> list["CIKFAgent"]:
+        """Algorithm 1: one message-passing agent per node for :func:`teamkf.simulation.runtime.run_graph`."""
+        return [CIKFAgent(self, n) for n in range(self.n_agents)]
+
+    def agents(self) -> list[Any]:
+        raise NotImplementedError(
+            "CIKF agents exchange pseudo-state predictions, not measurement packets: run them with "
+            "run_graph(design.graph_agents(), design.graph, y), or use design.simulate(y) / design.errors(paths)"
+        )
+
+    # --- vectorized Monte Carlo ---------------------------------------------------
+    def _check_y(self, y: Any) -> tuple[list[FloatArray], int, int]:
+        if hasattr(y, "y") and not isinstance(y, (list, tuple, np.ndarray)):
+            y = y.y
+        n = self.n_agents
+        if not isinstance(y, (list, tuple)) or len(y) != n:
+            raise ShapeError(f"y: expected a list of {n} measurement arrays (one per agent), found {type(y).__name__}"
+                             + (f" of length {len(y)}" if isinstance(y, (list, tuple)) else ""))
+        ys = [V.as_float_array(yi, f"y[{i}]") for i, yi in enumerate(y)]
+        n_runs, T = ys[0].shape[:2] if ys[0].ndim == 3 else (0, 0)
+        for i, yi in enumerate(ys):
+            want = (n_runs, T, self.system.dy[i])
+            if yi.ndim != 3 or yi.shape != want:
+                raise ShapeError(f"y[{i}]: expected shape (n_runs, n_steps, d_y^{i}) = {want}, found {yi.shape}")
+        if T > self.horizon:  # type: ignore[operator]
+            raise ShapeError(f"y: expected at most horizon = {self.horizon} steps, found {T}; design a longer horizon")
+        return ys, n_runs, T
+
+    def _recursion(self, ys: Sequence[FloatArray] | None, x0: FloatArray | None, w: FloatArray | None, n_runs: int, T: int,
+                   form: str) -> FloatArray:
+        """Algorithm 1 on data (``ys``) or its error recursion (30)-(33) on the primitive noises (x0, w, ys = v)."""
+        m, sys, cost = self.model, self.system, self.cost
+        N, M, r = self.n_agents, sys.dx, m.rank
+        A = sys.A_at(0)
+        errors = x0 is not None
+        if errors:
+            yh = np.repeat((x0 @ m.G_r.T)[:, None, :], N, axis=1)  # e^n_{0|-1} = G_r (x0 - x̄0)
+            xh = np.repeat(x0[:, None, :], N, axis=1)  # ε^n_{0|-1}
+        else:
+            yh = np.zeros((n_runs, N, r))  # ŷ^n_{0|-1} = G_r x̄_0 = 0
+            xh = np.zeros((n_runs, N, M))
+        dz = cost.dz
+        out = np.empty((n_runs, T, N * dz))
+        yf = np.empty_like(yh)
+        for k in range(T):
+            Bc_k, Bu_k = self.B_cons[k], self.B_innov[k]
+            for n in range(N):
+                nb = self.neighbors[n]
+                own = yh[:, n]
+                # innovation u^n = y_n - C̃_n ŷ^n (data)  |  C̃_n e^n + v_n (errors)
+                if errors:
+                    u = own @ m.C_tilde[n].T + ys[n][:, k]  # type: ignore[index]
+                    sign = -1.0
+                else:
+                    u = ys[n][:, k] - own @ m.C_tilde[n].T  # type: ignore[index]
+                    sign = 1.0
+                acc = own + sign * (u @ Bu_k[n].T)
+                if nb:
+                    # consensus: + Σ_l B^{nl} (ŷ^l - ŷ^n) on data, + Σ_l B^{nl} (e^l - e^n) on errors (same sign)
+                    diff = (yh[:, list(nb)] - own[:, None, :]).reshape(n_runs, -1)
+                    acc = acc + diff @ Bc_k[n].T
+                yf[:, n] = acc
+            # ν = ŷ_f - G_r x̂ (data) | G_r ε - e_f (errors);  x̂_f = x̂ + K ν | ε_f = ε - K ν
+            nu = (xh @ m.G_r.T - yf) if errors else (yf - xh @ m.G_r.T)
+            corr = np.matmul(nu.transpose(1, 0, 2), self.K[k].transpose(0, 2, 1)).transpose(1, 0, 2)
+            xf = xh - corr if errors else xh + corr
+            src = xf if form == "filter" else xh
+            for n in range(N):
+                out[:, k, n * dz : (n + 1) * dz] = src[:, n] @ cost.L_block(n, k).T
+            if k + 1 < T:
+                yh = yf @ m.A_tilde_r.T + xf @ m.A_check_r.T
+                xh = xf @ A.T
+                if errors:
+                    yh += (w[:, k] @ m.G_r.T)[:, None, :]  # type: ignore[index]
+                    xh += w[:, k][:, None, :]  # type: ignore[index]
+                yf = np.empty_like(yh)
+        return out
+
+    def simulate(self, y: Any, *, form: Form | None = None) -> FloatArray:
+        """Algorithm 1 for every agent at once, batched over runs: ẑ (n_runs, T', N d_z), agent-major.
+
+        Parameters
+        ----------
+        y : list over agents of (n_runs, T', d_y^n) arrays (T' <= horizon), or a ``Paths``
+        form : override the design's form ("filter" or "predictor")
+
+        Equals ``run_graph(design.graph_agents(), design.graph, y)`` (tested).
+        """
+        ys, n_runs, T = self._check_y(y)
+        f = self.form if form is None else form
+        if f not in ("filter", "predictor"):
+            raise ShapeError(f"form: expected 'filter' or 'predictor', found {f!r}")
+        return self._recursion(ys, None, None, n_runs, T, f)
+
+    def errors(self, paths: Any, *, form: Form | None = None) -> FloatArray:
+        r"""Team errors L x(k) - ẑ(k), (n_runs, T', N d_z), from the primitive noises (no cancellation).
+
+        The error recursion of Lemma 2 with Ȟ_n = 0, in reduced coordinates:
+
+            e^n_{k|k} = e^n - Σ_l B^{nl}(e^n - e^l) - B_u^n (C̃_n e^n + v_n(k))       (30)
+            ε^n_{k|k} = ε^n - K^n (G_r ε^n - e^n_{k|k})                              (31)
+            e^n_{k+1|k} = Ã_r e^n_{k|k} + Ǎ_r ε^n_{k|k} + G_r w(k)                   (32)
+            ε^n_{k+1|k} = A ε^n_{k|k} + w(k)                                         (33)
+
+        from ε^n_{0|-1} = x(0), e^n_{0|-1} = G_r x(0). Only x(0), w and v enter, so
+        nothing large is subtracted when A is unstable; the result is what the online
+        agents produce (``L x - simulate(y)``) up to round-off.
+        """
+        x = V.as_float_array(paths.x, "paths.x")
+        sys, N = self.system, self.n_agents
+        if x.ndim != 3 or x.shape[2] != sys.dx:
+            raise ShapeError(f"paths.x: expected shape (n_runs, n_steps, {sys.dx}), found {x.shape}")
+        n_runs, T = x.shape[:2]
+        if T > self.horizon:  # type: ignore[operator]
+            raise ShapeError(f"paths: expected at most horizon = {self.horizon} steps, found {T}")
+        w = np.asarray(paths.w, dtype=float)
+        v = [np.asarray(vi, dtype=float) for vi in paths.v]
+        if w.shape != (n_runs, max(T - 1, 0), sys.dx) or len(v) != N or any(vi.shape != (n_runs, T, sys.dy[i]) for i, vi in enumerate(v)):
+            raise ShapeError(f"paths: expected w of shape {(n_runs, max(T - 1, 0), sys.dx)} and {N} noise arrays v[i] of shape "
+                             f"(n_runs, {T}, d_y^i), found w {w.shape} and {[vi.shape for vi in v]}")
+        f = self.form if form is None else form
+        if f not in ("filter", "predictor"):
+            raise ShapeError(f"form: expected 'filter' or 'predictor', found {f!r}")
+        return self._recursion(v, x[:, 0], w, n_runs, T, f)
+
+    def costs(self, paths: Any) -> FloatArray:
+        """Team cost c(x(k), ẑ(k)) per run and step, (n_runs, T'), from :meth:`errors`."""
+        e = self.errors(paths)
+        return np.stack([np.einsum("ra,ab,rb->r", e[:, k], self.cost.S_at(k), e[:, k]) for k in range(e.shape[1])], axis=1)
+
+    # --- tracking capacity ---------------------------------------------------
+    def tracking_bound(self, k: int | None = None, *, subspace: Literal["range", "full"] = "range") -> float:
+        """Theorem 3's bound λ_1 / (λ_m ||I - B^C - B^I D̃_H||_2) with this design's gains at step k (default: the last)."""
+        return tracking_bound(self, self.horizon - 1 if k is None else k, subspace=subspace)  # type: ignore[operator]
+
+
+class CIKFAgent:
+    """Agent n of Algorithm 1 on the message-passing runtime.
+
+    Its state is (ŷ^n_{k|k-1} in reduced coordinates, x̂^n_{k|k-1}). At step k it
+    receives its own measurement y_n(k) and the payloads its neighbours sent at
+    k - 1: their pseudo-state predictions ŷ^l_{k|k-1} in the paper's coordinates
+    (M-dimensional, ŷ = U ŷ_r). At k = 0 nothing has arrived and every
+    neighbour's prediction is the common prior G x̄_0 = 0 (Assumption 3), so
+    the differences are zero (and so are the step-0 consensus gains). It
+    returns L_n x̂^n_{k|k} (or L_n x̂^n_{k|k-1}) and sends ŷ^n_{k+1|k}.
+    """
+
+    def __init__(self, design: CIKFDesign, index: int):
+        self.design = design
+        self.index = index
+
+    def init_state(self, n_runs: int) -> dict[str, FloatArray]:
+        d = self.design
+        return {"y": np.zeros((n_runs, d.model.rank)), "x": np.zeros((n_runs, d.system.dx))}
+
+    def step(self, state: dict[str, FloatArray], k: int, own: FloatArray, inbox: Sequence[Any]) -> tuple[dict[str, FloatArray], FloatArray, FloatArray]:
+        d, n = self.design, self.index
+        if k >= d.horizon:  # type: ignore[operator]
+            raise ShapeError(f"k: the CIKF was designed for horizon = {d.horizon} steps, found step {k}; design a longer horizon")
+        m = d.model
+        yh, xh = state["y"], state["x"]
+        nb = d.neighbors[n]
+        got = {j: p for (j, s, p) in inbox if s == k - 1}
+        if k > 0 and sorted(got) != list(nb):
+            raise InformationStructureError(
+                f"CIKF agent {n} at step {k}: expected the step-{k - 1} predictions of its neighbours {list(nb)}, "
+                f"found messages from {sorted(got)}; run it on the graph it was designed for (unit delays)"
+            )
+        u = np.asarray(own, dtype=float) - yh @ m.C_tilde[n].T
+        yf = yh + u @ d.B_innov[k][n].T
+        if nb and k > 0:
+            diff = np.concatenate([np.asarray(got[l], dtype=float) @ m.U - yh for l in nb], axis=1)
+            yf = yf + diff @ d.B_cons[k][n].T
+        xf = xh + (yf - xh @ m.G_r.T) @ d.K[k, n].T
+        z = (xf if d.form == "filter" else xh) @ d.cost.L_block(n, k).T
+        yn = yf @ m.A_tilde_r.T + xf @ m.A_check_r.T
+        xn = xf @ d.system.A_at(0).T
+        return {"y": yn, "x": xn}, z, yn @ m.U.T
+
+
+# ---------------------------------------------------------------------------
+# Algorithm 2
+# ---------------------------------------------------------------------------
+def _neighbors(graph: CommGraph, n_agents: int) -> tuple[tuple[int, ...], ...]:
+    if not isinstance(graph, CommGraph):
+        raise GraphError(f"graph: expected a CommGraph, found {type(graph).__name__}; build one with CommGraph.from_networkx(G, default_delay=1)")
+    if graph.n_agents != n_agents:
+        raise GraphError(f"graph: expected a graph of {n_agents} agents (as the system), found one of {graph.n_agents}")
+    slow = [(i, j, d) for (i, j, d) in graph.edges if d != 1]
+    if slow:
+        raise GraphError(f"graph: expected every edge to have delay 1 (the CIKF exchanges once per step), found {len(slow)} "
+                         f"edges with other delays, e.g. {slow[0]}; use graph.with_delay(1)")
+    return tuple(graph.in_neighbors(n) for n in range(n_agents))
+
+
+def _stage_cost(cost: TeamCost, k: int, S_full: FloatArray, blocks: FloatArray, mse_like: bool, ops: _Structured) -> float:
+    if mse_like:
+        return float(np.trace(blocks, axis1=1, axis2=2).sum())
+    Lb = np.stack([cost.L_block(n, k) for n in range(blocks.shape[0])])
+    W = ops.bd_right(ops.bd_left(Lb, S_full), Lb)
+    return float(np.sum(cost.S_at(k) * W))
+
+
+def _is_mse(cost: TeamCost, N: int, M: int, T: int) -> bool:
+    """S = I and every L_n = I (the stage cost is then the sum of the agents' traces)."""
+    if cost.dz != M:
+        return False
+    steps = range(T) if cost.is_time_varying else range(1)
+    return all(np.array_equal(cost.S_at(k), np.eye(N * M)) and all(np.array_equal(cost.L_block(n, k), np.eye(M)) for n in range(N))
+               for k in steps)
+
+
+def _iterate(system: LinearGaussianSystem, model: PseudoStateModel, nbrs: Sequence[Sequence[int]], cost: TeamCost, T: int,
+             rcond: float, form: str, ops: _Structured, fixed: CIKFDesign | None, equations: str) -> dict[str, Any]:
+    N, M, r = system.n_agents, system.dx, model.rank
+    A, Vq, S0 = system.A_at(0), system.Q_at(0), system.Sigma_x
+    Gr, At, Ac = model.G_r, model.A_tilde_r, model.A_check_r
+    Ct = model.C_tilde
+    Rn = [system.R_at(n, 0) for n in range(N)]
+    has_check = bool(np.any(Ac != 0.0))
+    Ax = At @ model.U.T  # Ã acting on x-space quantities (only for the printed eq. 45)
+    mse_like = _is_mse(cost, N, M, T)
+    # initial conditions (corrected): (1 1') ⊗ G Σ0 G, (1 1') ⊗ Σ0 G, (1 1') ⊗ Σ0
+    P = np.tile(Gr @ S0 @ Gr.T, (N, N))
+    Pi = np.tile(S0 @ Gr.T, (N, N))
+    Sig = np.tile(S0, (N, N))
+    GVG, VG = np.tile(Gr @ Vq @ Gr.T, (N, N)), np.tile(Vq @ Gr.T, (N, N))
+    VV = np.tile(Vq, (N, N))
+    eyeM, eyer = np.eye(M), np.eye(r)
+    B_cons, B_innov = [], []
+    K_all = np.empty((T, N, M, r))
+    Sp, Sf_all = np.empty((T, N, M, M)), np.empty((T, N, M, M))
+    Ptr = np.empty((T, N))
+    stage = np.empty(T)
+    for k in range(T):
+        Sp[k] = _diag_blocks(Sig, N, M)
+        Pd = _diag_blocks(P, N, r)
+        Ptr[k] = np.trace(Pd, axis1=1, axis2=2)
+        if form == "predictor":
+            stage[k] = _stage_cost(cost, k, Sig, Sp[k], mse_like, ops)
+        # --- Theorem 4: consensus + innovation gains (reduced coordinates) ---
+        rows, Bc_k, Bu_k = [], [], []
+        noise = np.empty((N, r, r))
+        for n in range(N):
+            nb = list(nbrs[n])
+            d, mn = len(nb), Ct[n].shape[0]
+            Pnn = Pd[n]
+            if fixed is not None:
+                Bc, Bu = fixed.B_cons[k][n], fixed.B_innov[k][n]
+            else:
+                dr = d * r
+                Snu = np.empty((dr + mn, dr + mn))
+                Sey = np.empty((r, dr + mn))
+                if d:
+                    li = np.concatenate([np.arange(l * r, (l + 1) * r) for l in nb])
+                    Pnl = P[n * r : (n + 1) * r][:, li]  # [P^{n l_1} ... P^{n l_d}]
+                    Pln = P[li][:, n * r : (n + 1) * r]
+                    Pll = P[np.ix_(li, li)]
+                    Snu[:dr, :dr] = np.tile(Pnn, (d, d)) - np.tile(Pnl, (d, 1)) - np.tile(Pln, (1, d)) + Pll
+                    Snu[:dr, dr:] = (np.tile(Pnn, (d, 1)) - Pln) @ Ct[n].T
+                    Snu[dr:, :dr] = Snu[:dr, dr:].T
+                    Sey[:, :dr] = np.tile(Pnn, (1, d)) - Pnl
+                Snu[dr:, dr:] = Ct[n] @ Pnn @ Ct[n].T + Rn[n]
+                Sey[:, dr:] = Pnn @ Ct[n].T
+                Bhat = _psd_solve(Sey, Snu, rcond)
+                Bc, Bu = Bhat[:, :dr], Bhat[:, dr:]
+            Bc_k.append(Bc)
+            Bu_k.append(Bu)
+            row = np.empty((r, (d + 1) * r))
+            row[:, :r] = eyer - Bu @ Ct[n] - (Bc.reshape(r, d, r).sum(axis=1) if d else 0.0)
+            row[:, r:] = Bc
+            rows.append(row)
+            noise[n] = Bu @ Rn[n] @ Bu.T
+        B_cons.append(tuple(Bc_k))
+        B_innov.append(tuple(Bu_k))
+        # --- (41), (42) ---
+        Gam = ops.m_right(Pi, rows)  # Γ = Π M'            (NM x Nr)
+        Pf = ops.m_left(rows, ops.m_right(P, rows))
+        for n in range(N):
+            Pf[n * r : (n + 1) * r, n * r : (n + 1) * r] += noise[n]
+        _sym(Pf)
+        # --- state gains K^n (Theorem 4) ---
+        Sd = Sp[k]
+        Gd = Gam.reshape(N, M, N, r)[np.arange(N), :, np.arange(N), :]  # Γ^{nn}, (N, M, r)
+        Pfd = _diag_blocks(Pf, N, r)
+        Kk = np.empty((N, M, r))
+        for n in range(N):
+            if fixed is not None:
+                Kk[n] = fixed.K[k, n]
+                continue
+            S_nu = Gr @ Sd[n] @ Gr.T - Gr @ Gd[n] - Gd[n].T @ Gr.T + Pfd[n]
+            S_xnu = Sd[n] @ Gr.T - Gd[n]
+            Kk[n] = _psd_solve(S_xnu, S_nu, rcond)
+        K_all[k] = Kk
+        F = eyeM - Kk @ Gr  # (N, M, M)
+        # --- (43)*, (44): Σ_f = [F K] [[Σ, Γ], [Γ', P_f]] [F K]' ---
+        Pif = ops.bd_left(F, Gam) + ops.bd_left(Kk, Pf)  # Π_{k|k}  (NM x Nr)
+        cross = Pi if equations == "printed" else Gam  # the printed (43) has Π_{k|k-1} where Γ_k belongs
+        L1 = ops.bd_left(F, Sig) + ops.bd_left(Kk, np.ascontiguousarray(cross.T))
+        if equations == "printed":
+            Sf = ops.bd_right(L1, F) + ops.bd_right(ops.bd_left(F, Pi) + ops.bd_left(Kk, Pf), Kk)
+        else:
+            Sf = ops.bd_right(L1, F) + ops.bd_right(Pif, Kk)
+        _sym(Sf)
+        Sf_all[k] = _diag_blocks(Sf, N, M)
+        if form == "filter":
+            stage[k] = _stage_cost(cost, k, Sf, Sf_all[k], mse_like, ops)
+        if k + 1 == T:
+            break
+        # --- prediction (45)*, (46), (47) ---
+        Ye = ops.bd_left(At, Pf)
+        PifT = np.ascontiguousarray(Pif.T)
+        Yx = ops.bd_left(At, PifT)  # rows e', columns ε_f: Ã Π_f' + Ǎ Σ_f
+        if has_check:
+            Ye += ops.bd_left(Ac, Pif)
+            Yx += ops.bd_left(Ac, Sf)
+        if equations == "printed":  # eq. (45) as extracted: Ã in every term (Ã acting on x-quantities = Ã_r U')
+            Ye_p = ops.bd_left(At, Pf) + ops.bd_left(Ax, Pif)
+            Yx_p = ops.bd_left(At, PifT) + ops.bd_left(Ax, Sf)
+            P = ops.bd_right(Ye_p, At) + ops.bd_right(Yx_p, Ax) + GVG
+        else:
+            P = ops.bd_right(Ye, At) + GVG
+            if has_check:
+                P += ops.bd_right(Yx, Ac)
+        _sym(P)
+        Pi = np.ascontiguousarray(ops.bd_right(Yx, A).T) + VG
+        Sig = ops.bd_left(A, ops.bd_right(Sf, A)) + VV
+        _sym(Sig)
+        if not (np.isfinite(P[0, 0]) and np.isfinite(Sig[0, 0])):
+            raise FloatingPointError(f"CIKF gain design: the error covariances overflowed at step {k + 1}; "
+                                     "the error dynamics diverge (see tracking_capacity)")
+    return {"B_cons": tuple(B_cons), "B_innov": tuple(B_innov), "K": K_all, "Sigma_pred": Sp, "Sigma_filt": Sf_all,
+            "P_pred_trace": Ptr, "stage": stage}
+
+
+def design_cikf(system: LinearGaussianSystem, graph: CommGraph, horizon: int, *, cost: TeamCost | None = None,
+                form: Form = "filter", rcond: float = DEFAULT_RCOND, method: Method = "structured", check: bool = True,
+                gains: CIKFDesign | None = None, equations: Literal["corrected", "printed"] = "corrected") -> CIKFDesign:
+    """Algorithm 2: optimal CIKF gains (Theorem 4) and the error covariances (corrected eqs. 41-47).
+
+    Parameters
+    ----------
+    system : LinearGaussianSystem
+        Time-invariant; x̄_0 = 0. (A, H) must be detectable (checked when ``check``); G need not be invertible.
+    graph : CommGraph
+        Every edge with delay 1 (one exchange per step); agent n uses the predictions of ``graph.in_neighbors(n)``
+        (an undirected graph has both directions).
+    horizon : int
+        Number of steps T (gains and covariances for k = 0..T-1).
+    cost : TeamCost, optional
+        Team cost evaluated by ``stage_costs``; default ``TeamCost.mse(N, M)`` (S = I, L = 1 ⊗ I:
+        the sum over agents of E|x(k) - x̂^n|^2). Agent n reports ẑ_n = L_n x̂^n.
+    form : "filter" or "predictor"
+        ẑ_n(k) = L_n x̂^n_{k|k} (default) or L_n x̂^n_{k|k-1} (the paper's Fig. 4 plots the predictor).
+    rcond : float in (0, 1)
+        Relative cut-off of the pseudo-inverses of Theorem 4 (module docstring; default 1e-9).
+    method : "structured" (default) or "dense"
+        "dense" forms M_k, K, F, I ⊗ Ã, ... as dense NM x NM matrices — the same numbers, much slower
+        (the benchmark's baseline).
+    check : bool
+        Check that (A, H) is detectable (Assumption 4).
+    gains : CIKFDesign, optional
+        Use that design's gains instead of Theorem 4's (same system, graph and horizon >= this one):
+        the covariances are then the true ones of those gains.
+    equations : "corrected" (default) or "printed"
+        "printed" runs eqs. (43) and (45) as extracted (Π_{k|k-1} for Γ_k, Ã for Ǎ) — only to quantify the
+        errata; its covariances are not the filter's (evaluate its gains with ``gains=``).
+
+    Examples
+    --------
+    >>> from teamkf.models.random_field import random_field
+    >>> from teamkf.estimators.cikf import design_cikf
+    >>> system, graph = random_field(15, 6, rng=1)
+    >>> d = design_cikf(system, graph, horizon=10)
+    >>> d.estimator, d.stage_costs.shape, bool(d.mse()[-1] < d.mse()[0])
+    ('cikf', (10,), True)
+    """
+    t0 = time.perf_counter()
+    model = pseudo_state_model(system)
+    N, M = system.n_agents, system.dx
+    nbrs = _neighbors(graph, N)
+    if horizon is None:
+        raise ShapeError("horizon: the CIKF gains are designed over a finite horizon (Algorithm 2), found horizon=None; give T steps")
+    T = V.positive_int(horizon, "horizon")
+    if cost is None:
+        cost = TeamCost.mse(N, M)
+    if not isinstance(cost, TeamCost):
+        raise ShapeError(f"cost: expected a TeamCost (or None for TeamCost.mse), found {type(cost).__name__}")
+    cost.check_system(M, N)
+    cost.require_horizon(T)
+    if form not in ("filter", "predictor"):
+        raise ShapeError(f"form: expected 'filter' or 'predictor', found {form!r}")
+    if method not in ("structured", "dense"):
+        raise ShapeError(f"method: expected 'structured' or 'dense', found {method!r}")
+    if equations not in ("corrected", "printed"):
+        raise ShapeError(f"equations: expected 'corrected' or 'printed', found {equations!r}")
+    if isinstance(rcond, bool) or not isinstance(rcond, (int, float, np.floating)) or not 0.0 < float(rcond) < 1.0:
+        raise ShapeError(f"rcond: expected a relative cut-off in (0, 1), e.g. 1e-9, found {rcond!r}")
+    rcond = float(rcond)
+    if gains is not None:
+        if not isinstance(gains, CIKFDesign):
+            raise ShapeError(f"gains: expected a CIKFDesign whose gains to evaluate, found {type(gains).__name__}")
+        if gains.system.n_agents != N or gains.system.dx != M or gains.neighbors != nbrs or gains.model.rank != model.rank:
+            raise ShapeError("gains: expected a CIKF design for the same system and graph, found one for another")
+        if gains.horizon < T:  # type: ignore[operator]
+            raise ShapeError(f"gains: expected a design with horizon >= {T}, found {gains.horizon}")
+    if check:
+        from .riccati import unstable_unobservable_modes
+
+        bad = unstable_unobservable_modes(system.A_at(0), system.C_stack(0))
+        if bad:
+            raise DetectabilityError(
+                f"system: expected (A, H) detectable (Assumption 4 of the CIKF), found unobservable unstable modes "
+                f"{[complex(b) for b in bad[:4]]}; observe them with some agent's C, or pass check=False")
+    r = model.rank
+    hoods = [np.array([n, *nbrs[n]], dtype=int) for n in range(N)]
+    r_idx = [np.concatenate([np.arange(l * r, (l + 1) * r) for l in h]) for h in hoods]
+    Ops = _Structured if method == "structured" else _Dense
+    ops = Ops(N, r, hoods, r_idx)
+    res = _iterate(system, model, nbrs, cost, T, rcond, form, ops, gains, equations)
+    info = {"rank_G": r, "G_invertible": model.invertible, "lambda_1": model.lambda_1, "lambda_m": model.lambda_m,
+            "rcond": rcond, "method": method, "equations": equations, "form": form, "design_seconds": time.perf_counter() - t0,
+            "n_edges": graph.n_edges, "evaluated_gains": gains is not None}
+    return CIKFDesign(
+        "cikf", T, V.frozen(res["stage"]), None, info, system, cost, graph, model, form, rcond, nbrs,
+        res["B_cons"], res["B_innov"], V.frozen(res["K"]), V.frozen(res["Sigma_pred"]), V.frozen(res["Sigma_filt"]),
+        V.frozen(res["P_pred_trace"]),
+    )
+
+
+# ---------------------------------------------------------------------------
+# Theorem 3: tracking capacity
+# ---------------------------------------------------------------------------
+def _m_norm(rows: Sequence[FloatArray], hoods: Sequence[np.ndarray], r: int) -> float:
+    """||M||_2 of the block-sparse M (dense SVD when small, ARPACK otherwise)."""
+    N = len(rows)
+    n_tot = N * r
+    if n_tot <= 600:
+        Mf = np.zeros((n_tot, n_tot))
+        for n, row in enumerate(rows):
+            Mf[n * r : (n + 1) * r, np.concatenate([np.arange(l * r, (l + 1) * r) for l in hoods[n]])] = row
+        return float(np.linalg.norm(Mf, 2))
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import svds
+
+    ii, jj, vv = [], [], []
+    for n, row in enumerate(rows):
+        cols = np.concatenate([np.arange(l * r, (l + 1) * r) for l in hoods[n]])
+        I, J = np.meshgrid(np.arange(n * r, (n + 1) * r), cols, indexing="ij")
+        ii.append(I.ravel())
+        jj.append(J.ravel())
+        vv.append(row.ravel())
+    Ms = sp.csr_matrix((np.concatenate(vv), (np.concatenate(ii), np.concatenate(jj))), shape=(n_tot, n_tot))
+    s = svds(Ms, k=1, return_singular_vectors=False, tol=1e-10, random_state=0)
+    return float(s[0])
+
+
+def tracking_bound(design: CIKFDesign, k: int, *, subspace: Literal["range", "full"] = "range") -> float:
+    r"""Theorem 3 with given gains: λ_1 / (λ_m ||I - B^C_k - B^I_k D̃_H||_2).
+
+    ``subspace="range"`` (default) takes the norm on range(G)^N, where every
+    pseudo-state error lives (the reduced M_k); ``"full"`` as printed, on all of
+    R^{NM}: there M_k acts as the identity on null(G)^N, so the norm is >= 1 and
+    the bound <= λ_1/λ_m whenever G is singular. ``inf`` when the norm is 0.
+    """
+    if not isinstance(design, CIKFDesign):
+        raise ShapeError(f"design: expected a CIKFDesign, found {type(design).__name__}")
+    if subspace not in ("range", "full"):
+        raise ShapeError(f"subspace: expected 'range' or 'full', found {subspace!r}")
+    rows = design.m_rows(k)
+    hoods = [np.array([n, *design.neighbors[n]]) for n in range(design.n_agents)]
+    nrm = _m_norm(rows, hoods, design.model.rank)
+    if subspace == "full" and not design.model.invertible:
+        nrm = max(nrm, 1.0)
+    m = design.model
+    return float("inf") if nrm <= 1e-12 else m.lambda_1 / (m.lambda_m * nrm)
+
+
+@dataclass(frozen=True, eq=False)
+class TrackingCapacity:
+    """The tracking capacity of Theorem 3 and the structured gains that attain it.
+
+    Attributes
+    ----------
+    capacity : float           C = λ_1 / (λ_m min ||M||_2)  (inf when min ||M|| = 0)
+    min_norm : float           min over structured B^C, B^I of ||I - B^C - B^I D̃_H||_2 (on range(G)^N)
+    lower_bound_norm : float   min over B^I alone of ||M (1 ⊗ I)|| / sqrt(N): M (1 ⊗ y) does not depend on
+                               B^C, so every graph — the complete one too — has min_norm >= this
+    capacity_upper : float     λ_1 / (λ_m lower_bound_norm): no graph exceeds it
+    lambda_ratio : float       λ_1 / λ_m
+    B_cons, B_innov : tuples   optimal reduced-coordinate blocks (per agent)
+    status : str               solver status
+    """
+
+    capacity: float
+    min_norm: float
+    lower_bound_norm: float
+    capacity_upper: float
+    lambda_ratio: float
+    B_cons: tuple
+    B_innov: tuple
+    status: str
+
+
+def tracking_capacity(system: LinearGaussianSystem, graph: CommGraph, *, solver: str | None = None,
+                      zero_tol: float = 1e-7) -> TrackingCapacity:
+    r"""Theorem 3: C = max over structured B^C, B^I of λ_1 / (λ_m ||I - B^C - B^I D̃_H||_2), with cvxpy.
+
+    B^C has the graph's Laplacian block pattern ([B^C]_{nl} = -B^{nl}, [B^C]_{nn} = Σ_l B^{nl}) and B^I is
+    block-diagonal; minimizing the spectral norm of this affine map is a convex (SDP) problem. It is
+    solved in reduced coordinates on range(G)^N (B_r^{nl}: r x r, B_u^n: r x M_n), which equals the
+    paper's problem when G is invertible and is its meaningful restriction when G is singular (on
+    null(G)^N the printed M is the identity). For small problems only (the SDP has N r rows).
+
+    Needs the optional extra ``cvx`` (``pip install 'teamkf[cvx]'``).
+
+    Also returned: a graph-independent lower bound on the norm. Since B^C (1 ⊗ y) = 0,
+    M (1 ⊗ y) = [(I - B_u^n C̃_n) y]_n whatever the graph, so even the complete graph has a finite
+    capacity unless every agent alone observes range(G) (then B_u^n C̃_n = I is possible and C = inf).
+    """
+    cp = V.require("cvxpy", "cvx")
+    model = pseudo_state_model(system)
+    N = system.n_agents
+    nbrs = _neighbors(graph, N)
+    r = model.rank
+    Ct = model.C_tilde
+    Bc = {(n, l): cp.Variable((r, r)) for n in range(N) for l in nbrs[n]}
+    Bu = [cp.Variable((r, Ct[n].shape[0])) for n in range(N)]
+    eye = np.eye(r)
+    blocks = []
+    for n in range(N):
+        row = []
+        for l in range(N):
+            if l == n:
+                expr = eye - Bu[n] @ Ct[n]
+                for q in nbrs[n]:
+                    expr = expr - Bc[(n, q)]
+                row.append(expr)
+            elif l in nbrs[n]:
+                row.append(Bc[(n, l)])
+            else:
+                row.append(np.zeros((r, r)))
+        blocks.append(row)
+    Mexpr = cp.bmat(blocks)
+    prob = cp.Problem(cp.Minimize(cp.sigma_max(Mexpr)))
+    prob.solve(solver=solver)
+    min_norm = float(prob.value)
+    # graph-independent lower bound: M (1 ⊗ I_r) / sqrt(N) = stack_n (I - B_u^n C̃_n) / sqrt(N)
+    Bu2 = [cp.Variable((r, Ct[n].shape[0])) for n in range(N)]
+    stack = cp.vstack([eye - Bu2[n] @ Ct[n] for n in range(N)]) / np.sqrt(N)
+    prob2 = cp.Problem(cp.Minimize(cp.sigma_max(stack)))
+    prob2.solve(solver=solver)
+    lb = float(prob2.value)
+    ratio = model.lambda_1 / model.lambda_m
+    cap = float("inf") if min_norm <= zero_tol else ratio / min_norm
+    cap_up = float("inf") if lb <= zero_tol else ratio / lb
+    return TrackingCapacity(
+        cap, min_norm, lb, cap_up, ratio,
+        tuple(np.hstack([Bc[(n, l)].value for l in nbrs[n]]) if nbrs[n] else np.zeros((r, 0)) for n in range(N)),
+        tuple(Bu[n].value for n in range(N)), str(prob.status),
+    )
