@@ -161,8 +161,11 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     if args.plot:
         notes.append(_plot_stage_costs(designs, sc, args.plot))
 
+    control = _control_summary(sc, runs, seed)
     if args.json:
         out: dict[str, Any] = {"scenario": sc.name, "horizon": sc.horizon, "estimators": {}}
+        if control:
+            out["control"] = control
         for name, d in designs.items():
             if name in mc_only:
                 out["estimators"][name] = {**mc[name].summary(), **({"variant": d.info["variant"]} if "variant" in d.info else {})}
@@ -208,11 +211,34 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     print(_header(sc))
     print()
     print(format_table(headers, rows))
+    if control:
+        print("\n  decentralized LQG ([control], one-step delayed sharing, Appendix D):")
+        for name, entry in control.items():
+            extra = f"   closed-loop MC {_fmt(entry['mc_cost'])} [{_fmt(entry['mc_ci95'][0])}, {_fmt(entry['mc_ci95'][1])}]" if "mc_cost" in entry else ""
+            print(f"    {name:22s} J = {_fmt(entry['total_cost'])}{extra}")
     if mc:
         print(f"\n  Monte Carlo: {runs} runs, seed {seed} (online agents on sampled paths; analytic values in the {_cost_label(sc.horizon)} column)")
     for n in notes:
         print(n)
     return 0
+
+
+def _control_summary(sc: Any, runs: int | None, seed: int | None) -> dict[str, Any]:
+    """Analytic (and, with runs, closed-loop Monte Carlo) costs of Theorem 4's controller and of certainty equivalence."""
+    prob = sc.control
+    if prob is None:
+        return {}
+    from .control.lqg import design_lqg, simulate_closed_loop
+
+    out: dict[str, Any] = {}
+    for name, kind in (("optimal", "mtmse"), ("certainty_equivalent", "mmse")):
+        d = design_lqg(prob, sc.horizon, kind=kind)
+        entry: dict[str, Any] = {"method": "analytic", "total_cost": float(d.cost)}
+        if runs:
+            mc = simulate_closed_loop(d, runs, rng=seed)
+            entry.update(mc_cost=mc["mean"], mc_ci95=[mc["mean"] - 1.96 * mc["sem"], mc["mean"] + 1.96 * mc["sem"]])
+        out[name] = entry
+    return out
 
 
 def _plot_stage_costs(designs: dict[str, Any], sc: Any, out: str) -> str:

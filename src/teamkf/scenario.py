@@ -74,7 +74,7 @@ AVAILABLE_ESTIMATORS: tuple[str, ...] = ("mtmse", "mmse", "centralized", "kcf")
 #: names kept for estimators of later versions (Kalman-consensus, Consensus+Innovations KF)
 RESERVED_ESTIMATORS: tuple[str, ...] = ("cikf",)
 
-_TOP_KEYS = ("name", "horizon", "description", "system", "agents", "graph", "cost", "information", "estimators", "kcf")
+_TOP_KEYS = ("name", "horizon", "description", "system", "agents", "graph", "cost", "information", "estimators", "kcf", "control")
 _SYSTEM_KEYS = ("A", "Q", "Sigma_x")
 _AGENT_KEYS = ("C", "R")
 _GRAPH_KINDS = ("complete", "line", "ring", "star")
@@ -147,6 +147,11 @@ class Scenario:
         """Design every estimator of the scenario (or of ``estimators``), in order: name -> design."""
         names = self.estimators if estimators is None else tuple(estimators)
         return {name: self.design(name, horizon) for name in names}
+
+    @property
+    def control(self) -> Any:
+        """The decentralized LQG problem of a ``[control]`` table (B, Q_x, R_u), or None."""
+        return _control(self.raw["control"], self.system, self.horizon) if "control" in self.raw else None
 
     def updated(self, values: Mapping[str, Any]) -> "Scenario":
         """A new scenario with dotted keys replaced, e.g. ``{"cost.lambda": 10.0, "graph.delay": 2}``."""
@@ -274,6 +279,8 @@ def scenario_from_dict(d: Mapping[str, Any], source: str = "<dict>") -> Scenario
     estimators = _estimators(raw["estimators"])
     if "kcf" in raw:
         _kcf_options(raw)
+    if "control" in raw:
+        _control(raw["control"], system, horizon)
     if "kcf" in estimators and horizon is None:
         raise _fail("estimators", "kcf needs a finite horizon (it is evaluated by Monte Carlo); give horizon = T or remove kcf")
     return Scenario(name, horizon, system, cost, graph, information, estimators, raw, source)
@@ -407,6 +414,24 @@ def _rekey(exc: TeamkfError, section: str, rules: Sequence[tuple[re.Pattern[str]
                 err.key = new_head.split(" ")[0]  # type: ignore[attr-defined]
                 return err
     return _fail(section, msg)
+
+
+def _control(c_tab: Any, system: LinearGaussianSystem, horizon: int | None) -> Any:
+    """``[control]``: B (d_x x n d_u), Q_x (state weight), R_u (control weight) -> an LQGProblem (Appendix D)."""
+    from .control.lqg import LQGProblem
+
+    c = _table(c_tab, "control", "B, Q_x and R_u")
+    _check_keys(c, ("B", "Q_x", "R_u"), "control.")
+    for k in ("B", "Q_x", "R_u"):
+        if k not in c:
+            raise _fail(f"control.{k}", "missing required key; [control] needs B (d_x x n d_u), Q_x and R_u (a number q means q*I)")
+    if horizon is None or horizon < 2:
+        raise _fail("horizon", "a [control] scenario needs a finite horizon T >= 2 (decentralized LQG over T steps)")
+    B = _numeric(c["B"], "control.B", scalar_ok=False)
+    try:
+        return LQGProblem(system, B=B, Q_x=_numeric(c["Q_x"], "control.Q_x"), R_u=_numeric(c["R_u"], "control.R_u"))
+    except TeamkfError as exc:
+        raise _rekey(exc, "control", [(re.compile(r"^(B|Q_x|R_u)$"), r"control.\1"), (re.compile(r"^system\b"), "system")]) from exc
 
 
 def _horizon(h: Any) -> int | None:

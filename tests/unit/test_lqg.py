@@ -62,3 +62,26 @@ def test_lqg_validation():
         LQGProblem(sys, B=[[1.0, 1.0]], Q_x=[[1.0]], R_u=np.zeros((2, 2)))
     with pytest.raises(ShapeError, match="kind"):
         design_lqg(LQGProblem(sys, B=[[1.0, 1.0]], Q_x=[[1.0]], R_u=np.eye(2)), 3, kind="lqr")
+
+
+def test_control_scenario_and_cli(capsys):
+    import json
+
+    from teamkf.cli import main
+    from teamkf.scenario import load_packaged, scenario_from_dict
+
+    sc = load_packaged("lqg-2")
+    assert sc.control is not None and sc.control.du == 1
+    assert main(["evaluate", "lqg-2", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    from teamkf.experiments.lqg import problem
+
+    assert out["control"]["optimal"]["total_cost"] == pytest.approx(design_lqg(problem(1.0), 20).cost, rel=1e-12)
+    assert out["control"]["optimal"]["total_cost"] <= out["control"]["certainty_equivalent"]["total_cost"]
+    raw = dict(sc.raw)
+    raw["control"] = {"B": [[1.0, 0.6]], "Q_x": 1.0, "R_u": 1.0}
+    with pytest.raises(ValueError, match=r"^control.B: expected a 2x"):
+        scenario_from_dict(raw)
+    raw["control"] = {"B": [[1.0, 0.6], [0.4, 1.0]], "Q_x": 1.0}
+    with pytest.raises(ValueError, match=r"^control.R_u: missing required key"):
+        scenario_from_dict(raw)
