@@ -430,6 +430,10 @@ def test_plots(tmp_path):
     assert ax.get_xscale() == "log" and ax.get_ylabel() == "J_T" and len(ax.get_lines()) == 6  # 3 estimators x 2 delays
     ax2 = res.plot(x="graph.delay", baseline="mtmse")
     assert "[%]" in ax2.get_ylabel() and len(ax2.get_legend().get_texts()) == 4  # mmse, centralized x 2 lambdas
+    kinds = SweepResult(tuple({**r, "cost.kind": "platoon" if r["cost.lambda"] == 1.0 else "ring"} for r in res.rows),
+                        ("cost.kind", "graph.delay"))
+    ax4 = kinds.plot()  # non-numeric values: one tick each
+    assert [t.get_text() for t in ax4.get_xticklabels()] == ["platoon", "ring"]
     from teamkf.scenario import load_packaged
     from teamkf.simulation.monte_carlo import monte_carlo
 
@@ -501,8 +505,18 @@ def test_embedded_local_cluster_from_the_command_line(tmp_path, capsys):
     assert frame(out).equals(frame(tmp_path / "serial"))
 
 
-def test_killing_a_worker_mid_sweep(tmp_path, cluster):
+def test_killing_a_worker_mid_sweep(tmp_path):
+    pytest.importorskip("dask.distributed")
+    if not HAS_ARROW:
+        pytest.skip("needs pyarrow and pandas")
     from dask.distributed import Client
+
+    from teamkf.simulation.sweep import WORKER_ENV, local_cluster
+
+    def environ():
+        return {k: os.environ.get(k) for k in (*WORKER_ENV, "MALLOC_TRIM_THRESHOLD_")}
+
+    expected_env = {**WORKER_ENV, "MALLOC_TRIM_THRESHOLD_": None}
 
     p = write_files(tmp_path, """
 scenario = "scen/short.toml"
@@ -513,8 +527,10 @@ seed = 3
 "graph.delay" = [1, 2]
 """)
     spec = load_sweep(p)
+    cluster = local_cluster(2)  # the embedded cluster of scheduler="local", started here to kill one of its workers
     client = Client(cluster)
     try:
+        assert all(e == expected_env for e in client.run(environ).values())
         pids = client.run(os.getpid)
         killed: list[int] = []
         lost: list[str] = []
@@ -529,10 +545,12 @@ seed = 3
 
         res = run_sweep(spec, tmp_path / "dask", client, progress=False, evaluate=slow_evaluate, on_point_done=kill_one)
         assert killed and lost and res.n_computed == spec.n_points
-        client.wait_for_workers(1, timeout=30)
-        assert killed[0] not in client.run(os.getpid).values()  # the worker really died
+        client.wait_for_workers(2, timeout=30)
+        assert killed[0] not in client.run(os.getpid).values()  # the worker really died (and was restarted)
+        assert all(e == expected_env for e in client.run(environ).values())
     finally:
         client.close()
+        cluster.close()
     df = frame(tmp_path / "dask")
     assert len(parts(tmp_path / "dask")) == spec.n_points
     assert sorted(df["point_id"].unique()) == sorted(q.point_id for q in spec.points)

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Callable, Iterable, Sequence, TypeVar
+from typing import Any, Callable, Iterable, TypeVar, cast
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -68,6 +68,10 @@ __all__ = [
 
 #: largest population simulated agent by agent (exact statistics for any N come from the filters)
 MAX_EXPLICIT_AGENTS = 10**7
+#: largest n_agents x horizon of an explicit simulation (2 GiB of filter history)
+MAX_HISTORY_DOUBLES = 2**28
+#: doubles of filter history a simulation step should touch per chunk of runs (~ a last-level cache)
+CACHE_DOUBLES = 2**21
 
 P = TypeVar("P")
 R = TypeVar("R")
@@ -141,8 +145,8 @@ def a_m_of_af(a_f: float, *, c: float = 1.0, h: float = 1.0, sigma_w: float = 1.
 
     Examples
     --------
-    >>> round(a_m_of_af(0.5), 3)
-    2.741
+    >>> round(a_m_of_af(0.5), 3), round(a_m_of_af(0.99), 3)
+    (2.736, 3.667)
     """
     af = float(a_f)
     amax = a_s(c=c, h=h) + 1.0
@@ -174,8 +178,8 @@ def a_m(*, c: float = 1.0, h: float = 1.0, sigma_w: float = 1.0, sigma_v: float 
 
     Examples
     --------
-    >>> round(a_m(), 2)
-    3.68
+    >>> round(a_m(), 3)
+    3.686
     """
     return a_m_of_af(af_limit, c=c, h=h, sigma_w=sigma_w, sigma_v=sigma_v)
 
@@ -211,8 +215,8 @@ def lq_cost(model: PopulationModel, horizon: int, *, filt: BulkFilter | FiniteMe
 
     Examples
     --------
-    >>> round(lq_cost(PopulationModel(n_agents=10**9, a=2.0, f=1.6), 400), 3)
-    9.283
+    >>> round(lq_cost(PopulationModel(n_agents=10**9, a=2.0, f=1.6), 400), 2)
+    15.3
     """
     T = V.positive_int(horizon, "horizon")
     f = filt if filt is not None else bulk_filter(model, T)
@@ -324,6 +328,11 @@ def simulate_population(
             f"model.n_agents: expected at most {MAX_EXPLICIT_AGENTS} agents for an explicit simulation, found {N}; "
             "the exact statistics for any N come from teamkf.estimators.bulk.bulk_filter(model, T).covariances"
         )
+    if N * T > MAX_HISTORY_DOUBLES:
+        raise ShapeError(
+            f"model.n_agents, horizon: expected n_agents x horizon <= {MAX_HISTORY_DOUBLES} (the filter keeps T values per agent), "
+            f"found {N} x {T}; simulate fewer agents or a shorter horizon"
+        )
     f_ = filt if filt is not None else bulk_filter(model, T)
     if f_.horizon < T:
         raise ShapeError(f"filt: expected a filter over at least horizon = {T} steps, found {f_.horizon}")
@@ -334,7 +343,10 @@ def simulate_population(
         Ex = model.x0_mean * af ** np.arange(T + 1, dtype=float)
     Ey = (c + h) * Ex
     streams = run_streams(rng, R_)
-    chunk = max(1, min(R_, int(max_chunk_doubles) // max(1, N * T)))
+    # runs per chunk: the filter history of a chunk must fit in memory, and the part every step reads
+    # (band x N per run) should stay in cache from one step to the next
+    band = int(np.max(np.arange(T) - _mu_windows(np.asarray(f_.mu)[:T, :T]))) if exact else int(f_.memory)  # type: ignore[union-attr]
+    chunk = max(1, min(R_, int(max_chunk_doubles) // max(1, N * T), CACHE_DOUBLES // max(1, band * N)))
     final = np.empty((R_, N))
     cost = np.empty(R_)
     m2 = np.empty((R_, T + 1))
@@ -342,14 +354,14 @@ def simulate_population(
     states = np.empty((R_, T + 1, N)) if keep_states else None
     ests = np.empty((R_, T + 1, N)) if keep_states else None
     if exact:
-        assert isinstance(f_, BulkFilter)
-        mu = np.asarray(f_.mu)
+        bfil = cast(BulkFilter, f_)
+        mu = np.asarray(bfil.mu)
         lo_row = _mu_windows(mu[:T, :T])
-        g, s = f_.g, f_.s
+        g, s = bfil.g, bfil.s
     else:
-        assert isinstance(f_, FiniteMemoryFilter)
-        Kf = np.asarray(f_.K)
-        n = f_.memory
+        mfil = cast(FiniteMemoryFilter, f_)
+        Kf = np.asarray(mfil.K)
+        n = mfil.memory
     r_w = model.r
     with np.errstate(over="ignore", invalid="ignore"):
         for r0 in range(0, R_, chunk):
@@ -364,8 +376,10 @@ def simulate_population(
             if states is not None and ests is not None:
                 states[r0:r1, 0] = x
                 ests[r0:r1, 0] = xh
-            hist = np.zeros((T, Rc * N))  # innovations (exact) or centred measurements (memory n)
-            xc = np.zeros(Rc * N)
+            # innovations (exact filter) or centred measurements (memory n), per run; every run is
+            # processed with arrays of its own shape, so its numbers do not depend on the batching
+            hist = np.zeros((Rc, T, N))
+            xc = np.zeros((Rc, N))
             for k in range(T):
                 u = -fb * xh
                 acc += np.mean(x * x + r_w * u * u, axis=1)
@@ -373,18 +387,23 @@ def simulate_population(
                 x = a * x + b * u + model.sigma_w * z[:, 0]
                 mk = np.mean(x, axis=1)
                 y = c * x + h * mk[:, None] + model.sigma_v * z[:, 1]
-                yc = (y - Ey[k + 1]).reshape(-1)
+                yc = y - Ey[k + 1]
                 if exact:
                     lo = int(lo_row[k])
-                    pred = mu[k, lo:k] @ hist[lo:k] if k > lo else 0.0
-                    e = (yc - c * af * xc - h * pred) / s[k]
-                    hist[k] = e
+                    if k > lo:
+                        row = mu[k, lo:k]
+                        pred = np.stack([row @ hist[j, lo:k] for j in range(Rc)])
+                        e = (yc - c * af * xc - h * pred) / s[k]
+                    else:
+                        e = (yc - c * af * xc) / s[k]
+                    hist[:, k] = e
                     xc = af * xc + g[k] * e
                 else:
-                    hist[k] = yc
+                    hist[:, k] = yc
                     L = min(k + 1, n)
-                    xc = Kf[k, n - L:] @ hist[k + 1 - L : k + 1]
-                xh = Ex[k + 1] + xc.reshape(Rc, N)
+                    kk = Kf[k, n - L:]
+                    xc = np.stack([kk @ hist[j, k + 1 - L : k + 1] for j in range(Rc)])
+                xh = Ex[k + 1] + xc
                 m2[r0:r1, k + 1] = np.mean(x * x, axis=1)
                 mean[r0:r1, k + 1] = mk
                 if states is not None and ests is not None:
@@ -394,6 +413,3 @@ def simulate_population(
             cost[r0:r1] = acc / T
     return PopulationSimulation(R_, N, T, final, cost, m2, mean, states, ests)
 
-
-def _as_sequence(x: Any) -> Sequence[Any]:  # pragma: no cover - helper kept for symmetry
-    return list(x)

@@ -63,6 +63,7 @@ K'_j               isolated FIR sequence (a_f (1 - c K*))^{j-1} K* (Prop. 1)
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -78,6 +79,7 @@ from ..models.population import PopulationModel
 
 __all__ = [
     "FLUSH",
+    "single_thread_blas",
     "ClosedLoopCovariances",
     "BulkFilter",
     "FiniteMemoryFilter",
@@ -143,7 +145,7 @@ def riccati_feedback_gain(a: float, r: float, *, b: float = 1.0) -> float:
     Examples
     --------
     >>> round(riccati_feedback_gain(2.0, 1.0), 4), round(riccati_feedback_gain(5.0, 1.0), 4)
-    (1.618, 4.8077)
+    (1.618, 4.808)
     """
     if not (b > 0 and r > 0):
         raise ShapeError(f"b, r: expected b > 0 and r > 0, found b = {b!r}, r = {r!r}")
@@ -168,7 +170,7 @@ def isolated_gains(model: PopulationModel, length: int, *, K: float | None = Non
     --------
     >>> from teamkf.models.population import PopulationModel
     >>> isolated_gains(PopulationModel(n_agents=1, a=2.5, f=2.0), 4).round(5).tolist()
-    [0.00027, 0.00394, 0.05838, 0.86496]
+    [0.00027, 0.00394, 0.0584, 0.86498]
     """
     n = V.positive_int(length, "length")
     Ks = isolated_kalman_gain(model.a, c=model.c, sigma_w=model.sigma_w, sigma_v=model.sigma_v) if K is None else float(K)
@@ -192,11 +194,15 @@ def stationarity_index(K_prev: Any, K_last: Any) -> float:
 
 
 def discrepancy_index(K: Any, K_isolated: Any) -> float:
-    """Eq. (62): ||K_bulk - K_isolated||, aligned on the newest measurement."""
+    """Eq. (62): ||K_bulk - K_isolated||, aligned on the newest measurement (the shorter is zero-padded)."""
     a = np.asarray(K, dtype=float)
     b = np.asarray(K_isolated, dtype=float)
-    L = min(a.size, b.size)
-    return float(np.linalg.norm(a[a.size - L:] - b[b.size - L:]) + (np.linalg.norm(a[: a.size - L]) if a.size > L else 0.0))
+    L = max(a.size, b.size)
+    pa = np.zeros(L)
+    pb = np.zeros(L)
+    pa[L - a.size:] = a
+    pb[L - b.size:] = b
+    return float(np.linalg.norm(pa - pb))
 
 
 # ---------------------------------------------------------------------------
@@ -312,7 +318,11 @@ class BulkFilter(_GainsMixin):
         Relative flush threshold used (0: none).
     band : int
         Largest number of non-zero past coefficients the recursion carried
-        (T where nothing was flushed).
+        (T - 1 where nothing was flushed).
+    flops : int
+        Floating-point operations of the recursion (2 per multiply-add of the
+        matrix-vector products, plus an estimated 40 per carried coefficient
+        for the vector updates); for benchmarks.
     """
 
     model: PopulationModel
@@ -323,6 +333,7 @@ class BulkFilter(_GainsMixin):
     covariances: ClosedLoopCovariances
     flush: float = FLUSH
     band: int = 0
+    flops: int = 0
     _cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
     memory = 0
@@ -465,6 +476,67 @@ class FiniteMemoryFilter(_GainsMixin):
 # ---------------------------------------------------------------------------
 # the exact filter
 # ---------------------------------------------------------------------------
+_OPENBLAS: list[tuple[Any, Any]] | None = None
+
+
+def _openblas_handles() -> list[tuple[Any, Any]]:
+    """(get, set) thread-count functions of every OpenBLAS loaded in this process (Linux; else [])."""
+    global _OPENBLAS
+    if _OPENBLAS is None:
+        found: list[tuple[Any, Any]] = []
+        try:
+            import ctypes
+
+            paths = set()
+            with open("/proc/self/maps") as fh:
+                for line in fh:
+                    p = line.rsplit(None, 1)[-1]
+                    if "openblas" in p.lower() and p.startswith("/"):
+                        paths.add(p)
+            for p in sorted(paths):
+                lib = ctypes.CDLL(p)
+                for pre in ("", "scipy_"):
+                    for suf in ("", "64_"):
+                        get = getattr(lib, f"{pre}openblas_get_num_threads{suf}", None)
+                        set_ = getattr(lib, f"{pre}openblas_set_num_threads{suf}", None)
+                        if get is not None and set_ is not None:
+                            get.restype = ctypes.c_int
+                            set_.argtypes = [ctypes.c_int]
+                            found.append((get, set_))
+        except (OSError, AttributeError):  # pragma: no cover - not Linux / unusual build
+            found = []
+        _OPENBLAS = found
+    return _OPENBLAS
+
+
+@contextlib.contextmanager
+def single_thread_blas() -> Any:
+    """Context manager limiting BLAS to one thread for the recursions.
+
+    The recursions do thousands of small and medium matrix-vector products; a
+    threaded BLAS spends more time synchronizing (and spinning against other
+    work on the machine) than computing: one thread is 2-6x faster here on 2
+    cores (benchmarks/bench_bulk.py). Uses threadpoolctl when installed, else
+    OpenBLAS's own ``openblas_set_num_threads`` found in the loaded libraries;
+    does nothing where neither is available.
+    """
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:
+        handles = _openblas_handles()
+        old = [get() for get, _ in handles]
+        try:
+            for _, set_ in handles:
+                set_(1)
+            yield
+        finally:
+            for (_, set_), n in zip(handles, old):
+                set_(n)
+        return
+    with threadpool_limits(limits=1, user_api="blas"):  # pragma: no cover - optional dependency
+        yield
+
+
 def _flush(v: np.ndarray, thr_rel: float) -> None:
     if thr_rel > 0 and v.size:
         m = float(np.max(np.abs(v)))
@@ -544,7 +616,8 @@ def exact_bulk_filter(model: PopulationModel, horizon: int, *, flush: float = FL
     vx[0], vxh[0], sig[0], vmv[0] = p0, 0.0, p0, vm
     lo = 0  # alpha, beta, gam vanish before lo
     band = 0
-    with np.errstate(over="ignore", invalid="ignore", under="ignore"):
+    flops = 0
+    with np.errstate(over="ignore", invalid="ignore", under="ignore"), single_thread_blas():
         for k in range(T):
             al = alpha[lo:k]
             be = beta[lo:k]
@@ -569,6 +642,7 @@ def exact_bulk_filter(model: PopulationModel, horizon: int, *, flush: float = FL
                 lo2 = k
                 u = np.zeros(0)
             band = max(band, k - lo2)
+            flops += 2 * (k - lo2) * (k - lo) + 40 * (k - lo2)
             # new row of C (columns lo2 .. k-1)
             crow = -h * u
             crow[lo - lo2:] += ch * mu - c * af * be
@@ -594,6 +668,8 @@ def exact_bulk_filter(model: PopulationModel, horizon: int, *, flush: float = FL
                 if crow.size:
                     m = max(m, float(np.max(np.abs(crow))))
                 crow[np.abs(crow) < fl * m] = 0.0
+            if fl > 0:
+                _flush(mu, fl)  # (after its last use) keeps the stored rows free of subnormals
             U[k, lo:k] = mu
             Cm[k, lo2:k] = crow
             Cm[lo2:k, k] = crow
@@ -611,15 +687,8 @@ def exact_bulk_filter(model: PopulationModel, horizon: int, *, flush: float = FL
                     _flush(v[w0 : k + 1], fl)
                 lo = w0 + min(_first_nonzero(alpha[w0 : k + 1]), _first_nonzero(beta[w0 : k + 1]), _first_nonzero(gam[w0 : k + 1]))
                 lo = min(lo, k)
-    if fl > 0:
-        _flush_rows(U, fl)
     cov = _covariances(model, vx, vxh, sig, vmv)
-    return BulkFilter(model, T, _ro(g), _ro(s), _ro(U), cov, fl, band)
-
-
-def _flush_rows(U: np.ndarray, fl: float) -> None:
-    m = np.max(np.abs(U), axis=1, keepdims=True)
-    U[np.abs(U) < fl * m] = 0.0
+    return BulkFilter(model, T, _ro(g), _ro(s), _ro(U), cov, fl, band, flops)
 
 
 # ---------------------------------------------------------------------------
@@ -664,8 +733,8 @@ def finite_memory_filter(model: PopulationModel, horizon: int, memory: int | Non
     --------
     >>> from teamkf.models.population import PopulationModel
     >>> m = PopulationModel(n_agents=10**9, a=2.5, f=2.0)
-    >>> finite_memory_filter(m, 200, 3).final_gains().round(4).tolist()
-    [0.0039, 0.0584, 0.865]
+    >>> finite_memory_filter(m, 200, 3).final_gains().round(4).tolist()  # exact: [.., 0.0039, 0.0584, 0.865]
+    [0.0041, 0.0584, 0.865]
     """
     if not isinstance(model, PopulationModel):
         raise ShapeError(f"model: expected a PopulationModel, found {type(model).__name__}")
@@ -687,7 +756,7 @@ def finite_memory_filter(model: PopulationModel, horizon: int, memory: int | Non
     vx[0], vxh[0], sig[0], vm[0] = model.p0, 0.0, model.p0, model.p0 / model.n_agents
     row = np.empty(n + 1)
     diverged: int | None = None
-    with np.errstate(over="ignore", invalid="ignore"):
+    with np.errstate(over="ignore", invalid="ignore"), single_thread_blas():
         for k in range(T):
             row[0] = a
             row[1:] = -bf * kprev

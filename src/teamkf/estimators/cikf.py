@@ -126,11 +126,13 @@ References
 from __future__ import annotations
 
 import time
+from functools import lru_cache
 from dataclasses import dataclass
 from typing import Any, Literal, Sequence
 
 import numpy as np
 import scipy.linalg as sla
+from scipy.linalg.lapack import dpstrf
 
 from .. import _validation as V
 from .._validation import FloatArray
@@ -148,6 +150,7 @@ __all__ = [
     "TrackingCapacity",
     "tracking_bound",
     "tracking_capacity",
+    "tracking_capacity_upper_bound",
     "G_RTOL",
     "DEFAULT_RCOND",
 ]
@@ -280,16 +283,105 @@ def pseudo_state_model(system: LinearGaussianSystem, *, rtol: float = G_RTOL) ->
 # ---------------------------------------------------------------------------
 # numerical kernels
 # ---------------------------------------------------------------------------
-def _psd_solve(S_xy: FloatArray, S_yy: FloatArray, rcond: float) -> FloatArray:
-    """S_xy S_yy^+ with a truncated eigen pseudo-inverse (directions below rcond * lambda_max dropped)."""
+def _psd_solve(S_xy: FloatArray, S_yy: FloatArray, rcond: float, how: str = "cholesky") -> FloatArray:
+    """S_xy S_yy^- for a PSD S_yy, dropping numerically redundant directions (module docstring).
+
+    ``how="cholesky"``: pivoted Cholesky (LAPACK ``dpstrf``) that stops when the largest remaining
+    conditional variance falls below ``rcond`` times the largest variance; the innovation components
+    kept are the pivots, the others (predictable from the kept ones to that tolerance) get zero gain.
+    ``how="eigh"``: truncated eigen pseudo-inverse, directions below ``rcond * lambda_max`` dropped.
+    For S_xy with rows in range(S_yy) both give the estimate of the Moore-Penrose solution.
+    """
     S = 0.5 * (S_yy + S_yy.T)
-    w, Q = sla.eigh(S, driver="evr", check_finite=False)
+    if how == "cholesky":
+        d = np.diag(S)
+        top = float(d.max()) if d.size else 0.0
+        if not np.isfinite(top):
+            raise FloatingPointError("CIKF gain design: a covariance overflowed (the error dynamics diverge; see tracking_capacity)")
+        out = np.zeros_like(S_xy)
+        if top <= 0.0:
+            return out
+        c, piv, rank, _ = dpstrf(S, tol=rcond * top, lower=0)
+        if rank == 0:
+            return out
+        keep = piv[:rank] - 1
+        U11 = np.triu(c[:rank, :rank])
+        out[:, keep] = sla.cho_solve((U11, False), S_xy[:, keep].T, check_finite=False).T
+        return out
+    w, Q = sla.eigh(S, driver="evd", check_finite=False)
     top = float(w[-1]) if w.size else 0.0
     if not np.isfinite(top):
         raise FloatingPointError("CIKF gain design: a covariance overflowed (the error dynamics diverge; see tracking_capacity)")
     keep = w > rcond * max(top, np.finfo(float).tiny)
     Qk = Q[:, keep]
     return ((S_xy @ Qk) / w[keep]) @ Qk.T  # type: ignore[no-any-return]
+
+
+_SETTERS = ("openblas_set_num_threads", "openblas_set_num_threads64_", "scipy_openblas_set_num_threads64_",
+            "scipy_openblas_set_num_threads")
+
+
+def _openblas_handles() -> list[tuple[Any, Any]]:
+    """(setter, getter) pairs of every OpenBLAS loaded in this process (Linux /proc/self/maps; else none)."""
+    import ctypes
+    import re
+
+    try:
+        with open("/proc/self/maps") as fh:
+            paths = sorted(set(re.findall(r"(/\S*openblas\S*\.so\S*)", fh.read())))
+    except OSError:
+        return []
+    out = []
+    for path in paths:
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:
+            continue
+        for name in _SETTERS:
+            getter = name.replace("set_num_threads", "get_num_threads")
+            if hasattr(lib, name) and hasattr(lib, getter):
+                out.append((getattr(lib, name), getattr(lib, getter)))
+                break
+    return out
+
+
+class _blas_threads:
+    """Limit BLAS to ``n`` threads inside the block (threadpoolctl if installed, else OpenBLAS through ctypes).
+
+    The CIKF design is many medium-sized GEMMs; on a shared, oversubscribed machine OpenBLAS's
+    spinning worker threads can make it ten times slower than one thread (measured on the 2-core
+    development machine). ``n = None`` leaves BLAS alone.
+    """
+
+    def __init__(self, n: int | None):
+        self.n = n
+        self._restore: list[tuple[Any, int]] = []
+        self._ctl: Any = None
+
+    def __enter__(self) -> "_blas_threads":
+        if self.n is None:
+            return self
+        try:
+            from threadpoolctl import threadpool_limits
+
+            self._ctl = threadpool_limits(self.n, user_api="blas")
+            return self
+        except Exception:  # not installed, or it failed: fall back to OpenBLAS's own setter
+            self._ctl = None
+        try:
+            for setter, getter in _openblas_handles():
+                old = int(getter())
+                setter(int(self.n))
+                self._restore.append((setter, old))
+        except Exception:  # pragma: no cover - best effort only
+            pass
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        if self._ctl is not None:
+            self._ctl.restore_original_limits()
+        for setter, old in self._restore:
+            setter(old)
 
 
 def _sym(X: FloatArray) -> FloatArray:
@@ -320,6 +412,16 @@ class _Structured:
             out[n * r : (n + 1) * r] = row @ X[self.r_idx[n]]
         return out
 
+    def m_sandwich(self, rows: Sequence[FloatArray], Zt: FloatArray) -> FloatArray:
+        """M Z' given Z' (symmetric result M P M' with Z = M P): the upper block triangle, mirrored."""
+        r = self.r
+        out = np.empty((self.N * r, Zt.shape[1]))
+        for n, row in enumerate(rows):
+            out[n * r : (n + 1) * r, n * r :] = row @ Zt[self.r_idx[n], n * r :]
+        for n in range(1, self.N):
+            out[n * r : (n + 1) * r, : n * r] = out[: n * r, n * r : (n + 1) * r].T
+        return out
+
     def bd_left(self, B: FloatArray, X: FloatArray) -> FloatArray:
         """blockdiag(B) X; B is (N, a, b) or one shared (a, b)."""
         b = B.shape[-1]
@@ -334,8 +436,11 @@ class _Structured:
         X3 = np.ascontiguousarray(X).reshape(Rr, self.N, b)
         if B.ndim == 2:
             return (X3.reshape(-1, b) @ B.T).reshape(Rr, -1)  # type: ignore[no-any-return]
-        Y = np.matmul(X3.transpose(1, 0, 2), B.transpose(0, 2, 1))  # (N, Rr, a)
-        return np.ascontiguousarray(Y.transpose(1, 0, 2)).reshape(Rr, -1)
+        a = B.shape[1]
+        out = np.empty((Rr, self.N * a))
+        for n in range(self.N):  # strided column blocks go to BLAS without copies
+            out[:, n * a : (n + 1) * a] = X[:, n * b : (n + 1) * b] @ B[n].T
+        return out
 
 
 class _Dense(_Structured):
@@ -358,6 +463,10 @@ class _Dense(_Structured):
 
     def m_left(self, rows: Sequence[FloatArray], X: FloatArray) -> FloatArray:
         return self._m(rows) @ X  # type: ignore[no-any-return]
+
+    def m_sandwich(self, rows: Sequence[FloatArray], Zt: FloatArray) -> FloatArray:
+        out = self._m(rows) @ Zt
+        return _sym(out)
 
     def bd_left(self, B: FloatArray, X: FloatArray) -> FloatArray:
         return self._bd(B) @ X  # type: ignore[no-any-return]
@@ -508,6 +617,11 @@ class CIKFDesign(Design):
 
     def _recursion(self, ys: Sequence[FloatArray] | None, x0: FloatArray | None, w: FloatArray | None, n_runs: int, T: int,
                    form: str) -> FloatArray:
+        with _blas_threads(self.info.get("threads", 1)):
+            return self._recursion_impl(ys, x0, w, n_runs, T, form)
+
+    def _recursion_impl(self, ys: Sequence[FloatArray] | None, x0: FloatArray | None, w: FloatArray | None, n_runs: int, T: int,
+                        form: str) -> FloatArray:
         """Algorithm 1 on data (``ys``) or its error recursion (30)-(33) on the primitive noises (x0, w, ys = v)."""
         m, sys, cost = self.model, self.system, self.cost
         N, M, r = self.n_agents, sys.dx, m.rank
@@ -691,23 +805,71 @@ def _is_mse(cost: TeamCost, N: int, M: int, T: int) -> bool:
                for k in steps)
 
 
+def _theorem4_pseudo(P: FloatArray, n: int, nb: Sequence[int], r: int, Ct: FloatArray, Rn: FloatArray,
+                     rcond: float, how: str) -> tuple[FloatArray, FloatArray]:
+    """Theorem 4's B̂^n = Σ_{eν̃} Σ_ν̃^+ in reduced coordinates: returns (B_cons (r, d r), B_u (r, M_n))."""
+    d, mn = len(nb), Ct.shape[0]
+    dr = d * r
+    Pnn = P[n * r : (n + 1) * r, n * r : (n + 1) * r]
+    Snu = np.empty((dr + mn, dr + mn))
+    Sey = np.empty((r, dr + mn))
+    if d:
+        li = np.concatenate([np.arange(l * r, (l + 1) * r) for l in nb])
+        Pnl = P[n * r : (n + 1) * r, li]  # [P^{n l_1} ... P^{n l_d}]; P^{l n} = (P^{n l})' (P symmetric)
+        Pll = P[np.ix_(li, li)]
+        # [Σ_ν̃]_{qs} = P^{nn} - P^{n l_s} - P^{l_q n} + P^{l_q l_s}
+        Snu[:dr, :dr] = np.tile(Pnn, (d, d)) - np.tile(Pnl, (d, 1)) - np.tile(Pnl.T, (1, d)) + Pll
+        # [Σ_ν̃]_{q,u} = (P^{nn} - P^{l_q n}) C̃_n'
+        Snu[:dr, dr:] = (np.tile(Pnn, (d, 1)) - Pnl.T) @ Ct.T
+        Snu[dr:, :dr] = Snu[:dr, dr:].T
+        Sey[:, :dr] = np.tile(Pnn, (1, d)) - Pnl  # E[e^n (e^n - e^{l_q})'] = P^{nn} - P^{n l_q}
+    Snu[dr:, dr:] = Ct @ Pnn @ Ct.T + Rn  # C̃ P^{nn} C̃' + R_n
+    Sey[:, dr:] = Pnn @ Ct.T  # E[e^n u^n'] = P^{nn} C̃_n'
+    Bhat = _psd_solve(Sey, Snu, rcond, how)
+    return Bhat[:, :dr], Bhat[:, dr:]
+
+
+class _CheckA:
+    """Ǎ_r = Λ U' A Ĩ, applied blockwise through its factorization Ǎ_r = (Λ U' A W) W' (W: basis of null G)."""
+
+    def __init__(self, model: PseudoStateModel, A: FloatArray):
+        M, r = model.dx, model.rank
+        self.zero = r == M
+        if not self.zero:
+            w, Q = np.linalg.eigh(model.I_tilde)
+            W = Q[:, w > 0.5]  # orthonormal basis of null(G)
+            self.Wt = np.ascontiguousarray(W.T)
+            self.Aw = model.lam[:, None] * (model.U.T @ A @ W)
+
+    def left(self, ops: "_Structured", X: FloatArray) -> FloatArray:
+        return ops.bd_left(self.Aw, ops.bd_left(self.Wt, X))
+
+    def right(self, ops: "_Structured", X: FloatArray) -> FloatArray:
+        return ops.bd_right(ops.bd_right(X, self.Wt), self.Aw)
+
+
 def _iterate(system: LinearGaussianSystem, model: PseudoStateModel, nbrs: Sequence[Sequence[int]], cost: TeamCost, T: int,
-             rcond: float, form: str, ops: _Structured, fixed: CIKFDesign | None, equations: str) -> dict[str, Any]:
+             rcond: float, form: str, ops: _Structured, fixed: CIKFDesign | None, equations: str, pinv: str) -> dict[str, Any]:
+    """Algorithm 2 with the corrected eqs. (41)-(47) (module docstring), in reduced coordinates.
+
+    Stored: P = P_{k|k-1} (Nr x Nr), Pt = Π'_{k|k-1} = E[e ε'] (Nr x NM), Sig = Σ_{k|k-1} (NM x NM). Keeping
+    Π transposed makes every product with the block-sparse M_k a row gather; symmetric results are
+    formed as sym(X + Y) where the exact result is X + Y' with X + Y' symmetric.
+    """
     N, M, r = system.n_agents, system.dx, model.rank
     A, Vq, S0 = system.A_at(0), system.Q_at(0), system.Sigma_x
-    Gr, At, Ac = model.G_r, model.A_tilde_r, model.A_check_r
+    Gr, At = model.G_r, model.A_tilde_r
+    chk = _CheckA(model, A)
     Ct = model.C_tilde
     Rn = [system.R_at(n, 0) for n in range(N)]
-    has_check = bool(np.any(Ac != 0.0))
-    Ax = At @ model.U.T  # Ã acting on x-space quantities (only for the printed eq. 45)
     mse_like = _is_mse(cost, N, M, T)
-    # initial conditions (corrected): (1 1') ⊗ G Σ0 G, (1 1') ⊗ Σ0 G, (1 1') ⊗ Σ0
+    # initial conditions (corrected sizes): (1 1') ⊗ G Σ0 G, (1 1') ⊗ G Σ0 (= Π'), (1 1') ⊗ Σ0
     P = np.tile(Gr @ S0 @ Gr.T, (N, N))
-    Pi = np.tile(S0 @ Gr.T, (N, N))
+    Pt = np.tile(Gr @ S0, (N, N))
     Sig = np.tile(S0, (N, N))
-    GVG, VG = np.tile(Gr @ Vq @ Gr.T, (N, N)), np.tile(Vq @ Gr.T, (N, N))
-    VV = np.tile(Vq, (N, N))
+    GVG, GV, VV = np.tile(Gr @ Vq @ Gr.T, (N, N)), np.tile(Gr @ Vq, (N, N)), np.tile(Vq, (N, N))
     eyeM, eyer = np.eye(M), np.eye(r)
+    diag_r = np.arange(N)
     B_cons, B_innov = [], []
     K_all = np.empty((T, N, M, r))
     Sp, Sf_all = np.empty((T, N, M, M)), np.empty((T, N, M, M))
@@ -715,98 +877,82 @@ def _iterate(system: LinearGaussianSystem, model: PseudoStateModel, nbrs: Sequen
     stage = np.empty(T)
     for k in range(T):
         Sp[k] = _diag_blocks(Sig, N, M)
-        Pd = _diag_blocks(P, N, r)
-        Ptr[k] = np.trace(Pd, axis1=1, axis2=2)
+        Ptr[k] = np.trace(_diag_blocks(P, N, r), axis1=1, axis2=2)
         if form == "predictor":
             stage[k] = _stage_cost(cost, k, Sig, Sp[k], mse_like, ops)
-        # --- Theorem 4: consensus + innovation gains (reduced coordinates) ---
-        rows, Bc_k, Bu_k = [], [], []
-        noise = np.empty((N, r, r))
+        # --- Theorem 4: consensus + innovation gains B̂^n ---
+        if fixed is not None:
+            Bc_k, Bu_k = list(fixed.B_cons[k]), list(fixed.B_innov[k])
+        else:
+            Bc_k, Bu_k = [], []
+            for n in range(N):
+                Bc, Bu = _theorem4_pseudo(P, n, nbrs[n], r, Ct[n], Rn[n], rcond, pinv)
+                Bc_k.append(Bc)
+                Bu_k.append(Bu)
+        rows = []
         for n in range(N):
-            nb = list(nbrs[n])
-            d, mn = len(nb), Ct[n].shape[0]
-            Pnn = Pd[n]
-            if fixed is not None:
-                Bc, Bu = fixed.B_cons[k][n], fixed.B_innov[k][n]
-            else:
-                dr = d * r
-                Snu = np.empty((dr + mn, dr + mn))
-                Sey = np.empty((r, dr + mn))
-                if d:
-                    li = np.concatenate([np.arange(l * r, (l + 1) * r) for l in nb])
-                    Pnl = P[n * r : (n + 1) * r][:, li]  # [P^{n l_1} ... P^{n l_d}]
-                    Pln = P[li][:, n * r : (n + 1) * r]
-                    Pll = P[np.ix_(li, li)]
-                    Snu[:dr, :dr] = np.tile(Pnn, (d, d)) - np.tile(Pnl, (d, 1)) - np.tile(Pln, (1, d)) + Pll
-                    Snu[:dr, dr:] = (np.tile(Pnn, (d, 1)) - Pln) @ Ct[n].T
-                    Snu[dr:, :dr] = Snu[:dr, dr:].T
-                    Sey[:, :dr] = np.tile(Pnn, (1, d)) - Pnl
-                Snu[dr:, dr:] = Ct[n] @ Pnn @ Ct[n].T + Rn[n]
-                Sey[:, dr:] = Pnn @ Ct[n].T
-                Bhat = _psd_solve(Sey, Snu, rcond)
-                Bc, Bu = Bhat[:, :dr], Bhat[:, dr:]
-            Bc_k.append(Bc)
-            Bu_k.append(Bu)
+            d = len(nbrs[n])
             row = np.empty((r, (d + 1) * r))
-            row[:, :r] = eyer - Bu @ Ct[n] - (Bc.reshape(r, d, r).sum(axis=1) if d else 0.0)
-            row[:, r:] = Bc
+            row[:, :r] = eyer - Bu_k[n] @ Ct[n] - (Bc_k[n].reshape(r, d, r).sum(axis=1) if d else 0.0)
+            row[:, r:] = Bc_k[n]
             rows.append(row)
-            noise[n] = Bu @ Rn[n] @ Bu.T
         B_cons.append(tuple(Bc_k))
         B_innov.append(tuple(Bu_k))
-        # --- (41), (42) ---
-        Gam = ops.m_right(Pi, rows)  # Γ = Π M'            (NM x Nr)
-        Pf = ops.m_left(rows, ops.m_right(P, rows))
+        # --- (41): Γ' = M Π' ;  (42): P_f = M P M' + B^I D̄_H B^I' ---
+        Gt = ops.m_left(rows, Pt)  # Γ' = E[e_{k|k} ε_{k|k-1}'], (Nr x NM)
+        Z = ops.m_left(rows, P)  # M P; P M' = Z' (P symmetric)
+        Pf = ops.m_sandwich(rows, np.ascontiguousarray(Z.T))  # M P M', symmetric by construction
+        del Z
         for n in range(N):
-            Pf[n * r : (n + 1) * r, n * r : (n + 1) * r] += noise[n]
-        _sym(Pf)
-        # --- state gains K^n (Theorem 4) ---
+            nz = Bu_k[n] @ Rn[n] @ Bu_k[n].T
+            Pf[n * r : (n + 1) * r, n * r : (n + 1) * r] += 0.5 * (nz + nz.T)
+        # --- Theorem 4: state gains K^n ---
         Sd = Sp[k]
-        Gd = Gam.reshape(N, M, N, r)[np.arange(N), :, np.arange(N), :]  # Γ^{nn}, (N, M, r)
-        Pfd = _diag_blocks(Pf, N, r)
-        Kk = np.empty((N, M, r))
-        for n in range(N):
-            if fixed is not None:
-                Kk[n] = fixed.K[k, n]
-                continue
-            S_nu = Gr @ Sd[n] @ Gr.T - Gr @ Gd[n] - Gd[n].T @ Gr.T + Pfd[n]
-            S_xnu = Sd[n] @ Gr.T - Gd[n]
-            Kk[n] = _psd_solve(S_xnu, S_nu, rcond)
+        Gd = Gt.reshape(N, r, N, M)[diag_r, :, diag_r, :]  # (Γ^{nn})', (N, r, M)
+        if fixed is not None:
+            Kk = np.array(fixed.K[k])
+        else:
+            Pfd = _diag_blocks(Pf, N, r)
+            Kk = np.empty((N, M, r))
+            for n in range(N):
+                GrS = Gr @ Sd[n]
+                S_nu = GrS @ Gr.T - Gr @ Gd[n].T - Gd[n] @ Gr.T + Pfd[n]  # G Σ G - G Γ - Γ' G + P_f
+                Kk[n] = _psd_solve(GrS.T - Gd[n].T, S_nu, rcond, pinv)  # (Σ G - Γ) Σ_ν^+
         K_all[k] = Kk
         F = eyeM - Kk @ Gr  # (N, M, M)
-        # --- (43)*, (44): Σ_f = [F K] [[Σ, Γ], [Γ', P_f]] [F K]' ---
-        Pif = ops.bd_left(F, Gam) + ops.bd_left(Kk, Pf)  # Π_{k|k}  (NM x Nr)
-        cross = Pi if equations == "printed" else Gam  # the printed (43) has Π_{k|k-1} where Γ_k belongs
-        L1 = ops.bd_left(F, Sig) + ops.bd_left(Kk, np.ascontiguousarray(cross.T))
-        if equations == "printed":
-            Sf = ops.bd_right(L1, F) + ops.bd_right(ops.bd_left(F, Pi) + ops.bd_left(Kk, Pf), Kk)
-        else:
-            Sf = ops.bd_right(L1, F) + ops.bd_right(Pif, Kk)
+        # --- (44): Π_f' = Γ' F' + P_f K' ;  (43)*: Σ_f = F Σ F' + F Γ K' + K Γ' F' + K P_f K' ---
+        Pft = ops.bd_right(Gt, F)
+        Pft += ops.bd_right(Pf, Kk)
+        L1 = ops.bd_left(F, Sig)
+        L1 += ops.bd_left(Kk, Pt if equations == "printed" else Gt)  # F Σ + K Γ'
+        if equations == "printed":  # the extracted (43): Π_{k|k-1} in both cross terms
+            Sf = ops.bd_right(L1, F) + ops.bd_left(Kk, ops.bd_right(Pt, F) + ops.bd_right(Pf, Kk))
+        else:  # exact: L1 F' + Π_f K' = L1 F' + (K Π_f')'
+            Sf = ops.bd_right(L1, F)
+            Sf += ops.bd_left(Kk, Pft)
         _sym(Sf)
         Sf_all[k] = _diag_blocks(Sf, N, M)
         if form == "filter":
             stage[k] = _stage_cost(cost, k, Sf, Sf_all[k], mse_like, ops)
         if k + 1 == T:
             break
-        # --- prediction (45)*, (46), (47) ---
-        Ye = ops.bd_left(At, Pf)
-        PifT = np.ascontiguousarray(Pif.T)
-        Yx = ops.bd_left(At, PifT)  # rows e', columns ε_f: Ã Π_f' + Ǎ Σ_f
-        if has_check:
-            Ye += ops.bd_left(Ac, Pif)
-            Yx += ops.bd_left(Ac, Sf)
-        if equations == "printed":  # eq. (45) as extracted: Ã in every term (Ã acting on x-quantities = Ã_r U')
-            Ye_p = ops.bd_left(At, Pf) + ops.bd_left(Ax, Pif)
-            Yx_p = ops.bd_left(At, PifT) + ops.bd_left(Ax, Sf)
-            P = ops.bd_right(Ye_p, At) + ops.bd_right(Yx_p, Ax) + GVG
-        else:
-            P = ops.bd_right(Ye, At) + GVG
-            if has_check:
-                P += ops.bd_right(Yx, Ac)
+        # --- (45)*: P' = Ã P_f Ã' + 2 sym(Ã Π_f' Ǎ') + Ǎ Σ_f Ǎ' ; (47): Π'' = (Ã Π_f' + Ǎ Σ_f) A' ; (46) ---
+        Yx = ops.bd_left(At, Pft)  # Ã Π_f'   (Nr x NM)
+        P = ops.bd_right(ops.bd_left(At, Pf), At)
+        if equations == "printed":  # the extracted (45): Ã (acting on x-quantities: Ã_r U') in every term
+            Ax = At @ model.U.T
+            P += 2.0 * ops.bd_right(Yx, Ax) + ops.bd_right(ops.bd_left(Ax, Sf), Ax)
+        if not chk.zero:
+            AcS = chk.left(ops, Sf)  # Ǎ Σ_f
+            if equations != "printed":
+                P += 2.0 * chk.right(ops, Yx) + chk.right(ops, AcS)
+            Yx += AcS
         _sym(P)
-        Pi = np.ascontiguousarray(ops.bd_right(Yx, A).T) + VG
-        Sig = ops.bd_left(A, ops.bd_right(Sf, A)) + VV
-        _sym(Sig)
+        P += GVG
+        Pt = ops.bd_right(Yx, A)
+        Pt += GV
+        Sig = ops.bd_right(ops.bd_left(A, Sf), A)  # symmetric to round-off (Σ_f is symmetrized)
+        Sig += VV
         if not (np.isfinite(P[0, 0]) and np.isfinite(Sig[0, 0])):
             raise FloatingPointError(f"CIKF gain design: the error covariances overflowed at step {k + 1}; "
                                      "the error dynamics diverge (see tracking_capacity)")
@@ -814,9 +960,16 @@ def _iterate(system: LinearGaussianSystem, model: PseudoStateModel, nbrs: Sequen
             "P_pred_trace": Ptr, "stage": stage}
 
 
+@lru_cache(maxsize=8)
+def _mse_cost(N: int, M: int) -> TeamCost:
+    """TeamCost.mse(N, M), built once per size (validating S = I of size NM costs an NM x NM eigen-decomposition)."""
+    return TeamCost.mse(N, M)
+
+
 def design_cikf(system: LinearGaussianSystem, graph: CommGraph, horizon: int, *, cost: TeamCost | None = None,
                 form: Form = "filter", rcond: float = DEFAULT_RCOND, method: Method = "structured", check: bool = True,
-                gains: CIKFDesign | None = None, equations: Literal["corrected", "printed"] = "corrected") -> CIKFDesign:
+                gains: CIKFDesign | None = None, equations: Literal["corrected", "printed"] = "corrected",
+                threads: int | None = 1, pinv: Literal["cholesky", "eigh"] = "cholesky") -> CIKFDesign:
     """Algorithm 2: optimal CIKF gains (Theorem 4) and the error covariances (corrected eqs. 41-47).
 
     Parameters
@@ -846,6 +999,13 @@ def design_cikf(system: LinearGaussianSystem, graph: CommGraph, horizon: int, *,
     equations : "corrected" (default) or "printed"
         "printed" runs eqs. (43) and (45) as extracted (Π_{k|k-1} for Γ_k, Ã for Ǎ) — only to quantify the
         errata; its covariances are not the filter's (evaluate its gains with ``gains=``).
+    pinv : "cholesky" (default) or "eigh"
+        How Theorem 4's singular covariances are inverted: pivoted Cholesky that drops innovation components
+        whose conditional variance is below ``rcond`` times the largest variance (fast), or the truncated
+        eigen pseudo-inverse (directions below ``rcond * lambda_max``). They agree to ~1e-4 dB (tested).
+    threads : int or None
+        BLAS threads during the design and the design's Monte Carlo methods (default 1: robust on shared
+        machines, see ``docs/cikf.md``); None leaves the BLAS setting alone.
 
     Examples
     --------
@@ -864,7 +1024,7 @@ def design_cikf(system: LinearGaussianSystem, graph: CommGraph, horizon: int, *,
         raise ShapeError("horizon: the CIKF gains are designed over a finite horizon (Algorithm 2), found horizon=None; give T steps")
     T = V.positive_int(horizon, "horizon")
     if cost is None:
-        cost = TeamCost.mse(N, M)
+        cost = _mse_cost(N, M)
     if not isinstance(cost, TeamCost):
         raise ShapeError(f"cost: expected a TeamCost (or None for TeamCost.mse), found {type(cost).__name__}")
     cost.check_system(M, N)
@@ -898,10 +1058,15 @@ def design_cikf(system: LinearGaussianSystem, graph: CommGraph, horizon: int, *,
     r_idx = [np.concatenate([np.arange(l * r, (l + 1) * r) for l in h]) for h in hoods]
     Ops = _Structured if method == "structured" else _Dense
     ops = Ops(N, r, hoods, r_idx)
-    res = _iterate(system, model, nbrs, cost, T, rcond, form, ops, gains, equations)
+    if pinv not in ("cholesky", "eigh"):
+        raise ShapeError(f"pinv: expected 'cholesky' or 'eigh', found {pinv!r}")
+    if threads is not None:
+        threads = V.positive_int(threads, "threads")
+    with _blas_threads(threads):
+        res = _iterate(system, model, nbrs, cost, T, rcond, form, ops, gains, equations, pinv)
     info = {"rank_G": r, "G_invertible": model.invertible, "lambda_1": model.lambda_1, "lambda_m": model.lambda_m,
             "rcond": rcond, "method": method, "equations": equations, "form": form, "design_seconds": time.perf_counter() - t0,
-            "n_edges": graph.n_edges, "evaluated_gains": gains is not None}
+            "n_edges": graph.n_edges, "evaluated_gains": gains is not None, "threads": threads, "pinv": pinv}
     return CIKFDesign(
         "cikf", T, V.frozen(res["stage"]), None, info, system, cost, graph, model, form, rcond, nbrs,
         res["B_cons"], res["B_innov"], V.frozen(res["K"]), V.frozen(res["Sigma_pred"]), V.frozen(res["Sigma_filt"]),
@@ -983,6 +1148,27 @@ class TrackingCapacity:
     status: str
 
 
+def tracking_capacity_upper_bound(system: LinearGaussianSystem) -> float:
+    r"""A graph-independent closed-form upper bound on Theorem 3's capacity (no solver needed).
+
+    Since B^C (1 ⊗ y) = 0, ||M|| >= ||stack_n(I - B_u^n C̃_n)|| / sqrt(N) (see :func:`tracking_capacity`), and
+    ||X||_2^2 >= ||X||_F^2 / r with ||I - B C̃_n||_F^2 >= r - rank(C̃_n), so
+
+    .. math::
+
+        \min ||I - B^C - B^I \tilde D_H||_2 \ge \sqrt{1 - \textstyle\sum_n \operatorname{rank}(H_n U) / (N r)}, \qquad
+        C \le \frac{\lambda_1}{\lambda_m} \Big/ \sqrt{1 - \textstyle\sum_n \operatorname{rank}(H_n U)/(N r)}
+
+    for every graph (inf when the agents' ranks add up to N r, e.g. every agent observes range(G)).
+    """
+    model = pseudo_state_model(system)
+    N, r = system.n_agents, model.rank
+    ranks = sum(int(np.linalg.matrix_rank(c)) for c in model.C_tilde)
+    frac = 1.0 - ranks / (N * r)
+    ratio = model.lambda_1 / model.lambda_m
+    return float("inf") if frac <= 0 else ratio / float(np.sqrt(frac))
+
+
 def tracking_capacity(system: LinearGaussianSystem, graph: CommGraph, *, solver: str | None = None,
                       zero_tol: float = 1e-7) -> TrackingCapacity:
     r"""Theorem 3: C = max over structured B^C, B^I of λ_1 / (λ_m ||I - B^C - B^I D̃_H||_2), with cvxpy.
@@ -998,6 +1184,9 @@ def tracking_capacity(system: LinearGaussianSystem, graph: CommGraph, *, solver:
     Also returned: a graph-independent lower bound on the norm. Since B^C (1 ⊗ y) = 0,
     M (1 ⊗ y) = [(I - B_u^n C̃_n) y]_n whatever the graph, so even the complete graph has a finite
     capacity unless every agent alone observes range(G) (then B_u^n C̃_n = I is possible and C = inf).
+    On every connected graph we tried the optimum *attains* this bound (line = ring = complete): the
+    capacity (53) depends on the graph only through whether each connected component jointly observes
+    range(G) (``docs/cikf.md``).
     """
     cp = V.require("cvxpy", "cvx")
     model = pseudo_state_model(system)

@@ -197,8 +197,11 @@ class SweepResult:
             if baseline is not None and r["estimator"] == baseline:
                 continue
             groups.setdefault((r["estimator"], *(r[k] for k in others)), []).append(r)
+        xvalues = list(_unique(r[x] for r in self.rows))
+        numeric = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in xvalues)
+        pos = {v: (float(v) if numeric else float(k)) for k, v in enumerate(xvalues)}
         for gkey, grows in groups.items():
-            pts = sorted(((float(r[x]), r) for r in grows if r.get(ycol) is not None), key=lambda t: t[0])
+            pts = sorted(((pos[r[x]], r) for r in grows if r.get(ycol) is not None), key=lambda t: t[0])
             if not pts:
                 continue
             xs = [p[0] for p in pts]
@@ -210,8 +213,11 @@ class SweepResult:
                                 color=line.get_color(), alpha=0.2, linewidth=0)
         if baseline is not None:
             ax.axhline(0.0, color="0.5", linewidth=0.8, linestyle="--")
-        xvals = [float(r[x]) for r in rows]
-        if logx is True or (logx == "auto" and xvals and min(xvals) > 0 and max(xvals) / min(xvals) >= 100):
+        xvals = list(pos.values())
+        if not numeric:  # strings, booleans, JSON values: one tick per value, in grid order
+            ax.set_xticks(xvals)
+            ax.set_xticklabels([str(v) for v in xvalues])
+        elif logx is True or (logx == "auto" and xvals and min(xvals) > 0 and max(xvals) / min(xvals) >= 100):
             ax.set_xscale("log")
         ax.set_xlabel(x)
         label = {"total_cost": "J_T", "average_cost": "average cost", "mc_cost": "Monte Carlo J_T"}.get(y, y)
