@@ -123,10 +123,33 @@ def _header(sc: Any) -> str:
 # ---------------------------------------------------------------------------
 # evaluate
 # ---------------------------------------------------------------------------
+def _cmd_population(sc: Any, args: argparse.Namespace) -> int:
+    """evaluate / design of a [population] scenario: exact statistics, nothing simulated."""
+    out = sc.evaluate()
+    if getattr(args, "json", False):
+        print(dumps_json(out))
+        return 0
+    m = sc.model
+    print(f"scenario {sc.name}: population of N = {m.n_agents:,} interference-coupled agents, horizon T = {sc.horizon}, "
+          f"{out['filter']} filter, feedback f = {m.f:g} (a_f = {out['a_f']:g})")
+    tail = ", ".join(f"{v:.4g}" for v in out["gains"][-5:])
+    iso = out.get("isolated_gains")
+    print(f"  final gains K_T (last 5, oldest first): [..., {tail}]")
+    if iso:
+        print(f"  isolated Kalman sequence (last 5):      [..., {', '.join(f'{v:.4g}' for v in iso[-5:])}]")
+    print(f"  stationarity index {out['stationarity_index']:.3g}; state variance Var x_T = {out['state_variance']:.6g}; "
+          f"average LQ cost per agent {out['average_lq_cost']:.6g}")
+    return 0
+
+
 def _cmd_evaluate(args: argparse.Namespace) -> int:
     from . import _validation as V
 
     sc = _load(args.scenario)
+    if getattr(sc, "model", None) is not None and not hasattr(sc, "designs"):
+        if args.monte_carlo:
+            raise ScenarioError("--monte-carlo: a population scenario is evaluated exactly; nothing needs simulating")
+        return _cmd_population(sc, args)
     runs = args.monte_carlo
     if runs is not None:
         if sc.horizon is None:
@@ -304,6 +327,14 @@ def _design_summary(name: str, d: Any, sc: Any) -> dict[str, Any]:
 
 def _cmd_design(args: argparse.Namespace) -> int:
     sc = _load(args.scenario)
+    if getattr(sc, "model", None) is not None and not hasattr(sc, "designs"):
+        if args.out:
+            out = sc.evaluate()
+            path = Path(args.out)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            with open(path, "wb") as fh:
+                np.savez(fh, gains=np.asarray(out["gains"]), state_variance=np.asarray(out["state_variance_trajectory"]))
+        return _cmd_population(sc, args)
     designs = sc.designs()
     notes = []
     if args.out:

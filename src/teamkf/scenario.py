@@ -251,12 +251,10 @@ def scenario_from_dict(d: Mapping[str, Any], source: str = "<dict>") -> Scenario
     if not isinstance(d, Mapping):
         raise ScenarioError(f"scenario: expected a table of keys, found {type(d).__name__}")
     raw = copy.deepcopy(dict(d))
-    if "population" in raw:
-        raise _fail(
-            "population",
-            f"population scenarios are not supported yet in this version of teamkf ({_version()}); "
-            "this version handles [system] + [[agents]] + [graph] + [cost] scenarios",
-        )
+    if "population" in raw:  # an interference-coupled population (the bulk-filter paper)
+        from .models.population import population_from_dict
+
+        return population_from_dict(raw)  # type: ignore[return-value]
     _hoist_estimators(raw)
     _check_keys(raw, _TOP_KEYS, "")
     for key in ("system", "agents", "graph", "cost", "estimators"):

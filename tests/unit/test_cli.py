@@ -175,7 +175,7 @@ def test_debug_shows_traceback(tmp_path, where):
     ("cikf", "teamkf: error: estimators[1]: estimator 'cikf' is not available in this version of teamkf"),
     ("typo", "teamkf: error: cost.lamda: unknown key; did you mean 'lambda'?"),
     ("graph", "teamkf: error: graph: expected a strongly connected graph"),
-    ("population", "teamkf: error: population: population scenarios are not supported yet in this version"),
+    ("population", "teamkf: error: population.a:"),
     ("directory", "teamkf: error: {dir}: is a directory"),
 ])
 def test_errors_in_process(tmp_path, capsys, case, expected):
@@ -191,7 +191,7 @@ def test_errors_in_process(tmp_path, capsys, case, expected):
         p = write_scenario(tmp_path, "graph", replace={", [3, 2, 1]]": "]"})
     elif case == "population":
         p = tmp_path / "pop.toml"
-        p.write_text('name = "interference"\nhorizon = 1000\n[population]\nn_agents = 1000\na = 2.5\n')
+        p.write_text('name = "interference"\nhorizon = 1000\n[population]\nn_agents = 1000\na = "fast"\n')
     else:
         p = tmp_path
     for command in ("evaluate", "design"):
@@ -332,3 +332,13 @@ def test_format_table_aligns_columns():
 def test_dumps_json_round_trips():
     obj = {"a": [1.5, 2, None], "b": {"c": [[1, 2], [3, 4]], "d": {}}, "e": "x"}
     assert json.loads(dumps_json(obj)) == obj
+
+
+def test_population_evaluate_json(capsys):
+    assert main(["evaluate", "interference", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    for key in ("gains", "stationarity_index", "isolated_gains", "state_variance", "average_lq_cost"):
+        assert key in out
+    assert len(out["gains"]) == out["horizon"] == 1000
+    assert out["stationarity_index"] < 1e-8  # a = 2.5, f = 2 is in the stationary region
+    assert main(["evaluate", "interference", "--monte-carlo", "10"]) == 2

@@ -429,10 +429,14 @@ def test_reserved_estimators(name):
         assert avail in msg
 
 
-def test_population_scenarios_not_supported_yet():
-    d = {"name": "interference", "horizon": 1000, "population": {"n_agents": 1000, "a": 2.5}}
+def test_population_scenarios():
+    from teamkf.models.population import PopulationScenario
+
+    sc = scenario_from_dict({"name": "interference", "horizon": 50, "population": {"n_agents": 1000, "a": 2.5}})
+    assert isinstance(sc, PopulationScenario) and sc.model.n_agents == 1000
+    d = {"name": "interference", "horizon": 1000, "population": {"n_agents": 1000, "a": "fast"}}
     msg = error_of(d)
-    assert msg.startswith("population: population scenarios are not supported yet in this version")
+    assert msg.startswith("population.a:"), msg
 
 
 def test_steady_state_with_time_varying_system():
