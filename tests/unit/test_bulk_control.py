@@ -167,6 +167,8 @@ def test_saturation_and_validation():
         simulate_population(PopulationModel(n_agents=10**9, a=1.0, f=0.5), 5)
     with pytest.raises(ShapeError, match="filt: expected a filter over at least horizon = 10"):
         simulate_population(m, 10, filt=exact_bulk_filter(m, 5))
+    with pytest.raises(ShapeError, match="filt: expected a filter computed for this model"):
+        simulate_population(m, 5, filt=exact_bulk_filter(m.with_(n_agents=4), 5))
     with pytest.raises(ShapeError, match="n_runs"):
         simulate_population(m, 5, n_runs=0)
     assert map_points(lambda p: p * 2, [1, 2, 3]) == [2, 4, 6]
@@ -198,7 +200,6 @@ def test_bulk_experiments_registered_and_quick():
     assert row["corr(Var m, cross)"] > 0.99 and row["corr(K_k(k), cross)"] < -0.5
 
 
-@pytest.mark.slow
 def test_bulk_experiments_quick_all():
     st = experiments.run("bulk-stationarity", quick=True)
     assert all(np.isfinite(r["a_m(a_f)"]) for r in st.rows)
@@ -207,3 +208,14 @@ def test_bulk_experiments_quick_all():
     stab = experiments.run("bulk-stabilization", quick=True)
     n3, n10 = stab.rows[0], stab.rows[1]
     assert n10["stabilized points"] >= n3["stabilized points"]
+
+
+@pytest.mark.slow
+def test_table_1_thresholds_near_the_paper():
+    """Full-size (T = 1000) stationarity thresholds: within 0.03 of Table 1, and near a_m(a_f)."""
+    from teamkf.experiments.bulk_stationarity import PAPER_TABLE1, threshold_point
+
+    for af, N, j in ((0.5, 1000, 1), (0.99, 100, 0)):
+        r = threshold_point({"a_f": af, "n_agents": N, "horizon": 1000})
+        assert abs(r["abar"] - PAPER_TABLE1[af][j]) < 0.03
+        assert abs(r["abar"] - a_m_of_af(af)) < 0.15

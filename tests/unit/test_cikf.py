@@ -120,6 +120,7 @@ def test_pseudo_state_model_identities(make):
 
 
 def test_singular_instance_really_singular():
+    assert random_field_instance(15, 6, rng=1).unobserved.size > 0  # small_field leaves sites unobserved
     for make in (singular_instance, small_field):
         sysm, _ = make()
         m = pseudo_state_model(sysm)
@@ -443,3 +444,38 @@ def test_random_field_validation():
         random_field(15, 4, rng="seed")
     with pytest.raises(DetectabilityError, match="alone"):
         random_field(15, 6, rng=0, a_norm=0.9)  # a stable field: every agent detects it
+
+
+def test_paper_gains_structure():
+    """B^C has the Laplacian block pattern and annihilates 1 ⊗ y; B^I and K are block-diagonal (eqs. 60-63)."""
+    sysm, graph = singular_instance()
+    d = design_cikf(sysm, graph, 5)
+    N, M = sysm.n_agents, sysm.dx
+    g = d.paper_gains(3)
+    BC = g["B_C"].reshape(N, M, N, M)
+    for n in range(N):
+        for l in range(N):
+            if l != n and l not in d.neighbors[n]:
+                assert np.all(BC[n, :, l, :] == 0.0)
+                assert np.all(g["B_I"].reshape(N, M, N, M)[n, :, l, :] == 0.0)
+                assert np.all(g["K"].reshape(N, M, N, M)[n, :, l, :] == 0.0)
+    y = np.random.default_rng(0).standard_normal(M)
+    assert np.allclose(g["B_C"] @ np.tile(y, N), 0.0, atol=1e-12)
+
+
+def test_experiments_registered_and_quick_runs(tmp_path):
+    from teamkf import experiments
+
+    assert {"cikf-fig4", "cikf-capacity"} <= set(experiments.names())
+    res = experiments.run("cikf-fig4", tmp_path, quick=True)
+    data = res.data
+    assert data["gap_db"] > 0 and data["worst_z"] < 4.0
+    assert np.all(data["theory_cikf"] >= data["theory_ckf"] * (1 - 1e-9))
+    ok = np.isfinite(data["filter_mtmse"])
+    assert ok.sum() >= 10 and np.all(data["filter_mtmse"][ok] <= data["filter_cikf"][ok] * (1 + 1e-9))
+    assert (tmp_path / "cikf-fig4.csv").exists() and len(res.rows) == 31
+    cap = experiments.run("cikf-capacity", None, quick=True)
+    assert len(cap.rows) == 7
+    if cap.data["have_cvxpy"]:
+        caps = [r["capacity (53)"] for r in cap.rows]
+        assert all(b >= a * (1 - 1e-5) for a, b in zip(caps, caps[1:]))

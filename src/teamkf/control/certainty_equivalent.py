@@ -336,6 +336,8 @@ def simulate_population(
     f_ = filt if filt is not None else bulk_filter(model, T)
     if f_.horizon < T:
         raise ShapeError(f"filt: expected a filter over at least horizon = {T} steps, found {f_.horizon}")
+    if f_.model.with_(memory=0) != model.with_(memory=0):
+        raise ShapeError(f"filt: expected a filter computed for this model, found one for {f_.model}; pass filt=None to compute it")
     exact = isinstance(f_, BulkFilter)
     a, b, c, h, fb = model.a, model.b, model.c, model.h, model.f
     af = model.a_f
@@ -345,7 +347,17 @@ def simulate_population(
     streams = run_streams(rng, R_)
     # runs per chunk: the filter history of a chunk must fit in memory, and the part every step reads
     # (band x N per run) should stay in cache from one step to the next
-    band = int(np.max(np.arange(T) - _mu_windows(np.asarray(f_.mu)[:T, :T]))) if exact else int(f_.memory)  # type: ignore[union-attr]
+    if exact:
+        bfil = cast(BulkFilter, f_)
+        mu = np.asarray(bfil.mu)
+        lo_row = _mu_windows(mu[:T, :T])
+        g, s = bfil.g, bfil.s
+        band = int(np.max(np.arange(T) - lo_row))
+    else:
+        mfil = cast(FiniteMemoryFilter, f_)
+        Kf = np.asarray(mfil.K)
+        n = mfil.memory
+        band = n
     chunk = max(1, min(R_, int(max_chunk_doubles) // max(1, N * T), CACHE_DOUBLES // max(1, band * N)))
     final = np.empty((R_, N))
     cost = np.empty(R_)
@@ -353,15 +365,6 @@ def simulate_population(
     mean = np.empty((R_, T + 1))
     states = np.empty((R_, T + 1, N)) if keep_states else None
     ests = np.empty((R_, T + 1, N)) if keep_states else None
-    if exact:
-        bfil = cast(BulkFilter, f_)
-        mu = np.asarray(bfil.mu)
-        lo_row = _mu_windows(mu[:T, :T])
-        g, s = bfil.g, bfil.s
-    else:
-        mfil = cast(FiniteMemoryFilter, f_)
-        Kf = np.asarray(mfil.K)
-        n = mfil.memory
     r_w = model.r
     with np.errstate(over="ignore", invalid="ignore"):
         for r0 in range(0, R_, chunk):

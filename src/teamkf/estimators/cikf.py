@@ -103,10 +103,15 @@ The pseudo-inverse cut-off
 difference e^n - e^l is exactly 0) and, later, its difference blocks are
 formed by cancellation (P^{nn} - P^{nl} - P^{ln} + P^{ll} of nearly equal
 blocks), so their smallest eigenvalues carry absolute errors of order
-eps ||P||. ``_psd_solve`` keeps eigen-directions above ``rcond`` times the
-largest eigenvalue. A near-exact cut-off (1e-12) amplifies those
-round-off directions into large gains; the default ``rcond = 1e-9`` drops
-them and costs far less than 0.01 dB (``docs/cikf.md``, tested).
+eps ||P||. ``_psd_solve`` (``pinv="cholesky"``, default) runs a pivoted
+Cholesky that stops when the largest remaining conditional variance is
+below ``rcond`` times the largest variance: innovation components that are
+(numerically) predictable from the kept ones get zero gain, which is exact
+for the consistent systems of Theorem 4 when Σ_ν̃ is exactly singular.
+``pinv="eigh"`` truncates the eigen-decomposition at ``rcond * lambda_max``.
+The default ``rcond = 1e-9`` stays three orders of magnitude above the
+round-off level of the differences; at M = N = 50 it costs 5e-4 dB against
+1e-12, and neither drifts (``docs/cikf.md``, tested).
 
 Cost (M = N = 50: NM = 2500)
 ----------------------------
@@ -126,8 +131,8 @@ References
 from __future__ import annotations
 
 import time
-from functools import lru_cache
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any, Literal, Sequence
 
 import numpy as np
@@ -455,7 +460,7 @@ class _Dense(_Structured):
 
     def _bd(self, B: FloatArray) -> FloatArray:
         if B.ndim == 2:
-            return np.kron(np.eye(self.N), B)
+            return np.asarray(np.kron(np.eye(self.N), B), dtype=float)
         return sla.block_diag(*B)  # type: ignore[no-any-return]
 
     def m_right(self, X: FloatArray, rows: Sequence[FloatArray]) -> FloatArray:
@@ -622,52 +627,68 @@ class CIKFDesign(Design):
 
     def _recursion_impl(self, ys: Sequence[FloatArray] | None, x0: FloatArray | None, w: FloatArray | None, n_runs: int, T: int,
                         form: str) -> FloatArray:
-        """Algorithm 1 on data (``ys``) or its error recursion (30)-(33) on the primitive noises (x0, w, ys = v)."""
+        """Algorithm 1 on data (``ys``) or its error recursion (30)-(33) on the primitive noises (x0, w, ys = v).
+
+        Agent-major layout (N, n_runs, .) so that every per-agent product is a contiguous GEMM.
+        """
         m, sys, cost = self.model, self.system, self.cost
         N, M, r = self.n_agents, sys.dx, m.rank
         A = sys.A_at(0)
         errors = x0 is not None
         if errors:
-            yh = np.repeat((x0 @ m.G_r.T)[:, None, :], N, axis=1)  # e^n_{0|-1} = G_r (x0 - x̄0)
-            xh = np.repeat(x0[:, None, :], N, axis=1)  # ε^n_{0|-1}
+            yh = np.repeat((x0 @ m.G_r.T)[None], N, axis=0)  # type: ignore[index]  # e^n_{0|-1} = G_r (x0 - x̄0)
+            xh = np.repeat(x0[None], N, axis=0)  # type: ignore[index]  # ε^n_{0|-1}
         else:
-            yh = np.zeros((n_runs, N, r))  # ŷ^n_{0|-1} = G_r x̄_0 = 0
-            xh = np.zeros((n_runs, N, M))
+            yh = np.zeros((N, n_runs, r))  # ŷ^n_{0|-1} = G_r x̄_0 = 0
+            xh = np.zeros((N, n_runs, M))
         dz = cost.dz
+        identity_L = dz == M and all(np.array_equal(cost.L_block(n, k), np.eye(M)) for n in range(N) for k in range(min(T, 1 if not cost.is_time_varying else T)))
         out = np.empty((n_runs, T, N * dz))
-        yf = np.empty_like(yh)
+        sign = -1.0 if errors else 1.0
         for k in range(T):
             Bc_k, Bu_k = self.B_cons[k], self.B_innov[k]
+            yf = np.empty_like(yh)
             for n in range(N):
                 nb = self.neighbors[n]
-                own = yh[:, n]
+                own = yh[n]
                 # innovation u^n = y_n - C̃_n ŷ^n (data)  |  C̃_n e^n + v_n (errors)
                 if errors:
                     u = own @ m.C_tilde[n].T + ys[n][:, k]  # type: ignore[index]
-                    sign = -1.0
                 else:
                     u = ys[n][:, k] - own @ m.C_tilde[n].T  # type: ignore[index]
-                    sign = 1.0
-                acc = own + sign * (u @ Bu_k[n].T)
+                acc = u @ Bu_k[n].T
+                if sign < 0:
+                    np.negative(acc, out=acc)
+                acc += own
                 if nb:
-                    # consensus: + Σ_l B^{nl} (ŷ^l - ŷ^n) on data, + Σ_l B^{nl} (e^l - e^n) on errors (same sign)
-                    diff = (yh[:, list(nb)] - own[:, None, :]).reshape(n_runs, -1)
-                    acc = acc + diff @ Bc_k[n].T
-                yf[:, n] = acc
+                    # consensus + Σ_l B^{nl} (ŷ^l - ŷ^n) on data, + Σ_l B^{nl} (e^l - e^n) on errors (same sign)
+                    Bc = Bc_k[n]
+                    acc -= own @ Bc.reshape(r, len(nb), r).sum(axis=1).T
+                    for q, l in enumerate(nb):
+                        acc += yh[l] @ Bc[:, q * r : (q + 1) * r].T
+                yf[n] = acc
             # ν = ŷ_f - G_r x̂ (data) | G_r ε - e_f (errors);  x̂_f = x̂ + K ν | ε_f = ε - K ν
-            nu = (xh @ m.G_r.T - yf) if errors else (yf - xh @ m.G_r.T)
-            corr = np.matmul(nu.transpose(1, 0, 2), self.K[k].transpose(0, 2, 1)).transpose(1, 0, 2)
+            nu = xh @ m.G_r.T
+            if errors:
+                nu -= yf
+            else:
+                np.subtract(yf, nu, out=nu)
+            corr = np.matmul(nu, self.K[k].transpose(0, 2, 1))  # (N, R, M)
             xf = xh - corr if errors else xh + corr
             src = xf if form == "filter" else xh
-            for n in range(N):
-                out[:, k, n * dz : (n + 1) * dz] = src[:, n] @ cost.L_block(n, k).T
+            if identity_L:
+                out[:, k] = src.transpose(1, 0, 2).reshape(n_runs, N * M)
+            else:
+                for n in range(N):
+                    out[:, k, n * dz : (n + 1) * dz] = src[n] @ cost.L_block(n, k).T
             if k + 1 < T:
-                yh = yf @ m.A_tilde_r.T + xf @ m.A_check_r.T
+                yh = yf @ m.A_tilde_r.T
+                if m.rank < M:
+                    yh += xf @ m.A_check_r.T
                 xh = xf @ A.T
                 if errors:
-                    yh += (w[:, k] @ m.G_r.T)[:, None, :]  # type: ignore[index]
-                    xh += w[:, k][:, None, :]  # type: ignore[index]
-                yf = np.empty_like(yh)
+                    yh += w[:, k] @ m.G_r.T  # type: ignore[index]
+                    xh += w[:, k]  # type: ignore[index]
         return out
 
     def simulate(self, y: Any, *, form: Form | None = None) -> FloatArray:
@@ -863,6 +884,8 @@ def _iterate(system: LinearGaussianSystem, model: PseudoStateModel, nbrs: Sequen
     Ct = model.C_tilde
     Rn = [system.R_at(n, 0) for n in range(N)]
     mse_like = _is_mse(cost, N, M, T)
+    p43 = equations in ("printed", "printed-43")
+    p45 = equations in ("printed", "printed-45")
     # initial conditions (corrected sizes): (1 1') ⊗ G Σ0 G, (1 1') ⊗ G Σ0 (= Π'), (1 1') ⊗ Σ0
     P = np.tile(Gr @ S0 @ Gr.T, (N, N))
     Pt = np.tile(Gr @ S0, (N, N))
@@ -924,8 +947,8 @@ def _iterate(system: LinearGaussianSystem, model: PseudoStateModel, nbrs: Sequen
         Pft = ops.bd_right(Gt, F)
         Pft += ops.bd_right(Pf, Kk)
         L1 = ops.bd_left(F, Sig)
-        L1 += ops.bd_left(Kk, Pt if equations == "printed" else Gt)  # F Σ + K Γ'
-        if equations == "printed":  # the extracted (43): Π_{k|k-1} in both cross terms
+        L1 += ops.bd_left(Kk, Pt if p43 else Gt)  # F Σ + K Γ'
+        if p43:  # the extracted (43): Π_{k|k-1} in both cross terms
             Sf = ops.bd_right(L1, F) + ops.bd_left(Kk, ops.bd_right(Pt, F) + ops.bd_right(Pf, Kk))
         else:  # exact: L1 F' + Π_f K' = L1 F' + (K Π_f')'
             Sf = ops.bd_right(L1, F)
@@ -939,12 +962,12 @@ def _iterate(system: LinearGaussianSystem, model: PseudoStateModel, nbrs: Sequen
         # --- (45)*: P' = Ã P_f Ã' + 2 sym(Ã Π_f' Ǎ') + Ǎ Σ_f Ǎ' ; (47): Π'' = (Ã Π_f' + Ǎ Σ_f) A' ; (46) ---
         Yx = ops.bd_left(At, Pft)  # Ã Π_f'   (Nr x NM)
         P = ops.bd_right(ops.bd_left(At, Pf), At)
-        if equations == "printed":  # the extracted (45): Ã (acting on x-quantities: Ã_r U') in every term
+        if p45:  # the extracted (45): Ã (acting on x-quantities: Ã_r U') in every term
             Ax = At @ model.U.T
             P += 2.0 * ops.bd_right(Yx, Ax) + ops.bd_right(ops.bd_left(Ax, Sf), Ax)
         if not chk.zero:
             AcS = chk.left(ops, Sf)  # Ǎ Σ_f
-            if equations != "printed":
+            if not p45:
                 P += 2.0 * chk.right(ops, Yx) + chk.right(ops, AcS)
             Yx += AcS
         _sym(P)
@@ -968,7 +991,7 @@ def _mse_cost(N: int, M: int) -> TeamCost:
 
 def design_cikf(system: LinearGaussianSystem, graph: CommGraph, horizon: int, *, cost: TeamCost | None = None,
                 form: Form = "filter", rcond: float = DEFAULT_RCOND, method: Method = "structured", check: bool = True,
-                gains: CIKFDesign | None = None, equations: Literal["corrected", "printed"] = "corrected",
+                gains: CIKFDesign | None = None, equations: Literal["corrected", "printed", "printed-43", "printed-45"] = "corrected",
                 threads: int | None = 1, pinv: Literal["cholesky", "eigh"] = "cholesky") -> CIKFDesign:
     """Algorithm 2: optimal CIKF gains (Theorem 4) and the error covariances (corrected eqs. 41-47).
 
@@ -996,9 +1019,10 @@ def design_cikf(system: LinearGaussianSystem, graph: CommGraph, horizon: int, *,
     gains : CIKFDesign, optional
         Use that design's gains instead of Theorem 4's (same system, graph and horizon >= this one):
         the covariances are then the true ones of those gains.
-    equations : "corrected" (default) or "printed"
-        "printed" runs eqs. (43) and (45) as extracted (Π_{k|k-1} for Γ_k, Ã for Ǎ) — only to quantify the
-        errata; its covariances are not the filter's (evaluate its gains with ``gains=``).
+    equations : "corrected" (default), "printed", "printed-43" or "printed-45"
+        "printed" runs eqs. (43) and (45) as extracted (Π_{k|k-1} for Γ_k, Ã for Ǎ; "printed-43"/"-45": only
+        that one) — only to quantify the errata; its covariances are not the filter's (evaluate its gains
+        with ``gains=``).
     pinv : "cholesky" (default) or "eigh"
         How Theorem 4's singular covariances are inverted: pivoted Cholesky that drops innovation components
         whose conditional variance is below ``rcond`` times the largest variance (fast), or the truncated
@@ -1033,8 +1057,8 @@ def design_cikf(system: LinearGaussianSystem, graph: CommGraph, horizon: int, *,
         raise ShapeError(f"form: expected 'filter' or 'predictor', found {form!r}")
     if method not in ("structured", "dense"):
         raise ShapeError(f"method: expected 'structured' or 'dense', found {method!r}")
-    if equations not in ("corrected", "printed"):
-        raise ShapeError(f"equations: expected 'corrected' or 'printed', found {equations!r}")
+    if equations not in ("corrected", "printed", "printed-43", "printed-45"):
+        raise ShapeError(f"equations: expected 'corrected' or 'printed' ('printed-43', 'printed-45': one of the two), found {equations!r}")
     if isinstance(rcond, bool) or not isinstance(rcond, (int, float, np.floating)) or not 0.0 < float(rcond) < 1.0:
         raise ShapeError(f"rcond: expected a relative cut-off in (0, 1), e.g. 1e-9, found {rcond!r}")
     rcond = float(rcond)

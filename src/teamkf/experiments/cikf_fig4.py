@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -30,13 +31,13 @@ I_MAX = 30  # the paper's horizon: i = 0..30
 RUNS = 1000
 
 
-def _db(x: np.ndarray) -> np.ndarray:
+def _db(x: Any) -> Any:
     return 10.0 * np.log10(x)
 
 
 @register("cikf-fig4", "CIKF vs centralized KF on the Section VII-A random field: theory and 1000-run Monte Carlo (Das & Moura Fig. 4)")
 def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
-    M = N = 20 if quick else 50
+    M = N = 16 if quick else 50
     runs = 200 if quick else RUNS
     T = I_MAX + 2  # states x(0..31): predictions Σ_{i+1|i}, i = 0..30
     inst = random_field_instance(M, N, rng=SEED)
@@ -49,7 +50,7 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
     ckf_p = design_centralized(sysm, cost, T, form="predictor")
     ckf_f = design_centralized(sysm, cost, T, form="filter")
     th_cikf = d.mse("predictor")  # (T,) agent average of tr Σ^{nn}_{k|k-1}
-    th_ckf = ckf_p.stage_costs / N
+    th_ckf = np.asarray(ckf_p.stage_costs) / N
 
     # Monte Carlo (Algorithm 1's error recursion from x(0), w, v; identical to L x - simulate(y))
     from ..simulation.sampling import sample_paths
@@ -66,11 +67,13 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
     from ..estimators.team import design_mtmse
 
     t2 = time.perf_counter()
-    mt = design_mtmse(sysm, cost, graph, T)
+    T_mt = 10 if quick else T  # its window grows with the graph's diameter; --quick keeps the first steps
+    mt = design_mtmse(sysm, cost, graph, T_mt)
     t_mt = time.perf_counter() - t2
     f_cikf = d.mse("filter")
-    f_mt = mt.stage_costs / N
-    f_ckf = ckf_f.stage_costs / N
+    f_mt = np.full(T, np.nan)
+    f_mt[:T_mt] = np.asarray(mt.stage_costs) / N
+    f_ckf = np.asarray(ckf_f.stage_costs) / N
 
     def mc(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return s.mean(axis=0), 1.959963984540054 * s.std(axis=0, ddof=1) / np.sqrt(s.shape[0])
@@ -91,12 +94,13 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
             "CIKF MC 95% +-dB": float(_db((m_cikf[k] + h_cikf[k]) / m_cikf[k])),
             "CIKF z": float(z_cikf[k]),
             "filter: CKF dB": float(_db(f_ckf[k])),
-            "filter: MTMSE dB": float(_db(f_mt[k])),
+            "filter: MTMSE dB": float(_db(f_mt[k])) if np.isfinite(f_mt[k]) else None,
             "filter: CIKF dB": float(_db(f_cikf[k])),
         })
     gap = float(_db(th_cikf[-1] / th_ckf[-1]))
-    gap_mt = float(_db(f_cikf[-1] / f_mt[-1]))
-    gap_mt_ckf = float(_db(f_mt[-1] / f_ckf[-1]))
+    k_mt = T_mt - 1
+    gap_mt = float(_db(f_cikf[k_mt] / f_mt[k_mt]))
+    gap_mt_ckf = float(_db(f_mt[k_mt] / f_ckf[k_mt]))
     worst_z = float(np.abs(z_cikf[1:]).max())
     per_agent = d.mse("filter", per_agent=True)[-1]
     cap_ub = tracking_capacity_upper_bound(sysm)
@@ -105,8 +109,8 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
         f"({len(inst.unobserved)} sites unobserved), rho(A) = {inst.rho_A:.3f} with {inst.n_unstable} unstable modes in "
         f"{len(inst.clusters)} lattice groups; (A, H) detectable, no (A, H_n) detectable. "
         f"Steady state (i = {I_MAX}): CIKF is {gap:.2f} dB above the centralized KF (the paper reports about 3 dB on its own "
-        f"instance; ours is not tuned). Filtered estimates: MTMSE with neighbourhood sharing of measurements is "
-        f"{gap_mt:.2f} dB below the CIKF and {gap_mt_ckf:.2f} dB above the centralized KF; per agent the CIKF's filtered MSE "
+        f"instance; ours is not tuned). Filtered estimates (i = {k_mt - 1}): MTMSE with neighbourhood sharing of measurements is "
+        f"{gap_mt:.3f} dB below the CIKF and {gap_mt_ckf:.2f} dB above the centralized KF; per agent the CIKF's filtered MSE "
         f"spans {float(_db(per_agent.min())):.2f}..{float(_db(per_agent.max())):.2f} dB. Monte Carlo: {runs} runs, worst "
         f"|MC - theory| = {worst_z:.2f} standard errors over i = 0..{I_MAX}. Theorem 3's sufficient condition "
         f"||A|| < C fails here: C <= {cap_ub:.3g} (closed-form bound, lambda_1/lambda_m = {d.model.lambda_1 / d.model.lambda_m:.3g}) "

@@ -49,6 +49,8 @@ import math
 from dataclasses import dataclass, replace
 from typing import Any, Mapping
 
+import numpy as np
+
 from .._validation import positive_int
 from ..exceptions import ScenarioError, ShapeError
 
@@ -70,21 +72,12 @@ _CDMA_KEYS = ("alpha", "beta", "h_prime")
 
 
 def _real(x: Any, name: str) -> float:
-    if isinstance(x, bool) or not isinstance(x, (int, float)) and not _is_np_number(x):
+    if isinstance(x, (bool, np.bool_)) or not isinstance(x, (int, float, np.integer, np.floating)):
         raise ShapeError(f"{name}: expected a real number, found {x!r}")
     v = float(x)
     if not math.isfinite(v):
         raise ShapeError(f"{name}: expected a finite number, found {v!r}")
     return v
-
-
-def _is_np_number(x: Any) -> bool:
-    try:
-        import numpy as np
-
-        return isinstance(x, (np.floating, np.integer)) and not isinstance(x, np.bool_)
-    except ImportError:  # pragma: no cover
-        return False
 
 
 def _positive(x: Any, name: str, *, strict: bool = True, hint: str = "") -> float:
