@@ -461,7 +461,10 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         for name in experiments.names():
             print(f"{name:14s} {experiments.get(name).title}")
         return 0
-    res = experiments.run(args.name, args.out, quick=args.quick)
+    from .simulation.parallel import use_scheduler
+
+    with use_scheduler(args.scheduler):
+        res = experiments.run(args.name, args.out, quick=args.quick)
     if args.json:
         print(json.dumps(res.to_json(), indent=2, default=float))
         return 0
@@ -518,6 +521,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument("--out", metavar="DIR", help="write the table (CSV, JSON) and plots (PNG) into DIR")
     p.add_argument("--quick", action="store_true", help="a coarser grid, for a fast look")
+    p.add_argument("--scheduler", default="serial", metavar="ADDRESS",
+                   help="where grid points run: serial (default), local (an embedded Dask cluster) or a Dask scheduler address")
     p.set_defaults(func=_cmd_reproduce)
 
     p = add("sweep", "run a parameter sweep of a scenario (in-process or on Dask) and write the results as Parquet")

@@ -78,12 +78,14 @@ R = TypeVar("R")
 
 
 def map_points(func: Callable[[P], R], points: Iterable[P]) -> list[R]:
-    """Apply a pure, picklable per-point function to every grid point, in order (serial).
+    """Apply a pure, picklable per-point function to every grid point, in order.
 
-    The studies write each grid computation as ``func(point)`` so that the sweep
-    engine can map the same function over Dask workers instead.
+    Serial by default; inside ``teamkf.simulation.parallel.use_scheduler(...)``
+    (``teamkf reproduce NAME --scheduler local``) the points run on Dask workers.
     """
-    return [func(p) for p in points]
+    from ..simulation.parallel import map_points as _map
+
+    return _map(func, points)
 
 
 # ---------------------------------------------------------------------------
