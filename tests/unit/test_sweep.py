@@ -557,3 +557,11 @@ seed = 3
     assert df.groupby("point_id").size().eq(len(spec.estimators)).all()  # every point exactly once
     run_sweep(spec, tmp_path / "serial", "serial", progress=False)
     assert df.equals(frame(tmp_path / "serial"))
+
+
+def test_example_sweeps_are_valid():
+    ex = ROOT / "examples" / "sweeps"
+    spec = load_sweep(ex / "platoon-lambda.toml")
+    assert spec.n_points == 9 and spec.base.name == "platoon-4" and spec.runs == 0
+    big = load_sweep(ex / "platoon-40.toml")
+    assert big.n_points == 40 and big.runs >= 2 and A_SCALE in big.grid

@@ -753,7 +753,9 @@ class CIKFAgent:
     """Agent n of Algorithm 1 on the message-passing runtime.
 
     Its state is (ŷ^n_{k|k-1} in reduced coordinates, x̂^n_{k|k-1}). At step k it
-    receives its own measurement y_n(k) and the payloads its neighbours sent at
+    receives its own measurement y_n(k) (its pseudo-observation z̃^n = H_n' R_n^-1 y_n(k)
+    enters only through B^{nn}(z̃^n - H̃_n ŷ^n) = B_u^n (y_n(k) - C̃_n ŷ_r^n), which is
+    what is computed) and the payloads its neighbours sent at
     k - 1: their pseudo-state predictions ŷ^l_{k|k-1} in the paper's coordinates
     (M-dimensional, ŷ = U ŷ_r). At k = 0 nothing has arrived and every
     neighbour's prediction is the common prior G x̄_0 = 0 (Assumption 3), so
