@@ -216,7 +216,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         headers.append("vs mtmse")
     if mc:
         headers += ["MC mean", "MC 95% CI"]
-    ref_value = _cost_value(ref) if ref is not None else None
+    ref_value = _cost_value(ref) if ref is not None else 1.0
     rows = []
     for name, d in designs.items():
         v = mc[name].total_mean if name in mc_only else _cost_value(d)

@@ -34,8 +34,13 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
     T, runs = 100, (200 if quick else 1000)
     rows = []
     for n in (4, 10):
-        rows += delta_rows(lambda lam, n=n: uav(n, lam), [r * n * n for r in RATIOS], T, runs, seed=2021 + n,
-                           label={"n": n}, x_name="lambda/n^2", x_of=lambda lam, n=n: lam / n**2)
+        def build(lam: float, n: int = n) -> tuple:
+            return uav(n, lam)
+
+        def x_of(lam: float, n: int = n) -> float:
+            return lam / n**2
+
+        rows += delta_rows(build, [r * n * n for r in RATIOS], T, runs, seed=2021 + n, label={"n": n}, x_name="lambda/n^2", x_of=x_of)
     figures: list[str] = []
     plot_deltas(rows, "n", "lambda/n^2", "Fig. 3: UAV formation (complete graph, delay 2)", out_dir, "fig3", figures)
     cols = ["n", "lambda/n^2", "J* (MTMSE)", "J mmse", "J centralized", "J KCF honest (MC)", "J KCF ideal (MC)",

@@ -25,7 +25,7 @@ from . import ExperimentResult, plotting_available, register, save_figure
 from ._common import platoon
 
 LAMBDA, T = 100.0, 100
-NAMED = {(3, 2, 1): "IS0", (2, 1, 0): "IS1", (3, 0, 0): "IS2"}
+NAMED: dict[tuple[int, ...], str] = {(3, 2, 1): "IS0", (2, 1, 0): "IS1", (3, 0, 0): "IS2"}
 
 
 @register("shedding", "Information shedding: Pareto front of local dimension vs J* (platoon)")

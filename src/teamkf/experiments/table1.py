@@ -36,12 +36,12 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
     system, cost, graph = platoon(LAMBDA)
     bound = 0.1 * float(np.trace(cost.S_at(0))) * T / LAMBDA  # own-reading strategy, see the module docstring
     rows = []
-    stage = {}
+    stage: dict[str, np.ndarray] = {}
     for name, st in platoon_structures().items():
         st.validate_on(graph)
         d = design_mtmse(system, cost, st, T)
         vec = [len(st.local_lags(i)) for i in range(4)]
-        stage[name] = d.stage_costs
+        stage[name] = np.asarray(d.stage_costs)
         rows.append({"structure": name, "local vectors i in {1,4}": vec[0], "local vectors i in {2,3}": vec[1],
                      "local scalars (total)": sum(st.local_dims(system.dy)), "J_T*/lambda (teamkf)": d.total_cost / LAMBDA,
                      "own-reading bound": bound, "J_T*/lambda (paper, Table I)": PUBLISHED[name]})
