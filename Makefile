@@ -25,7 +25,9 @@ demo: $(STAMP)
 	$(BIN)/teamkf demo
 
 bench: $(STAMP)
-	$(BIN)/python benchmarks/run_all.py
+	$(BIN)/python benchmarks/bench_design.py --only platoon-finite --only uav --uav-sizes 10 100 300 --scipy-max 300
+	$(BIN)/python benchmarks/bench_monte_carlo.py
+	$(BIN)/python benchmarks/bench_bulk.py --sizes 1000 --repeat 1
 
 typecheck: $(STAMP)
 	$(BIN)/python -m mypy
