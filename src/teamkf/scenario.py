@@ -70,9 +70,9 @@ __all__ = [
 ]
 
 #: estimators this version of teamkf can design from a scenario
-AVAILABLE_ESTIMATORS: tuple[str, ...] = ("mtmse", "mmse", "centralized", "kcf")
+AVAILABLE_ESTIMATORS: tuple[str, ...] = ("mtmse", "mmse", "centralized", "kcf", "cikf")
 #: names kept for estimators of later versions (Kalman-consensus, Consensus+Innovations KF)
-RESERVED_ESTIMATORS: tuple[str, ...] = ("cikf",)
+RESERVED_ESTIMATORS: tuple[str, ...] = ()
 
 _TOP_KEYS = ("name", "horizon", "description", "system", "agents", "graph", "cost", "information", "estimators", "kcf", "control")
 _SYSTEM_KEYS = ("A", "Q", "Sigma_x")
@@ -202,11 +202,20 @@ def _design_kcf(sc: Scenario, T: int | None) -> Any:
     return design_kcf(sc.system, sc.cost, sc.graph, T, **_kcf_options(sc.raw))
 
 
+def _design_cikf(sc: Scenario, T: int | None) -> Any:
+    from .estimators.cikf import design_cikf
+
+    if T is None:
+        raise _fail("horizon", "the consensus+innovations KF (cikf) is designed over a finite horizon; give horizon = T")
+    return design_cikf(sc.system, sc.graph, T, cost=sc.cost)
+
+
 _DESIGNERS: dict[str, Callable[[Scenario, int | None], Any]] = {
     "mtmse": _design_mtmse,
     "mmse": _design_mmse,
     "centralized": _design_centralized,
     "kcf": _design_kcf,
+    "cikf": _design_cikf,
 }
 
 

@@ -172,7 +172,7 @@ def test_debug_shows_traceback(tmp_path, where):
 @pytest.mark.parametrize("case, expected", [
     ("missing", "teamkf: error: {dir}/nope.toml: no such scenario file"),
     ("syntax", "teamkf: error: {dir}/syntax.toml: invalid TOML: "),
-    ("cikf", "teamkf: error: estimators[1]: estimator 'cikf' is not available in this version of teamkf"),
+    ("cikf", "teamkf: error: estimators[1]: unknown estimator 'ukf'"),
     ("typo", "teamkf: error: cost.lamda: unknown key; did you mean 'lambda'?"),
     ("graph", "teamkf: error: graph: expected a strongly connected graph"),
     ("population", "teamkf: error: population.a:"),
@@ -184,7 +184,7 @@ def test_errors_in_process(tmp_path, capsys, case, expected):
     elif case == "syntax":
         p = write_scenario(tmp_path, "syntax", replace={"lambda = 100.0": "lambda = = 100.0"})
     elif case == "cikf":
-        p = write_scenario(tmp_path, "cikf", replace={'estimators = ["mtmse", "mmse", "centralized"]': 'estimators = ["mtmse", "cikf"]'})
+        p = write_scenario(tmp_path, "cikf", replace={'estimators = ["mtmse", "mmse", "centralized"]': 'estimators = ["mtmse", "ukf"]'})
     elif case == "typo":
         p = write_scenario(tmp_path, "typo", replace={"lambda = 100.0": "lamda = 100.0"})
     elif case == "graph":

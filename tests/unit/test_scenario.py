@@ -5,6 +5,8 @@ from __future__ import annotations
 import copy
 import json
 import tomllib
+
+import numpy as np
 from pathlib import Path
 
 import numpy as np
@@ -419,12 +421,15 @@ def test_kcf_in_scenarios():
     assert error_of(d3).startswith("estimators: kcf needs a finite horizon")
 
 
-@pytest.mark.parametrize("name", ["cikf"])
-def test_reserved_estimators(name):
+def test_cikf_in_scenarios():
     d = base_dict()
-    d["estimators"] = ["mtmse", name]
+    d["estimators"] = ["mtmse", "cikf", "centralized"]
+    ds = scenario_from_dict(d).designs()
+    assert ds["cikf"].estimator == "cikf"
+    assert np.all(ds["centralized"].stage_costs <= ds["cikf"].stage_costs * (1 + 1e-9))
+    d["estimators"] = ["mtmse", "ukf"]
     msg = error_of(d)
-    assert msg.startswith(f"estimators[1]: estimator '{name}' is not available in this version of teamkf")
+    assert msg.startswith("estimators[1]: unknown estimator 'ukf'")
     for avail in AVAILABLE_ESTIMATORS:
         assert avail in msg
 

@@ -1,6 +1,7 @@
 """Estimators: centralized Kalman filter, MTMSE (Theorems 1-3) and the per-agent MMSE baseline."""
 
 from .base import Design
+from .cikf import CIKFDesign, design_cikf
 from .consensus import KCFDesign, design_kcf
 from .kalman import CentralizedDesign, design_centralized, kalman_covariances
 from .team import StaticTeamEstimate, TeamDesign, design_mmse, design_mtmse, static_team_estimate
@@ -8,6 +9,8 @@ from .team import StaticTeamEstimate, TeamDesign, design_mmse, design_mtmse, sta
 __all__ = [
     "Design",
     "KCFDesign",
+    "CIKFDesign",
+    "design_cikf",
     "design_kcf",
     "CentralizedDesign",
     "TeamDesign",

@@ -9,10 +9,8 @@ from typing import Any, Sequence
 
 from .monte_carlo import monte_carlo
 
-__all__ = ["evaluate_point", "ANALYTIC"]
+__all__ = ["evaluate_point", "DEFAULT_MC_RUNS"]
 
-#: estimators with an analytic team cost
-ANALYTIC = ("mtmse", "mmse", "centralized")
 #: Monte Carlo runs for estimators without a closed form when none are asked for (the paper uses 1000)
 DEFAULT_MC_RUNS = 1000
 
@@ -30,11 +28,12 @@ def evaluate_point(scenario: Any, estimators: Sequence[str] | None = None, runs:
     designs = scenario.designs(names)
     key = "total_cost" if scenario.horizon is not None else "average_cost"
     rows: list[dict[str, Any]] = []
-    mc_runs = runs or (DEFAULT_MC_RUNS if any(n not in ANALYTIC for n in names) else 0)
+    analytic = {n for n, d in designs.items() if d.stage_costs is not None or d.average_cost is not None}
+    mc_runs = runs or (DEFAULT_MC_RUNS if len(analytic) < len(designs) else 0)
     mc = monte_carlo(designs, scenario.horizon, mc_runs, rng=seed) if (mc_runs and scenario.horizon is not None) else {}
     for name, d in designs.items():
         row: dict[str, Any] = {"estimator": name, "runs": int(runs), "seed": int(seed)}
-        if name in ANALYTIC:
+        if name in analytic:
             row.update({"method": "analytic", key: float(d.total_cost if key == "total_cost" else d.average_cost),
                         "ci95_low": None, "ci95_high": None})
             if name in mc:
