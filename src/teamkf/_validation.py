@@ -125,3 +125,20 @@ def require(module: str, extra: str) -> Any:
         raise OptionalDependencyError(
             f"{module} is needed for this feature but is not installed; install it with: pip install 'teamkf[{extra}]'"
         ) from None
+
+
+def describe(x: Any) -> str:
+    """A short description of a value read from a scenario file, for error messages."""
+    from collections.abc import Mapping
+
+    if isinstance(x, bool):
+        return f"the boolean {str(x).lower()}"
+    if isinstance(x, (int, float)):
+        return f"the number {x!r}"
+    if isinstance(x, str):
+        return f"the string {x!r}"
+    if isinstance(x, list):
+        return f"a list of {len(x)} items"
+    if isinstance(x, Mapping):
+        return "a table"
+    return type(x).__name__

@@ -17,7 +17,7 @@ import numpy as np
 
 from .._validation import FloatArray
 
-__all__ = ["Design", "OnlineAgent", "Packet"]
+__all__ = ["Design", "OnlineAgent", "Packet", "check_measurements"]
 
 #: a measurement y_j(s) delivered to an agent: (j, s, values of shape (n_runs, d_y^j))
 Packet = tuple[int, int, np.ndarray]
@@ -96,3 +96,25 @@ class Design:
 
     def agents(self) -> Sequence[OnlineAgent]:  # pragma: no cover - overridden
         raise NotImplementedError
+
+
+def check_measurements(y: Any, system: Any, horizon: int | None) -> tuple[list[FloatArray], int, int]:
+    """Validate measurements for a batched simulation: a list over agents of (n_runs, T, d_y^i), or a ``Paths``."""
+    from .. import _validation as V
+    from ..exceptions import ShapeError
+
+    if hasattr(y, "y") and not isinstance(y, (list, tuple, np.ndarray)):
+        y = y.y
+    n = system.n_agents
+    if not isinstance(y, (list, tuple)) or len(y) != n:
+        raise ShapeError(f"y: expected a list of {n} measurement arrays (one per agent), found {type(y).__name__}"
+                         + (f" of length {len(y)}" if isinstance(y, (list, tuple)) else ""))
+    ys = [V.as_float_array(yi, f"y[{i}]") for i, yi in enumerate(y)]
+    n_runs, T = ys[0].shape[:2] if ys[0].ndim == 3 else (0, 0)
+    for i, yi in enumerate(ys):
+        want = (n_runs, T, system.dy[i])
+        if yi.ndim != 3 or yi.shape != want:
+            raise ShapeError(f"y[{i}]: expected shape (n_runs, n_steps, d_y^{i}) = {want}, found {yi.shape}")
+    if horizon is not None and T > horizon:
+        raise ShapeError(f"y: expected at most horizon = {horizon} steps, found {T}; design a longer horizon")
+    return ys, n_runs, T

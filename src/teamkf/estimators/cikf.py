@@ -144,7 +144,7 @@ from .._validation import FloatArray
 from ..exceptions import DetectabilityError, GraphError, InformationStructureError, ShapeError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
-from .base import Design
+from .base import Design, check_measurements
 
 __all__ = [
     "PseudoStateModel",
@@ -604,21 +604,7 @@ class CIKFDesign(Design):
 
     # --- vectorized Monte Carlo ---------------------------------------------------
     def _check_y(self, y: Any) -> tuple[list[FloatArray], int, int]:
-        if hasattr(y, "y") and not isinstance(y, (list, tuple, np.ndarray)):
-            y = y.y
-        n = self.n_agents
-        if not isinstance(y, (list, tuple)) or len(y) != n:
-            raise ShapeError(f"y: expected a list of {n} measurement arrays (one per agent), found {type(y).__name__}"
-                             + (f" of length {len(y)}" if isinstance(y, (list, tuple)) else ""))
-        ys = [V.as_float_array(yi, f"y[{i}]") for i, yi in enumerate(y)]
-        n_runs, T = ys[0].shape[:2] if ys[0].ndim == 3 else (0, 0)
-        for i, yi in enumerate(ys):
-            want = (n_runs, T, self.system.dy[i])
-            if yi.ndim != 3 or yi.shape != want:
-                raise ShapeError(f"y[{i}]: expected shape (n_runs, n_steps, d_y^{i}) = {want}, found {yi.shape}")
-        if T > self.horizon:  # type: ignore[operator]
-            raise ShapeError(f"y: expected at most horizon = {self.horizon} steps, found {T}; design a longer horizon")
-        return ys, n_runs, T
+        return check_measurements(y, self.system, self.horizon)
 
     def _recursion(self, ys: Sequence[FloatArray] | None, x0: FloatArray | None, w: FloatArray | None, n_runs: int, T: int,
                    form: str) -> FloatArray:

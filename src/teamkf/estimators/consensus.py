@@ -93,7 +93,7 @@ from .._validation import FloatArray
 from ..exceptions import GraphError, InformationStructureError, ShapeError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
-from .base import Design
+from .base import Design, check_measurements
 from .kalman import kalman_step
 
 __all__ = ["KCFDesign", "KCFAgent", "KCFMessage", "design_kcf", "VARIANTS"]
@@ -203,21 +203,7 @@ class KCFDesign(Design):
 
     # --- helpers --------------------------------------------------------------
     def _check_y(self, y: Any) -> tuple[list[FloatArray], int, int]:
-        if hasattr(y, "y") and not isinstance(y, (list, tuple, np.ndarray)):
-            y = y.y
-        n = self.n_agents
-        if not isinstance(y, (list, tuple)) or len(y) != n:
-            raise ShapeError(f"y: expected a list of {n} measurement arrays (one per agent), found {type(y).__name__}"
-                             + (f" of length {len(y)}" if isinstance(y, (list, tuple)) else ""))
-        ys = [V.as_float_array(yi, f"y[{i}]") for i, yi in enumerate(y)]
-        n_runs, T = ys[0].shape[:2] if ys[0].ndim == 3 else (0, 0)
-        for i, yi in enumerate(ys):
-            want = (n_runs, T, self.system.dy[i])
-            if yi.ndim != 3 or yi.shape != want:
-                raise ShapeError(f"y[{i}]: expected shape (n_runs, n_steps, d_y^{i}) = {want}, found {yi.shape}")
-        if T > self.horizon:  # type: ignore[operator]
-            raise ShapeError(f"y: expected at most horizon = {self.horizon} steps, found {T}; design a longer horizon")
-        return ys, n_runs, T
+        return check_measurements(y, self.system, self.horizon)
 
     # --- vectorized simulation ----------------------------------------------
     def simulate(self, y: Any) -> FloatArray:

@@ -253,18 +253,7 @@ def _fail(key: str, message: str) -> ScenarioError:
     return err
 
 
-def _describe(x: Any) -> str:
-    if isinstance(x, bool):
-        return f"the boolean {str(x).lower()}"
-    if isinstance(x, (int, float)):
-        return f"the number {x!r}"
-    if isinstance(x, str):
-        return f"the string {x!r}"
-    if isinstance(x, list):
-        return f"a list of {len(x)} items"
-    if isinstance(x, Mapping):
-        return "a table"
-    return type(x).__name__
+from .._validation import describe as _describe  # noqa: E402
 
 
 def _unknown(key: str, allowed: tuple[str, ...]) -> ScenarioError:

@@ -9,7 +9,10 @@ from typing import Any, Sequence
 
 from .monte_carlo import monte_carlo
 
-__all__ = ["evaluate_point", "DEFAULT_MC_RUNS"]
+__all__ = ["evaluate_point", "ANALYTIC", "DEFAULT_MC_RUNS"]
+
+#: estimators with an analytic team cost (the others are evaluated by Monte Carlo)
+ANALYTIC = ("mtmse", "mmse", "centralized", "cikf")
 
 #: Monte Carlo runs for estimators without a closed form when none are asked for (the paper uses 1000)
 DEFAULT_MC_RUNS = 1000
