@@ -234,6 +234,14 @@ def load_scenario(path: str | Path) -> Scenario:
         scenario (the message starts with the key path).
     """
     p = Path(path)
+    data = read_data_file(p)
+    if "name" not in data:
+        data = {"name": p.stem, **data}
+    return scenario_from_dict(data, source=str(p))
+
+
+def read_data_file(p: Path) -> dict[str, Any]:
+    """The table in a TOML file (or a JSON file, by its suffix); one clear ScenarioError otherwise."""
     try:
         text = p.read_text(encoding="utf-8")
     except UnicodeDecodeError as exc:
@@ -250,9 +258,7 @@ def load_scenario(path: str | Path) -> Scenario:
             raise ScenarioError(f"{p}: invalid TOML: {exc}") from None
     if not isinstance(data, dict):
         raise ScenarioError(f"{p}: expected a table (JSON object) at the top level, found {type(data).__name__}")
-    if "name" not in data:
-        data = {"name": p.stem, **data}
-    return scenario_from_dict(data, source=str(p))
+    return data
 
 
 def scenario_from_dict(d: Mapping[str, Any], source: str = "<dict>") -> Scenario:

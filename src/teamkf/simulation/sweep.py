@@ -122,7 +122,6 @@ import logging
 import os
 import sys
 import time
-import tomllib
 import uuid
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -133,7 +132,7 @@ import numpy as np
 
 from .. import _validation as V
 from ..exceptions import ScenarioError, TeamkfError
-from ..scenario import Scenario, _describe, _estimators, load_packaged, load_scenario, packaged_scenarios
+from ..scenario import Scenario, _describe, _estimators, load_packaged, load_scenario, packaged_scenarios, read_data_file
 from .evaluate import ANALYTIC, evaluate_point
 from .results import MANIFEST_NAME, SweepError, SweepResult, load_results
 
@@ -340,22 +339,7 @@ def load_sweep(path: str | Path) -> SweepSpec:
         raise FileNotFoundError(errno.ENOENT, "no such sweep file", str(p))
     if p.is_dir():
         raise ScenarioError(f"{p}: is a directory; expected a sweep file (.toml or .json)")
-    try:
-        text = p.read_text(encoding="utf-8")
-    except UnicodeDecodeError as exc:
-        raise ScenarioError(f"{p}: expected a UTF-8 text file (TOML or JSON), found undecodable bytes at position {exc.start}") from None
-    if p.suffix.lower() == ".json":
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise ScenarioError(f"{p}: invalid JSON: {exc.msg} (at line {exc.lineno}, column {exc.colno})") from None
-    else:
-        try:
-            data = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as exc:
-            raise ScenarioError(f"{p}: invalid TOML: {exc}") from None
-    if not isinstance(data, dict):
-        raise ScenarioError(f"{p}: expected a table (JSON object) at the top level, found {type(data).__name__}")
+    data = read_data_file(p)
     data.setdefault("name", p.stem)
     return sweep_from_dict(data, base_dir=p.parent, source=str(p))
 
