@@ -70,13 +70,30 @@ def case_gains(regime: str, T: int, all_gains: bool, repeat: int) -> dict:
             del G
         band, flops, delta = bf.band, bf.flops, bf.stationarity_index()
         del bf  # so that the next repeat's peak memory is its own
-    out = {"case": "gains", "regime": regime, "T": T, "repeat": repeat, "recursion_s": min(rec), "recursion_s_all": rec,
-           "final_gain_s": min(fin), "band": band, "recursion_flops": flops, "recursion_gflops": flops / min(rec) / 1e9,
-           "K_T_last": [float(v) for v in KT[-3:]], "delta": delta}
+    out = {
+        "case": "gains",
+        "regime": regime,
+        "T": T,
+        "repeat": repeat,
+        "recursion_s": min(rec),
+        "recursion_s_all": rec,
+        "final_gain_s": min(fin),
+        "band": band,
+        "recursion_flops": flops,
+        "recursion_gflops": flops / min(rec) / 1e9,
+        "K_T_last": [float(v) for v in KT[-3:]],
+        "delta": delta,
+    }
     if all_gains:
         fl = T**3 / 3.0 + T * T  # dtrtri + the row recursion
-        out.update(all_gains_s=min(allk), all_gains_s_all=allk, all_gains_flops=fl, all_gains_gflops=fl / min(allk) / 1e9,
-                   total_s=min(rec) + min(allk), rows_agree=rows_agree)
+        out.update(
+            all_gains_s=min(allk),
+            all_gains_s_all=allk,
+            all_gains_flops=fl,
+            all_gains_gflops=fl / min(allk) / 1e9,
+            total_s=min(rec) + min(allk),
+            rows_agree=rows_agree,
+        )
     out["peak_mb"] = _peak_mb()
     return out
 
@@ -109,8 +126,14 @@ def case_matmul(n: int, threads: str) -> dict:
         for _ in range(20):
             A @ x
         mv = (time.perf_counter() - t0) / 20
-    return {"case": "matmul", "n": n, "threads": threads, "gemm_gflops": 2 * n**3 / best / 1e9,
-            "gemv_1thread_gflops": 2 * n * n / mv / 1e9, "gemv_1thread_GBps": 8 * n * n / mv / 1e9}
+    return {
+        "case": "matmul",
+        "n": n,
+        "threads": threads,
+        "gemm_gflops": 2 * n**3 / best / 1e9,
+        "gemv_1thread_gflops": 2 * n * n / mv / 1e9,
+        "gemv_1thread_GBps": 8 * n * n / mv / 1e9,
+    }
 
 
 def case_sim(regime: str, N: int, T: int, repeat: int) -> dict:
@@ -129,10 +152,23 @@ def case_sim(regime: str, N: int, T: int, repeat: int) -> dict:
         fil.append(t1 - t0)
         sims.append(t2 - t1)
     cov = bf.covariances
-    return {"case": "sim", "regime": regime, "N": N, "T": T, "repeat": repeat, "filter_s": min(fil), "simulate_s": min(sims),
-            "simulate_s_all": sims, "total_s": min(fil) + min(sims), "band": bf.band, "agent_steps_per_s": N * T / min(sims),
-            "empirical_Ex2_T": float(sim.second_moment[0, -1]),
-            "exact_Ex2_T": float(cov.state_variance[-1] + cov.state_mean[-1] ** 2), "mc_cost": float(sim.lq_cost[0]), "peak_mb": _peak_mb()}
+    return {
+        "case": "sim",
+        "regime": regime,
+        "N": N,
+        "T": T,
+        "repeat": repeat,
+        "filter_s": min(fil),
+        "simulate_s": min(sims),
+        "simulate_s_all": sims,
+        "total_s": min(fil) + min(sims),
+        "band": bf.band,
+        "agent_steps_per_s": N * T / min(sims),
+        "empirical_Ex2_T": float(sim.second_moment[0, -1]),
+        "exact_Ex2_T": float(cov.state_variance[-1] + cov.state_mean[-1] ** 2),
+        "mc_cost": float(sim.lq_cost[0]),
+        "peak_mb": _peak_mb(),
+    }
 
 
 def _run(args: list[str], timeout: float) -> dict:
@@ -154,24 +190,32 @@ def main() -> None:
     a = ap.parse_args()
     if a.case:
         name, *rest = a.case
-        fn = {"gains": lambda: case_gains(rest[0], int(rest[1]), rest[2] == "1", int(rest[3])),
-              "matmul": lambda: case_matmul(int(rest[0]), rest[1]),
-              "sim": lambda: case_sim(rest[0], int(rest[1]), int(rest[2]), int(rest[3]))}[name]
+        fn = {
+            "gains": lambda: case_gains(rest[0], int(rest[1]), rest[2] == "1", int(rest[3])),
+            "matmul": lambda: case_matmul(int(rest[0]), rest[1]),
+            "sim": lambda: case_sim(rest[0], int(rest[1]), int(rest[2]), int(rest[3])),
+        }[name]
         print(json.dumps(fn()))
         return
     todo = a.only or ["matmul", "gains", "sim"]
     rows = []
-    print(f"# python {sys.version.split()[0]}, cpus {os.cpu_count()}, threads env "
-          f"{ {k: os.environ.get(k) for k in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS')} }")
+    print(
+        f"# python {sys.version.split()[0]}, cpus {os.cpu_count()}, threads env "
+        f"{ {k: os.environ.get(k) for k in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS')} }"
+    )
     if "matmul" in todo:
         for threads in ("default", "1"):
             r = _run(["matmul", "3000", threads], a.timeout)
             rows.append(r)
-            print(f"dense matmul n=3000, BLAS threads {threads}: {r.get('gemm_gflops', float('nan')):.1f} GFLOP/s; "
-                  f"gemv (1 thread) {r.get('gemv_1thread_gflops', float('nan')):.1f} GFLOP/s = {r.get('gemv_1thread_GBps', float('nan')):.1f} GB/s")
+            print(
+                f"dense matmul n=3000, BLAS threads {threads}: {r.get('gemm_gflops', float('nan')):.1f} GFLOP/s; "
+                f"gemv (1 thread) {r.get('gemv_1thread_gflops', float('nan')):.1f} GFLOP/s = {r.get('gemv_1thread_GBps', float('nan')):.1f} GB/s"
+            )
     if "gains" in todo:
-        print(f"{'regime':>10} {'T':>6} {'band':>5} {'recursion[s]':>12} {'K_T[s]':>7} {'all K[s]':>9} {'total[s]':>9} "
-              f"{'rec GF':>9} {'rec GF/s':>8} {'allK GF/s':>9} {'peak MB':>8}")
+        print(
+            f"{'regime':>10} {'T':>6} {'band':>5} {'recursion[s]':>12} {'K_T[s]':>7} {'all K[s]':>9} {'total[s]':>9} "
+            f"{'rec GF':>9} {'rec GF/s':>8} {'allK GF/s':>9} {'peak MB':>8}"
+        )
         for regime in a.regimes:
             for T in a.sizes:
                 r = _run(["gains", regime, str(T), "1", str(a.repeat)], a.timeout)
@@ -179,9 +223,12 @@ def main() -> None:
                 if "error" in r:
                     print(regime, T, r["error"])
                     continue
-                print(f"{regime:>10} {T:>6} {r['band']:>5} {r['recursion_s']:>12.3f} {r['final_gain_s']:>7.3f} {r['all_gains_s']:>9.3f} "
-                      f"{r['total_s']:>9.3f} {r['recursion_flops'] / 1e9:>9.2f} {r['recursion_gflops']:>8.2f} {r['all_gains_gflops']:>9.1f} "
-                      f"{r['peak_mb']:>8.0f}", flush=True)
+                print(
+                    f"{regime:>10} {T:>6} {r['band']:>5} {r['recursion_s']:>12.3f} {r['final_gain_s']:>7.3f} {r['all_gains_s']:>9.3f} "
+                    f"{r['total_s']:>9.3f} {r['recursion_flops'] / 1e9:>9.2f} {r['recursion_gflops']:>8.2f} {r['all_gains_gflops']:>9.1f} "
+                    f"{r['peak_mb']:>8.0f}",
+                    flush=True,
+                )
     if "sim" in todo:
         for regime in ("stationary", "periodic"):
             r = _run(["sim", regime, "10000", "1000", str(a.repeat)], a.timeout)
@@ -189,9 +236,12 @@ def main() -> None:
             if "error" in r:
                 print("sim", regime, r["error"])
                 continue
-            print(f"simulate N=10^4 T=1000 {regime:>10}: filter {r['filter_s']:.2f} s + simulation {r['simulate_s']:.2f} s = "
-                  f"{r['total_s']:.2f} s (band {r['band']}, {r['agent_steps_per_s'] / 1e6:.2f} M agent-steps/s, peak {r['peak_mb']:.0f} MB; "
-                  f"(1/N) sum x_T^2 = {r['empirical_Ex2_T']:.3f} vs exact E x_T^2 = {r['exact_Ex2_T']:.3f})", flush=True)
+            print(
+                f"simulate N=10^4 T=1000 {regime:>10}: filter {r['filter_s']:.2f} s + simulation {r['simulate_s']:.2f} s = "
+                f"{r['total_s']:.2f} s (band {r['band']}, {r['agent_steps_per_s'] / 1e6:.2f} M agent-steps/s, peak {r['peak_mb']:.0f} MB; "
+                f"(1/N) sum x_T^2 = {r['empirical_Ex2_T']:.3f} vs exact E x_T^2 = {r['exact_Ex2_T']:.3f})",
+                flush=True,
+            )
     if a.json:
         with open(a.json, "w") as f:
             json.dump(rows, f, indent=1)

@@ -75,8 +75,14 @@ def main() -> None:
     from teamkf.simulation.runtime import run_graph
     from teamkf.simulation.sampling import sample_paths
 
-    res: dict = {"M": args.size, "N": args.size, "T": args.steps, "runs": args.runs,
-                 "threads": os.environ.get("OPENBLAS_NUM_THREADS", "default"), "cpus": os.cpu_count()}
+    res: dict = {
+        "M": args.size,
+        "N": args.size,
+        "T": args.steps,
+        "runs": args.runs,
+        "threads": os.environ.get("OPENBLAS_NUM_THREADS", "default"),
+        "cpus": os.cpu_count(),
+    }
     sysm, graph = random_field(args.size, args.size, rng=0)
     design_cikf(sysm, graph, 1)  # warm caches (the default cost, imports)
 
@@ -126,13 +132,19 @@ def main() -> None:
         return
     print(f"CIKF at M = N = {args.size}, T = {args.steps}, {args.runs} runs (OPENBLAS_NUM_THREADS={res['threads']}, {res['cpus']} CPUs)")
     print(f"  gain design (structured):  {res['design_s']:.1f} s  ({res['design_s'] / args.steps:.2f} s/step)")
-    print(f"  dense baseline:            {res['design_dense_per_step_s']:.2f} s/step vs {res['design_structured_per_step_s']:.2f} s/step "
-          f"on the first {args.dense_steps} steps: x{res['design_dense_ratio']:.1f} (same numbers: {res['design_dense_agrees']})")
-    print(f"  Monte Carlo: sample {res['mc_sample_s']:.2f} s, errors {res['mc_errors_s']:.2f} s, simulate {res['mc_simulate_s']:.2f} s, "
-          f"dense errors {res['mc_dense_errors_s']:.2f} s (x{res['mc_dense_ratio']:.1f}, same: {res['mc_dense_agrees']})")
+    print(
+        f"  dense baseline:            {res['design_dense_per_step_s']:.2f} s/step vs {res['design_structured_per_step_s']:.2f} s/step "
+        f"on the first {args.dense_steps} steps: x{res['design_dense_ratio']:.1f} (same numbers: {res['design_dense_agrees']})"
+    )
+    print(
+        f"  Monte Carlo: sample {res['mc_sample_s']:.2f} s, errors {res['mc_errors_s']:.2f} s, simulate {res['mc_simulate_s']:.2f} s, "
+        f"dense errors {res['mc_dense_errors_s']:.2f} s (x{res['mc_dense_ratio']:.1f}, same: {res['mc_dense_agrees']})"
+    )
     if args.runtime_runs:
-        print(f"  message-passing runtime (run_graph, {res['mc_run_graph_runs']} runs): {res['mc_run_graph_s']:.2f} s "
-              f"(= simulate: {res['run_graph_matches_simulate']})")
+        print(
+            f"  message-passing runtime (run_graph, {res['mc_run_graph_runs']} runs): {res['mc_run_graph_s']:.2f} s "
+            f"(= simulate: {res['run_graph_matches_simulate']})"
+        )
     print(f"  worst |MC - theory| over i = 0..{args.steps - 2}: {res['mc_worst_z']:.2f} standard errors")
     print(f"  Section VII experiment (design + {args.runs}-run MC): {res['experiment_s']:.1f} s  (the paper: about 30 h on 8 cores)")
 

@@ -115,8 +115,9 @@ def main(argv: list[str] | None = None) -> int:
         f"{'n':>6} {'iters':>5} {'sda [s]':>10} {'scipy [s]':>10} {'scipy/sda':>9} {'rel diff':>9} "
         f"{'res sda':>9} {'res scipy':>9} {'detect [s]':>10} {'A5 [s]':>9} {'rho_cl':>7}"
     )
-    print(f"UAV formation DARE benchmark -- numpy {np.__version__}, scipy {scipy.__version__}, "
-          f"python {platform.python_version()}, {platform.machine()}")
+    print(
+        f"UAV formation DARE benchmark -- numpy {np.__version__}, scipy {scipy.__version__}, python {platform.python_version()}, {platform.machine()}"
+    )
     print(header)
     print("-" * len(header))
     rows = []
@@ -131,9 +132,15 @@ def main(argv: list[str] | None = None) -> int:
             flush=True,
         )
     if args.json:
-        meta = {"numpy": np.__version__, "scipy": scipy.__version__, "python": platform.python_version(),
-                "machine": platform.machine(), "cpu_count": os.cpu_count(), "argv": sys.argv,
-                "threads_env": {k: os.environ.get(k) for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}}
+        meta = {
+            "numpy": np.__version__,
+            "scipy": scipy.__version__,
+            "python": platform.python_version(),
+            "machine": platform.machine(),
+            "cpu_count": os.cpu_count(),
+            "argv": sys.argv,
+            "threads_env": {k: os.environ.get(k) for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")},
+        }
         with open(args.json, "w") as fh:
             json.dump({"meta": meta, "rows": rows}, fh, indent=2)
     return 0

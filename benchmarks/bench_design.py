@@ -51,8 +51,16 @@ def case_uav(n: int, scipy_max: int) -> dict:
     t3 = time.perf_counter()
     P_sda = solve_filter_dare(A, C, Q, R, method="sda", check=False)
     t4 = time.perf_counter()
-    out = {"case": "uav", "n": n, "setup_s": t1 - t0, "design_s": t2 - t1, "total_s": t2 - t0, "dare_sda_s": t4 - t3,
-           "average_cost": design.average_cost, "gamma": design.info["gamma"]}
+    out = {
+        "case": "uav",
+        "n": n,
+        "setup_s": t1 - t0,
+        "design_s": t2 - t1,
+        "total_s": t2 - t0,
+        "dare_sda_s": t4 - t3,
+        "average_cost": design.average_cost,
+        "gamma": design.info["gamma"],
+    }
     if n <= scipy_max:
         t5 = time.perf_counter()
         P_sp = sla.solve_discrete_are(A.T, C.T, Q, R)
@@ -83,8 +91,16 @@ def case_platoon_scale(n: int, method: str) -> dict:
     t0 = time.perf_counter()
     d = design_mtmse(system, cost, graph, method=method)  # type: ignore[arg-type]
     t1 = time.perf_counter()
-    return {"case": "platoon-scale", "n": n, "method": method, "design_s": t1 - t0, "average_cost": d.average_cost,
-            "gamma": d.info["gamma"], "window": (n - 1) * n * n, "peak_mb": _peak_mb()}
+    return {
+        "case": "platoon-scale",
+        "n": n,
+        "method": method,
+        "design_s": t1 - t0,
+        "average_cost": d.average_cost,
+        "gamma": d.info["gamma"],
+        "window": (n - 1) * n * n,
+        "peak_mb": _peak_mb(),
+    }
 
 
 def case_gamma(kind: str, n: int) -> dict:
@@ -147,10 +163,12 @@ def main() -> None:
     a = ap.parse_args()
     if a.case:
         name, *rest = a.case
-        fn = {"uav": lambda: case_uav(int(rest[0]), int(rest[1])),
-              "platoon-finite": lambda: case_platoon_finite(int(rest[0]), int(rest[1])),
-              "platoon-scale": lambda: case_platoon_scale(int(rest[0]), rest[1]),
-              "gamma": lambda: case_gamma(rest[0], int(rest[1]))}[name]
+        fn = {
+            "uav": lambda: case_uav(int(rest[0]), int(rest[1])),
+            "platoon-finite": lambda: case_platoon_finite(int(rest[0]), int(rest[1])),
+            "platoon-scale": lambda: case_platoon_scale(int(rest[0]), rest[1]),
+            "gamma": lambda: case_gamma(rest[0], int(rest[1])),
+        }[name]
         print(json.dumps(fn()))
         return
     todo = a.only or ["platoon-finite", "uav", "platoon-scale", "gamma"]
@@ -162,16 +180,20 @@ def main() -> None:
         rows.append(r)
         print(f"platoon n=4 finite horizon T=100: design {r.get('design_s', float('nan')):.3f} s  (J_T = {r.get('total_cost')})")
     if "uav" in todo:
-        print(f"{'n':>6} {'design[s]':>10} {'setup[s]':>9} {'SDA[s]':>8} {'scipy[s]':>9} {'scipy/SDA':>10} {'scipy/design':>12} {'Gamma':>16} {'peak MB':>8}")
+        print(
+            f"{'n':>6} {'design[s]':>10} {'setup[s]':>9} {'SDA[s]':>8} {'scipy[s]':>9} {'scipy/SDA':>10} {'scipy/design':>12} {'Gamma':>16} {'peak MB':>8}"
+        )
         for n in a.uav_sizes:
             r = _run(["uav", str(n), str(a.scipy_max)], a.timeout)
             rows.append(r)
             if "error" in r:
                 print(n, r["error"])
                 continue
-            print(f"{n:>6} {r['design_s']:>10.3f} {r['setup_s']:>9.3f} {r['dare_sda_s']:>8.3f} {r.get('dare_scipy_s', float('nan')):>9.2f} "
-                  f"{r.get('scipy_over_sda', float('nan')):>10.1f} {r.get('scipy_over_design', float('nan')):>12.1f} "
-                  f"{r['gamma']['method'] + ' ' + str(r['gamma']['size']):>16} {r['peak_mb']:>8.0f}")
+            print(
+                f"{n:>6} {r['design_s']:>10.3f} {r['setup_s']:>9.3f} {r['dare_sda_s']:>8.3f} {r.get('dare_scipy_s', float('nan')):>9.2f} "
+                f"{r.get('scipy_over_sda', float('nan')):>10.1f} {r.get('scipy_over_design', float('nan')):>12.1f} "
+                f"{r['gamma']['method'] + ' ' + str(r['gamma']['size']):>16} {r['peak_mb']:>8.0f}"
+            )
     if "platoon-scale" in todo:
         print(f"{'n':>4} {'window':>7} {'Gamma size':>10} {'method':>6} {'iters':>6} {'design[s]':>10} {'peak MB':>8}")
         for n in a.platoon_sizes:
@@ -191,8 +213,10 @@ def main() -> None:
                 print(kind, n, r["error"])
                 continue
             ds = r.get("dense_s")
-            print(f"{kind + '-' + str(n):>12} {r['size']:>6} {(ds if ds is not None else float('nan')):>9.3f} {r['cg_s']:>8.3f} "
-                  f"{r['cg_iterations']:>6} {r['auto_choice']:>6} {r.get('rel_diff', float('nan')):>9.1e}")
+            print(
+                f"{kind + '-' + str(n):>12} {r['size']:>6} {(ds if ds is not None else float('nan')):>9.3f} {r['cg_s']:>8.3f} "
+                f"{r['cg_iterations']:>6} {r['auto_choice']:>6} {r.get('rel_diff', float('nan')):>9.1e}"
+            )
     if a.json:
         with open(a.json, "w") as f:
             json.dump(rows, f, indent=1)

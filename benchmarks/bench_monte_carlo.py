@@ -34,8 +34,11 @@ def main() -> None:
     n, T = 10, 100
     system, cost, graph = LinearGaussianSystem.uav_formation(n), TeamCost.average_tracking(n, 10.0 * n * n), CommGraph.complete(n, 2)
     t0 = time.perf_counter()
-    designs = {"mtmse": design_mtmse(system, cost, graph, T), "mmse": design_mmse(system, cost, graph, T),
-               "kcf": design_kcf(system, cost, graph, T, variant=a.variant)}
+    designs = {
+        "mtmse": design_mtmse(system, cost, graph, T),
+        "mmse": design_mmse(system, cost, graph, T),
+        "kcf": design_kcf(system, cost, graph, T, variant=a.variant),
+    }
     t1 = time.perf_counter()
     mc = monte_carlo(designs, T, a.runs, rng=1)
     t2 = time.perf_counter()
@@ -55,12 +58,16 @@ def main() -> None:
     loop_est = loop_per_run * a.runs
     print(f"design (3 estimators): {t1 - t0:.2f} s")
     print(f"vectorized Monte Carlo, {a.runs} runs x {T} steps x 3 estimators: {vec:.2f} s")
-    print(f"plain per-run loop: {loop_per_run * 1e3:.1f} ms per run -> {loop_est:.1f} s for {a.runs} runs "
-          f"(measured on {a.loop_runs}); ratio {loop_est / vec:.0f}x")
+    print(
+        f"plain per-run loop: {loop_per_run * 1e3:.1f} ms per run -> {loop_est:.1f} s for {a.runs} runs "
+        f"(measured on {a.loop_runs}); ratio {loop_est / vec:.0f}x"
+    )
     for name, r in mc.items():
         lo, hi = r.ci95
-        print(f"  {name:6s} MC J_T = {r.total_mean:.6g}  95% CI [{lo:.6g}, {hi:.6g}]"
-              + (f"  analytic {designs[name].total_cost:.6g}" if designs[name].stage_costs is not None else ""))
+        print(
+            f"  {name:6s} MC J_T = {r.total_mean:.6g}  95% CI [{lo:.6g}, {hi:.6g}]"
+            + (f"  analytic {designs[name].total_cost:.6g}" if designs[name].stage_costs is not None else "")
+        )
     # same runs, early steps (before the cancellation matters): both paths agree
     p = sample_paths(system, 10, 3, rng=None, streams=streams[:3])
     for name, d in designs.items():

@@ -39,6 +39,7 @@ def main() -> int:
     args = ap.parse_args()
 
     import pandas as pd
+
     from teamkf.simulation.sweep import load_sweep, local_cluster, run_sweep
 
     spec = load_sweep(args.sweep)
@@ -76,28 +77,40 @@ def main() -> int:
     load_after = os.getloadavg()[0]
 
     result = {
-        "sweep": spec.name, "points": n, "estimators": len(spec.estimators), "runs": spec.runs, "workers": args.workers,
+        "sweep": spec.name,
+        "points": n,
+        "estimators": len(spec.estimators),
+        "runs": spec.runs,
+        "workers": args.workers,
         "cores": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
-        "serial_s": out["serial"], "dask_embedded_s": out["dask_embedded"], "dask_running_s": out["dask_running"],
+        "serial_s": out["serial"],
+        "dask_embedded_s": out["dask_embedded"],
+        "dask_running_s": out["dask_running"],
         "cluster_start_s": out["cluster_start"],
-        "speedup_embedded": out["serial"] / out["dask_embedded"], "speedup_running": out["serial"] / out["dask_running"],
-        "identical": identical, "repeat": args.repeat, "load_average_1min": [load_before, load_after],
+        "speedup_embedded": out["serial"] / out["dask_embedded"],
+        "speedup_running": out["serial"] / out["dask_running"],
+        "identical": identical,
+        "repeat": args.repeat,
+        "load_average_1min": [load_before, load_after],
     }
     if args.json:
         print(json.dumps(result, indent=2))
     else:
-        print(f"sweep {spec.name}: {n} points x {len(spec.estimators)} estimators, {spec.runs} Monte Carlo runs per point; "
-              f"{result['cores']} cores, {args.workers} Dask workers")
+        print(
+            f"sweep {spec.name}: {n} points x {len(spec.estimators)} estimators, {spec.runs} Monte Carlo runs per point; "
+            f"{result['cores']} cores, {args.workers} Dask workers"
+        )
         print()
         print(f"  {'mode':<28}{'wall [s]':>10}{'points/s':>10}{'speed-up':>10}")
-        for label, key in (("serial", "serial"), ("dask, embedded LocalCluster", "dask_embedded"),
-                           ("dask, running LocalCluster", "dask_running")):
+        for label, key in (("serial", "serial"), ("dask, embedded LocalCluster", "dask_embedded"), ("dask, running LocalCluster", "dask_running")):
             t = out[key]
             print(f"  {label:<28}{t:>10.2f}{n / t:>10.2f}{out['serial'] / t:>9.2f}x")
         print(f"\n  LocalCluster start-up: {out['cluster_start']:.2f} s (included in 'embedded')")
         print(f"  numbers identical in all modes: {identical}")
-        print(f"  fastest of {args.repeat} run(s) per mode; 1-minute load average {load_before:.2f} before, {load_after:.2f} after "
-              "(other processes on the machine slow the Dask workers more than the serial run)")
+        print(
+            f"  fastest of {args.repeat} run(s) per mode; 1-minute load average {load_before:.2f} before, {load_after:.2f} after "
+            "(other processes on the machine slow the Dask workers more than the serial run)"
+        )
     return 0 if identical else 1
 
 

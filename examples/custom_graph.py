@@ -20,8 +20,10 @@ print("local dimensions:", structure.local_dims(system.dy))
 
 mtmse = design_mtmse(system, cost, structure)
 mmse = design_mmse(system, cost, structure)
-print(f"average cost: MTMSE {mtmse.average_cost:.3f}  MMSE {mmse.average_cost:.3f}  "
-      f"improvement {(mmse.average_cost / mtmse.average_cost - 1) * 100:.1f} %")
+print(
+    f"average cost: MTMSE {mtmse.average_cost:.3f}  MMSE {mmse.average_cost:.3f}  "
+    f"improvement {(mmse.average_cost / mtmse.average_cost - 1) * 100:.1f} %"
+)
 
 G = graph.to_networkx()  # edit with networkx, come back
 assert CommGraph.from_networkx(G) == graph

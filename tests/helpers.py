@@ -63,7 +63,7 @@ def eq14_information(graph: CommGraph, i: int, k: int) -> frozenset:
 def window_information(n_agents, common_lag, local, i, k) -> frozenset:
     """What a (common lag, windows) structure gives agent i at step k, from its definition."""
     out = {(j, s) for j in range(n_agents) for s in range(0, k - common_lag + 1)}
-    for (j, newest, oldest) in local[i]:
+    for j, newest, oldest in local[i]:
         out |= {(j, k - lag) for lag in range(newest, oldest + 1) if k - lag >= 0}
     return frozenset(out)
 

@@ -10,14 +10,14 @@ from importlib.metadata import PackageNotFoundError, version
 
 from .estimators import (
     CentralizedDesign,
+    CIKFDesign,
     Design,
     KCFDesign,
-    CIKFDesign,
-    design_cikf,
-    design_kcf,
     StaticTeamEstimate,
     TeamDesign,
     design_centralized,
+    design_cikf,
+    design_kcf,
     design_mmse,
     design_mtmse,
     kalman_covariances,

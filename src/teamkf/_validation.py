@@ -83,9 +83,7 @@ def covariance(
     scale = max(1.0, float(np.max(np.abs(arr)))) if arr.size else 1.0
     asym = float(np.max(np.abs(arr - arr.T))) if arr.size else 0.0
     if asym > SYM_RTOL * scale:
-        raise NotSymmetricError(
-            f"{name}: expected a symmetric matrix, found max |M - M'| = {asym:.3g}; use (M + M')/2 if the asymmetry is round-off"
-        )
+        raise NotSymmetricError(f"{name}: expected a symmetric matrix, found max |M - M'| = {asym:.3g}; use (M + M')/2 if the asymmetry is round-off")
     arr = 0.5 * (arr + arr.T)
     if arr.size:
         lam_min = float(np.linalg.eigvalsh(arr)[0])
@@ -97,9 +95,7 @@ def covariance(
                 "every noise covariance that is inverted must be strictly positive (add a small multiple of I)"
             )
         if not definite and lam_min < -tol:
-            raise NotPositiveDefiniteError(
-                f"{name}: expected a symmetric positive semi-definite matrix, found smallest eigenvalue {lam_min:.3g}"
-            )
+            raise NotPositiveDefiniteError(f"{name}: expected a symmetric positive semi-definite matrix, found smallest eigenvalue {lam_min:.3g}")
     return arr
 
 

@@ -116,8 +116,10 @@ def _header(sc: Any) -> str:
     else:
         what = "infinite horizon (steady state), average cost per step"
     info = "reduced information structure from [information]" if sc.has_reduced_information else "full information structure of the graph"
-    return (f"scenario {sc.name}: {sc.n_agents} agents, d_x = {sc.system.dx}, {what}\n"
-            f"  graph: {sc.graph!r}; {info} (common lag {sc.information.common_lag})")
+    return (
+        f"scenario {sc.name}: {sc.n_agents} agents, d_x = {sc.system.dx}, {what}\n"
+        f"  graph: {sc.graph!r}; {info} (common lag {sc.information.common_lag})"
+    )
 
 
 # ---------------------------------------------------------------------------
@@ -130,15 +132,19 @@ def _cmd_population(sc: Any, args: argparse.Namespace) -> int:
         print(dumps_json(out))
         return 0
     m = sc.model
-    print(f"scenario {sc.name}: population of N = {m.n_agents:,} interference-coupled agents, horizon T = {sc.horizon}, "
-          f"{out['filter']} filter, feedback f = {m.f:g} (a_f = {out['a_f']:g})")
+    print(
+        f"scenario {sc.name}: population of N = {m.n_agents:,} interference-coupled agents, horizon T = {sc.horizon}, "
+        f"{out['filter']} filter, feedback f = {m.f:g} (a_f = {out['a_f']:g})"
+    )
     tail = ", ".join(f"{v:.4g}" for v in out["gains"][-5:])
     iso = out.get("isolated_gains")
     print(f"  final gains K_T (last 5, oldest first): [..., {tail}]")
     if iso:
         print(f"  isolated Kalman sequence (last 5):      [..., {', '.join(f'{v:.4g}' for v in iso[-5:])}]")
-    print(f"  stationarity index {out['stationarity_index']:.3g}; state variance Var x_T = {out['state_variance']:.6g}; "
-          f"average LQ cost per agent {out['average_lq_cost']:.6g}")
+    print(
+        f"  stationarity index {out['stationarity_index']:.3g}; state variance Var x_T = {out['state_variance']:.6g}; "
+        f"average LQ cost per agent {out['average_lq_cost']:.6g}"
+    )
     return 0
 
 
@@ -154,8 +160,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     if runs is not None:
         if sc.horizon is None:
             raise ScenarioError(
-                f"horizon: --monte-carlo needs a finite horizon, but scenario {sc.name!r} has none (steady state); "
-                "add horizon = T to the scenario"
+                f"horizon: --monte-carlo needs a finite horizon, but scenario {sc.name!r} has none (steady state); add horizon = T to the scenario"
             )
         if runs < 2:
             raise ScenarioError(f"--monte-carlo: expected at least 2 runs (for a confidence interval), found {runs}")
@@ -237,7 +242,9 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     if control:
         print("\n  decentralized LQG ([control], one-step delayed sharing, Appendix D):")
         for name, entry in control.items():
-            extra = f"   closed-loop MC {_fmt(entry['mc_cost'])} [{_fmt(entry['mc_ci95'][0])}, {_fmt(entry['mc_ci95'][1])}]" if "mc_cost" in entry else ""
+            extra = (
+                f"   closed-loop MC {_fmt(entry['mc_cost'])} [{_fmt(entry['mc_ci95'][0])}, {_fmt(entry['mc_ci95'][1])}]" if "mc_cost" in entry else ""
+            )
             print(f"    {name:22s} J = {_fmt(entry['total_cost'])}{extra}")
     if mc:
         print(f"\n  Monte Carlo: {runs} runs, seed {seed} (online agents on sampled paths; analytic values in the {_cost_label(sc.horizon)} column)")
@@ -346,11 +353,9 @@ def _cmd_design(args: argparse.Namespace) -> int:
             path.parent.mkdir(parents=True, exist_ok=True)
         with open(path, "wb") as fh:  # np.savez would append .npz to a name without it
             np.savez(fh, **arrays)  # type: ignore[arg-type]
-        notes.append(f"gains written to {path} ({len(arrays)} arrays; keys like "
-                     f"'{next(iter(designs))}/...'; horizon -1 means steady state)")
+        notes.append(f"gains written to {path} ({len(arrays)} arrays; keys like '{next(iter(designs))}/...'; horizon -1 means steady state)")
     if args.json:
-        out = {"scenario": sc.name, "horizon": sc.horizon,
-               "estimators": {name: _design_summary(name, d, sc) for name, d in designs.items()}}
+        out = {"scenario": sc.name, "horizon": sc.horizon, "estimators": {name: _design_summary(name, d, sc) for name, d in designs.items()}}
         print(dumps_json(out))
         for n in notes:
             print(n, file=sys.stderr)
@@ -364,8 +369,7 @@ def _cmd_design(args: argparse.Namespace) -> int:
         dims = "all (centralized)" if s["local_dims"] is None else ", ".join(map(str, s["local_dims"]))
         shapes = ", ".join(f"{k} {'x'.join(map(str, v))}" for k, v in s["gain_shapes"].items())
         rows.append([name, _fmt(_cost_value(d)), dims, shapes])
-    print(format_table(["estimator", _cost_label(sc.horizon), "local dims (scalars per agent)", f"gain shapes ({when})"], rows,
-                       align="lrll"))
+    print(format_table(["estimator", _cost_label(sc.horizon), "local dims (scalars per agent)", f"gain shapes ({when})"], rows, align="lrll"))
     for n in notes:
         print(n)
     return 0
@@ -388,38 +392,53 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path(f"{Path(args.sweep).stem}.parquet")
     scheduler = args.scheduler or "local"
     try:
-        res = run_sweep(spec, out, scheduler=scheduler, resume=args.resume, progress=not args.no_progress,
-                        n_workers=args.workers)
+        res = run_sweep(spec, out, scheduler=scheduler, resume=args.resume, progress=not args.no_progress, n_workers=args.workers)
     except KeyboardInterrupt:
-        print(f"teamkf: interrupted; the finished points are kept in {out}; run the same command with --resume to continue",
-              file=sys.stderr)
+        print(f"teamkf: interrupted; the finished points are kept in {out}; run the same command with --resume to continue", file=sys.stderr)
         return 130
     key = res.cost_key
     if args.json:
-        print(dumps_json({
-            "sweep": spec.name, "scenario": spec.scenario, "out": str(out), "points": spec.n_points,
-            "computed": res.n_computed, "resumed": res.n_resumed, "runs": spec.runs, "seed": spec.seed,
-            "estimators": list(spec.estimators), "grid": {k: list(v) for k, v in spec.grid.items()},
-            "rows": [dict(r) for r in res.rows],
-        }))
+        print(
+            dumps_json(
+                {
+                    "sweep": spec.name,
+                    "scenario": spec.scenario,
+                    "out": str(out),
+                    "points": spec.n_points,
+                    "computed": res.n_computed,
+                    "resumed": res.n_resumed,
+                    "runs": spec.runs,
+                    "seed": spec.seed,
+                    "estimators": list(spec.estimators),
+                    "grid": {k: list(v) for k, v in spec.grid.items()},
+                    "rows": [dict(r) for r in res.rows],
+                }
+            )
+        )
         return 0
     where = {"serial": "in-process (serial)", "local": "Dask LocalCluster"}.get(str(scheduler), f"Dask scheduler {scheduler}")
-    print(f"sweep {spec.name}: {spec.n_points} points x {len(spec.estimators)} estimators, base scenario {spec.base.name}, "
-          f"runs {spec.runs}, seed {spec.seed}; {where}")
+    print(
+        f"sweep {spec.name}: {spec.n_points} points x {len(spec.estimators)} estimators, base scenario {spec.base.name}, "
+        f"runs {spec.runs}, seed {spec.seed}; {where}"
+    )
     print()
     by_point: dict[str, dict[str, Any]] = {}
     for r in res.rows:
         by_point.setdefault(r["point_id"], {k: r[k] for k in res.grid_keys})[r["estimator"]] = r.get(key)
     limit = 30
-    table = [[*(p[k] for k in res.grid_keys), *(_fmt(p[e]) if p.get(e) is not None else "-" for e in spec.estimators)]
-             for p in list(by_point.values())[:limit]]
+    table = [
+        [*(p[k] for k in res.grid_keys), *(_fmt(p[e]) if p.get(e) is not None else "-" for e in spec.estimators)]
+        for p in list(by_point.values())[:limit]
+    ]
     print(format_table([*res.grid_keys, *spec.estimators], table, align="r" * (len(res.grid_keys) + len(spec.estimators))))
     if len(by_point) > limit:
         print(f"  ... and {len(by_point) - limit} more points")
     mc = " (Monte Carlo means for estimators without one; analytic estimators also have mc_cost)" if spec.runs else ""
     print(f"\n  {_cost_label(spec.base.horizon) if key == 'total_cost' else 'average cost'} per estimator{mc}")
-    print(f"\nresults: {out} ({len(res.rows)} rows; {res.n_computed} points computed now, {res.n_resumed} already there); "
-          f"read them with pandas.read_parquet({str(out)!r}) or teamkf.simulation.results.SweepResult.load")
+    print(
+        f"\nresults: {out} ({len(res.rows)} rows; {res.n_computed} points computed now, {res.n_resumed} already there); "
+        f"read them with pandas.read_parquet({str(out)!r}) or teamkf.simulation.results.SweepResult.load"
+    )
     return 0
 
 
@@ -482,8 +501,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="teamkf",
         description="Design and evaluate decentralized team estimators (MTMSE, per-agent MMSE, centralized Kalman) from scenario files.",
-        epilog="SCENARIO is a .toml/.json scenario file or a packaged scenario name (platoon-4, platoon-4-is1, "
-               "platoon-4-steady, uav-4, uav-10).",
+        epilog="SCENARIO is a .toml/.json scenario file or a packaged scenario name (platoon-4, platoon-4-is1, platoon-4-steady, uav-4, uav-10).",
     )
     parser.add_argument("--version", action="version", version=f"teamkf {_version()}")
     parser.add_argument("--debug", action="store_true", help=debug_help)
@@ -520,15 +538,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument("--out", metavar="DIR", help="write the table (CSV, JSON) and plots (PNG) into DIR")
     p.add_argument("--quick", action="store_true", help="a coarser grid, for a fast look")
-    p.add_argument("--scheduler", default="serial", metavar="ADDRESS",
-                   help="where grid points run: serial (default), local (an embedded Dask cluster) or a Dask scheduler address")
+    p.add_argument(
+        "--scheduler",
+        default="serial",
+        metavar="ADDRESS",
+        help="where grid points run: serial (default), local (an embedded Dask cluster) or a Dask scheduler address",
+    )
     p.set_defaults(func=_cmd_reproduce)
 
     p = add("sweep", "run a parameter sweep of a scenario (in-process or on Dask) and write the results as Parquet")
     p.add_argument("sweep", metavar="SWEEP.toml", help="sweep file: base scenario, [grid] of dotted keys, runs, seed, estimators")
-    p.add_argument("--scheduler", metavar="ADDRESS",
-                   help="'local' (default: a Dask LocalCluster, one worker per core), 'serial' (in-process) "
-                        "or the address of a Dask scheduler (tcp://host:8786)")
+    p.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="'local' (default: a Dask LocalCluster, one worker per core), 'serial' (in-process) "
+        "or the address of a Dask scheduler (tcp://host:8786)",
+    )
     p.add_argument("--out", metavar="RESULTS", help="results folder of Parquet parts (default: <sweep file stem>.parquet)")
     p.add_argument("--resume", action="store_true", help="keep the points already in RESULTS and compute the missing ones")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Any
 
 from . import experiments
 from .experiments import plotting_available
@@ -20,12 +19,21 @@ __all__ = ["run_demo", "SECTIONS"]
 
 #: (experiment, heading, columns shown)
 SECTIONS = (
-    ("fig3", "1. UAV formation (Section IV-A: complete graph, delay 2, cost (5), T = 100)",
-     ["n", "lambda/n^2", "J* (MTMSE)", "J mmse", "J KCF honest (MC)", "J KCF ideal (MC)", "J centralized", "Delta mmse %"]),
-    ("fig5", "2. Vehicular platoon (Section IV-B: line graph, unit delays, cost (6), T = 100)",
-     ["lambda", "J* (MTMSE)", "J mmse", "J KCF honest (MC)", "J KCF ideal (MC)", "J centralized", "Delta mmse %"]),
-    ("table1", "3. Information shedding (Table I: platoon, lambda = 100, T = 100)",
-     ["structure", "local vectors i in {1,4}", "local vectors i in {2,3}", "J_T*/lambda (teamkf)", "J_T*/lambda (paper, Table I)"]),
+    (
+        "fig3",
+        "1. UAV formation (Section IV-A: complete graph, delay 2, cost (5), T = 100)",
+        ["n", "lambda/n^2", "J* (MTMSE)", "J mmse", "J KCF honest (MC)", "J KCF ideal (MC)", "J centralized", "Delta mmse %"],
+    ),
+    (
+        "fig5",
+        "2. Vehicular platoon (Section IV-B: line graph, unit delays, cost (6), T = 100)",
+        ["lambda", "J* (MTMSE)", "J mmse", "J KCF honest (MC)", "J KCF ideal (MC)", "J centralized", "Delta mmse %"],
+    ),
+    (
+        "table1",
+        "3. Information shedding (Table I: platoon, lambda = 100, T = 100)",
+        ["structure", "local vectors i in {1,4}", "local vectors i in {2,3}", "J_T*/lambda (teamkf)", "J_T*/lambda (paper, Table I)"],
+    ),
 )
 
 
@@ -42,10 +50,12 @@ def run_demo(out_dir: str | Path = "results", quick: bool = False, *, echo: bool
         if echo:
             print(text, flush=True)
 
-    say("teamkf demo — minimum team mean-squared error (MTMSE) filtering vs its baselines\n"
+    say(
+        "teamkf demo — minimum team mean-squared error (MTMSE) filtering vs its baselines\n"
         "J = expected team cost summed over the horizon; Delta mmse = (J mmse - J*) / J*.\n"
         "KCF: Kalman-consensus filter by Monte Carlo; 'honest' sends messages over the graph with its delays,\n"
-        "'ideal' exchanges current data within the step (not realizable on a delayed graph).\n")
+        "'ideal' exchanges current data within the step (not realizable on a delayed graph).\n"
+    )
     for name, heading, cols in SECTIONS:
         res = experiments.run(name, out if plots else None, quick=quick)
         shown = experiments.ExperimentResult(res.name, res.title, res.rows, [c for c in cols if c in res.columns])

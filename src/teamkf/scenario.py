@@ -183,14 +183,16 @@ def _kcf_options(raw: Mapping[str, Any]) -> dict[str, Any]:
     """``[kcf]``: epsilon (> 0, default 0.1) and variant ("honest" | "ideal", default "honest")."""
     t = raw.get("kcf", {})
     if not isinstance(t, Mapping):
-        raise _fail("kcf", f"expected a table (epsilon = 0.1, variant = \"honest\"), found {_describe(t)}")
+        raise _fail("kcf", f'expected a table (epsilon = 0.1, variant = "honest"), found {_describe(t)}')
     _check_keys(t, ("epsilon", "variant"), "kcf.")
     eps = t.get("epsilon", 0.1)
     if isinstance(eps, bool) or not isinstance(eps, (int, float)) or not eps > 0 or eps != eps or eps == float("inf"):
         raise _fail("kcf.epsilon", f"expected a positive number (the consensus step), found {eps!r}")
     variant = t.get("variant", "honest")
     if variant not in ("honest", "ideal"):
-        raise _fail("kcf.variant", f'expected "honest" (messages over the graph, with delays) or "ideal" (exchange within the step), found {variant!r}')
+        raise _fail(
+            "kcf.variant", f'expected "honest" (messages over the graph, with delays) or "ideal" (exchange within the step), found {variant!r}'
+        )
     return {"epsilon": float(eps), "variant": variant}
 
 
@@ -362,14 +364,15 @@ def _numeric(x: Any, key: str, *, scalar_ok: bool = True) -> Any:
         shapes = [walk(e, f"{where}[{i}]") for i, e in enumerate(v)]
         for i, s in enumerate(shapes):
             if s != shapes[0]:
+
                 def size(sh: tuple[int, ...]) -> str:
                     return "a number" if not sh else (f"{sh[0]} entries" if len(sh) == 1 else f"shape {V.shape_str(sh)}")
 
                 raise _fail(
                     key,
                     f"expected rows of equal length, found {where}[0] with {size(shapes[0])} and {where}[{i}] with {size(s)}"
-                    if where else
-                    f"expected rows of equal length, found row 0 with {size(shapes[0])} and row {i} with {size(s)}",
+                    if where
+                    else f"expected rows of equal length, found row 0 with {size(shapes[0])} and row {i} with {size(s)}",
                 )
         return (len(v), *shapes[0])
 

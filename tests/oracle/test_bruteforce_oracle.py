@@ -9,7 +9,8 @@ common/local split).
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st, HealthCheck
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from teamkf import CommGraph, InformationStructure, design_mmse, design_mtmse
 from tests.helpers import brute_force_team, eq14_information, random_cost, random_system, window_information

@@ -29,8 +29,13 @@ def test_monte_carlo_matches_analytic(case):
     T = 25
     if case.startswith("platoon"):
         sys, cost, g = LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 10.0), CommGraph.line(4)
-        st = g if case == "platoon" else InformationStructure(
-            4, 3, [[(0, 0, 1), (1, 1, 1)], [(0, 1, 1), (1, 0, 1), (2, 1, 1)], [(1, 1, 1), (2, 0, 1), (3, 1, 1)], [(2, 1, 1), (3, 0, 1)]])
+        st = (
+            g
+            if case == "platoon"
+            else InformationStructure(
+                4, 3, [[(0, 0, 1), (1, 1, 1)], [(0, 1, 1), (1, 0, 1), (2, 1, 1)], [(1, 1, 1), (2, 0, 1), (3, 1, 1)], [(2, 1, 1), (3, 0, 1)]]
+            )
+        )
     elif case == "uav4":
         sys, cost, g = LinearGaussianSystem.uav_formation(4), TeamCost.average_tracking(4, 160.0), CommGraph.complete(4, 2)
         st = g
@@ -39,8 +44,7 @@ def test_monte_carlo_matches_analytic(case):
         sys = random_system(rng, 3, 3, [1, 2, 1], stable=True)
         cost = random_cost(rng, 3, 3, 2)
         st = CommGraph.random(3, p=0.5, delays=(1, 3), rng=rng)
-    designs = {"mtmse": design_mtmse(sys, cost, st, T), "mmse": design_mmse(sys, cost, st, T),
-               "centralized": design_centralized(sys, cost, T)}
+    designs = {"mtmse": design_mtmse(sys, cost, st, T), "mmse": design_mmse(sys, cost, st, T), "centralized": design_centralized(sys, cost, T)}
     mc = monte_carlo(designs, T, 3000, rng=2024)
     for name, d in designs.items():
         r = mc[name]

@@ -208,7 +208,7 @@ def test_memory_n_converges_to_exact():
     for n in (1, 2, 3, 5, 8, 13, 30, 60):
         fm = finite_memory_filter(m, T, n)
         Kn = np.zeros(T)
-        Kn[T - n:] = fm.final_gains()
+        Kn[T - n :] = fm.final_gains()
         errs.append(np.linalg.norm(Kn - K))
         verr.append(abs(fm.covariances.state_variance[-1] - vx))
     assert all(e1 > e2 for e1, e2 in zip(errs[:-1], errs[1:-1]))  # monotone until round-off
@@ -288,19 +288,22 @@ def test_isolated_kalman_filter_and_riccati_gain():
 # ---------------------------------------------------------------------------
 # model, CDMA builder, scenario, evaluation
 # ---------------------------------------------------------------------------
-@pytest.mark.parametrize("kw, words", [
-    (dict(n_agents=0), ["n_agents", "integer >= 1", "0"]),
-    (dict(n_agents=2.5), ["n_agents", "integer", "2.5"]),
-    (dict(a=float("nan")), ["a", "finite"]),
-    (dict(f="x"), ["f", "real number", "'x'"]),
-    (dict(b=0.0), ["b", "> 0", "0.0"]),
-    (dict(c=-1.0), ["c", "> 0", "-1.0"]),
-    (dict(h=-0.1), ["h", ">= 0", "-0.1", "h = 0"]),
-    (dict(sigma_v=0.0), ["sigma_v", "> 0", "strictly positive"]),
-    (dict(sigma_w=-1.0), ["sigma_w", ">= 0"]),
-    (dict(memory=-2), ["memory", "integer >= 0", "-2"]),
-    (dict(r=0.0), ["r", "> 0"]),
-])
+@pytest.mark.parametrize(
+    "kw, words",
+    [
+        (dict(n_agents=0), ["n_agents", "integer >= 1", "0"]),
+        (dict(n_agents=2.5), ["n_agents", "integer", "2.5"]),
+        (dict(a=float("nan")), ["a", "finite"]),
+        (dict(f="x"), ["f", "real number", "'x'"]),
+        (dict(b=0.0), ["b", "> 0", "0.0"]),
+        (dict(c=-1.0), ["c", "> 0", "-1.0"]),
+        (dict(h=-0.1), ["h", ">= 0", "-0.1", "h = 0"]),
+        (dict(sigma_v=0.0), ["sigma_v", "> 0", "strictly positive"]),
+        (dict(sigma_w=-1.0), ["sigma_w", ">= 0"]),
+        (dict(memory=-2), ["memory", "integer >= 0", "-2"]),
+        (dict(r=0.0), ["r", "> 0"]),
+    ],
+)
 def test_model_validation(kw, words):
     args = dict(n_agents=10, a=1.0, f=0.5)
     args.update(kw)
@@ -340,8 +343,9 @@ def test_population_from_dict_and_errors():
     # defaults: the paper's numerical setting and f = f*(a, r)
     sc2 = population_from_dict({"horizon": 5, "population": {"n_agents": 3, "a": 2.0}})
     assert sc2.model.f == pytest.approx(riccati_feedback_gain(2.0, 1.0)) and sc2.model.c == sc2.model.h == 1.0
-    sc3 = population_from_dict({"horizon": 5, "population": {"n_agents": 1e9, "a": 2.0, "a_f": 0.5, "memory": 5,
-                                                                "cdma": {"alpha": 1.0, "beta": 2.0, "h_prime": 3.0}}})
+    sc3 = population_from_dict(
+        {"horizon": 5, "population": {"n_agents": 1e9, "a": 2.0, "a_f": 0.5, "memory": 5, "cdma": {"alpha": 1.0, "beta": 2.0, "h_prime": 3.0}}}
+    )
     assert sc3.model.f == pytest.approx(1.5) and sc3.model.h == pytest.approx(6.0) and sc3.model.memory == 5
 
     def with_pop(**kw):
@@ -376,8 +380,19 @@ def test_packaged_interference_scenario_and_evaluation():
     sc = population_from_dict(d)
     assert sc.name == "interference" and sc.horizon == 1000 and sc.model.n_agents == 1000 and sc.model.a_f == 0.5
     out = population_from_dict({**d, "horizon": 150}).evaluate()
-    for key in ("scenario", "gains", "stationarity_index", "isolated_gains", "state_variance", "average_lq_cost", "average_cost",
-                "mean_state_variance", "cross_covariance", "estimation_error_variance", "discrepancy_index"):
+    for key in (
+        "scenario",
+        "gains",
+        "stationarity_index",
+        "isolated_gains",
+        "state_variance",
+        "average_lq_cost",
+        "average_cost",
+        "mean_state_variance",
+        "cross_covariance",
+        "estimation_error_variance",
+        "discrepancy_index",
+    ):
         assert key in out, key
     assert len(out["gains"]) == 150 == len(out["isolated_gains"])
     np.testing.assert_allclose(out["gains"][-2:], [0.0615, 0.8628], atol=5e-5)

@@ -94,12 +94,15 @@ def test_a_s_closed_form_matches_a_grid_search():
 # ---------------------------------------------------------------------------
 # explicit agents vs exact covariances
 # ---------------------------------------------------------------------------
-@pytest.mark.parametrize("kw", [
-    dict(n_agents=40, a=2.5, f=2.0, x0_mean=0.5),
-    dict(n_agents=25, a=5.0, f=4.5),
-    dict(n_agents=40, a=2.5, f=2.0, x0_mean=0.5, memory=2),
-    dict(n_agents=1, a=1.5, f=1.0, sigma_0=2.0),
-])
+@pytest.mark.parametrize(
+    "kw",
+    [
+        dict(n_agents=40, a=2.5, f=2.0, x0_mean=0.5),
+        dict(n_agents=25, a=5.0, f=4.5),
+        dict(n_agents=40, a=2.5, f=2.0, x0_mean=0.5, memory=2),
+        dict(n_agents=1, a=1.5, f=1.0, sigma_0=2.0),
+    ],
+)
 def test_simulation_matches_exact_covariances(kw):
     """Statistical: 300 runs, fixed seed; every step's second moment within 4.5 sigma, Var m_k within
     4.5 sigma of its chi-square spread, the LQ cost within 4.5 sigma."""
@@ -153,7 +156,7 @@ def test_simulator_equals_a_plain_loop_with_measurement_form_gains(memory):
             y = m.c * x + m.h * x.mean() + m.sigma_v * z[1]
             Y.append(y - (m.c + m.h) * m.a_f**k * m.x0_mean)
             K = filt.gain(k)
-            xh = m.a_f**k * m.x0_mean + K @ np.array(Y[-len(K):])
+            xh = m.a_f**k * m.x0_mean + K @ np.array(Y[-len(K) :])
         np.testing.assert_allclose(sim.final_states[r], x, rtol=1e-9, atol=1e-9)
 
 

@@ -12,9 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from teamkf import __version__
+from teamkf import __version__, experiments
 from teamkf.cli import dumps_json, format_table, main
-from teamkf import experiments
 from teamkf.demo import run_demo
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -169,15 +168,18 @@ def test_debug_shows_traceback(tmp_path, where):
     assert res.stderr.strip().splitlines()[-1].startswith("teamkf: error: agents[2].R")
 
 
-@pytest.mark.parametrize("case, expected", [
-    ("missing", "teamkf: error: {dir}/nope.toml: no such scenario file"),
-    ("syntax", "teamkf: error: {dir}/syntax.toml: invalid TOML: "),
-    ("cikf", "teamkf: error: estimators[1]: unknown estimator 'ukf'"),
-    ("typo", "teamkf: error: cost.lamda: unknown key; did you mean 'lambda'?"),
-    ("graph", "teamkf: error: graph: expected a strongly connected graph"),
-    ("population", "teamkf: error: population.a:"),
-    ("directory", "teamkf: error: {dir}: is a directory"),
-])
+@pytest.mark.parametrize(
+    "case, expected",
+    [
+        ("missing", "teamkf: error: {dir}/nope.toml: no such scenario file"),
+        ("syntax", "teamkf: error: {dir}/syntax.toml: invalid TOML: "),
+        ("cikf", "teamkf: error: estimators[1]: unknown estimator 'ukf'"),
+        ("typo", "teamkf: error: cost.lamda: unknown key; did you mean 'lambda'?"),
+        ("graph", "teamkf: error: graph: expected a strongly connected graph"),
+        ("population", "teamkf: error: population.a:"),
+        ("directory", "teamkf: error: {dir}: is a directory"),
+    ],
+)
 def test_errors_in_process(tmp_path, capsys, case, expected):
     if case == "missing":
         p = tmp_path / "nope.toml"
@@ -293,8 +295,17 @@ def test_demo_quick_cli(tmp_path, capsys):
     out_dir = tmp_path / "plots"
     assert main(["demo", "--quick", "--out", str(out_dir)]) == 0
     text = capsys.readouterr().out
-    for part in ("1. UAV formation", "2. Vehicular platoon", "3. Information shedding", "J_T*/lambda (paper, Table I)",
-                 "180.46", "193.72", "252.09", "cannot come from the stated model", "KCF"):
+    for part in (
+        "1. UAV formation",
+        "2. Vehicular platoon",
+        "3. Information shedding",
+        "J_T*/lambda (paper, Table I)",
+        "180.46",
+        "193.72",
+        "252.09",
+        "cannot come from the stated model",
+        "KCF",
+    ):
         assert part in text, part
     if HAS_MPL:
         assert (out_dir / "fig3.png").exists() and (out_dir / "fig5.png").exists() and (out_dir / "table1.png").exists()

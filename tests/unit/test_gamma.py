@@ -17,7 +17,7 @@ def problem(rng, n=4, dz=2, D=12, sparse_S=False):
         for i in range(n):
             for j in range(n):
                 if abs(i - j) > 1:
-                    S[i * dz:(i + 1) * dz, j * dz:(j + 1) * dz] = 0
+                    S[i * dz : (i + 1) * dz, j * dz : (j + 1) * dz] = 0
         S += n * np.eye(n * dz)
     return GammaProblem(S, Sigma, idx, dz)
 
@@ -30,7 +30,7 @@ def explicit_gamma(g):
     G = np.zeros((o[-1], o[-1]))
     for i, ii in enumerate(g.idx):
         for j, jj in enumerate(g.idx):
-            G[o[i]:o[i+1], o[j]:o[j+1]] = np.kron(g.Sigma[np.ix_(ii, jj)], g.S[i*dz:(i+1)*dz, j*dz:(j+1)*dz])
+            G[o[i] : o[i + 1], o[j] : o[j + 1]] = np.kron(g.Sigma[np.ix_(ii, jj)], g.S[i * dz : (i + 1) * dz, j * dz : (j + 1) * dz])
     return G, o
 
 
@@ -46,7 +46,7 @@ def test_operator_dense_and_kron_agree(seed, sparse_S):
     y = G @ np.concatenate([f.ravel(order="F") for f in F])
     out = g.apply(F)
     for i in range(len(F)):
-        np.testing.assert_allclose(out[i].ravel(order="F"), y[o[i]:o[i+1]], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(out[i].ravel(order="F"), y[o[i] : o[i + 1]], rtol=1e-12, atol=1e-12)
     assert np.all(np.linalg.eigvalsh(g.dense()) > 0)  # Lemma 5: S > 0, Sigma_ii > 0 => Gamma > 0
 
 

@@ -152,9 +152,7 @@ def test_star_diameter_is_twice_delay():
     assert CommGraph.star(6, delay=3).diameter == 6
 
 
-@pytest.mark.parametrize(
-    "builder", [CommGraph.complete, CommGraph.line, CommGraph.ring, CommGraph.star]
-)
+@pytest.mark.parametrize("builder", [CommGraph.complete, CommGraph.line, CommGraph.ring, CommGraph.star])
 def test_builders_one_agent(builder):
     g = builder(1)
     assert g.n_agents == 1 and g.edges == ()

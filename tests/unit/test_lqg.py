@@ -12,8 +12,13 @@ from tests.helpers import brute_force_team
 def scalar_problem(seed):
     rng = np.random.default_rng(seed)
     a = rng.uniform(0.8, 1.3)
-    system = LinearGaussianSystem(A=[[a]], Q=rng.uniform(0.2, 1.0), Sigma_x=rng.uniform(0.5, 2.0),
-                                  C=[[[rng.uniform(0.5, 1.5)]], [[rng.uniform(0.5, 1.5)]]], R=[rng.uniform(0.1, 1), rng.uniform(0.1, 1)])
+    system = LinearGaussianSystem(
+        A=[[a]],
+        Q=rng.uniform(0.2, 1.0),
+        Sigma_x=rng.uniform(0.5, 2.0),
+        C=[[[rng.uniform(0.5, 1.5)]], [[rng.uniform(0.5, 1.5)]]],
+        R=[rng.uniform(0.1, 1), rng.uniform(0.1, 1)],
+    )
     B = rng.uniform(0.3, 1.2, size=(1, 2))
     M = rng.standard_normal((2, 2))
     return LQGProblem(system, B=B, Q_x=[[rng.uniform(0.5, 2)]], R_u=M @ M.T + 0.5 * np.eye(2))

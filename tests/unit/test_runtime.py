@@ -54,8 +54,9 @@ def test_information_discipline(seed):
 
 def test_runtime_equals_structure_delivery_and_reduced_structures():
     system, cost, g = LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 10.0), CommGraph.line(4)
-    IS1 = InformationStructure(4, 3, [[(0, 0, 1), (1, 1, 1)], [(0, 1, 1), (1, 0, 1), (2, 1, 1)],
-                                      [(1, 1, 1), (2, 0, 1), (3, 1, 1)], [(2, 1, 1), (3, 0, 1)]])
+    IS1 = InformationStructure(
+        4, 3, [[(0, 0, 1), (1, 1, 1)], [(0, 1, 1), (1, 0, 1), (2, 1, 1)], [(1, 1, 1), (2, 0, 1), (3, 1, 1)], [(2, 1, 1), (3, 0, 1)]]
+    )
     paths = sample_paths(system, 15, 4, rng=0)
     for st in (g, IS1):
         d = design_mtmse(system, cost, st, 15)
@@ -69,8 +70,11 @@ def test_error_path_equals_runtime_path_on_stable_systems(steady):
     cost = random_cost(rng, 3, 3, 2)
     g = CommGraph.random(3, p=0.5, delays=(1, 2), rng=rng)
     T = 20
-    designs = {"mtmse": design_mtmse(system, cost, g, None if steady else T), "mmse": design_mmse(system, cost, g, None if steady else T),
-               "centralized": design_centralized(system, cost, None if steady else T)}
+    designs = {
+        "mtmse": design_mtmse(system, cost, g, None if steady else T),
+        "mmse": design_mmse(system, cost, g, None if steady else T),
+        "centralized": design_centralized(system, cost, None if steady else T),
+    }
     paths = sample_paths(system, T, 6, rng=1)
     for d in designs.values():
         e_err = d.errors(paths)

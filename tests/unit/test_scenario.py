@@ -5,8 +5,6 @@ from __future__ import annotations
 import copy
 import json
 import tomllib
-
-import numpy as np
 from pathlib import Path
 
 import numpy as np
@@ -152,16 +150,21 @@ def test_scalar_covariances_mean_q_times_identity():
 def test_matrices_as_nested_lists():
     d = base_dict()
     d["system"]["Q"] = np.diag([1.0, 2.0, 3.0, 4.0]).tolist()
-    d["agents"] = [{"C": [[1, 0, 0, 0]], "R": [[0.2]]}, {"C": [[0, 1, 0, 0], [0, 0, 1, 0]], "R": [[0.1, 0.0], [0.0, 0.3]]},
-                   {"C": [[0, 0, 1, 0]], "R": 0.1}, {"C": [[0, 0, 0, 1]], "R": 0.1}]
+    d["agents"] = [
+        {"C": [[1, 0, 0, 0]], "R": [[0.2]]},
+        {"C": [[0, 1, 0, 0], [0, 0, 1, 0]], "R": [[0.1, 0.0], [0.0, 0.3]]},
+        {"C": [[0, 0, 1, 0]], "R": 0.1},
+        {"C": [[0, 0, 0, 1]], "R": 0.1},
+    ]
     sc = scenario_from_dict(d)
     assert sc.system.dy == (1, 2, 1, 1)
     np.testing.assert_allclose(sc.system.Q[0], np.diag([1.0, 2.0, 3.0, 4.0]))
     np.testing.assert_allclose(sc.system.R[1][0], [[0.1, 0.0], [0.0, 0.3]])
 
 
-@pytest.mark.parametrize("kind, builder", [("complete", CommGraph.complete), ("line", CommGraph.line),
-                                           ("ring", CommGraph.ring), ("star", CommGraph.star)])
+@pytest.mark.parametrize(
+    "kind, builder", [("complete", CommGraph.complete), ("line", CommGraph.line), ("ring", CommGraph.ring), ("star", CommGraph.star)]
+)
 def test_builder_graphs(kind, builder):
     d = base_dict()
     d["graph"] = {"kind": kind, "delay": 2}
@@ -196,8 +199,7 @@ def test_explicit_S_and_L():
     np.testing.assert_allclose(scenario_from_dict(d).cost.S[0], 2.0 * np.eye(4))
 
 
-@pytest.mark.parametrize("kind, builder", [("average", TeamCost.average_tracking), ("platoon", TeamCost.platoon),
-                                           ("ring", TeamCost.ring)])
+@pytest.mark.parametrize("kind, builder", [("average", TeamCost.average_tracking), ("platoon", TeamCost.platoon), ("ring", TeamCost.ring)])
 def test_cost_builders(kind, builder):
     d = base_dict()
     d["cost"] = {"kind": kind, "lambda": 3}
@@ -290,8 +292,9 @@ def test_raw_is_a_copy():
 # ---------------------------------------------------------------------------
 # bad input: every error is a ScenarioError starting with the key path
 # ---------------------------------------------------------------------------
-@pytest.mark.parametrize("path", ["system", "system.A", "system.Q", "system.Sigma_x", "agents", "graph", "cost", "estimators",
-                                  "agents[1].C", "agents[3].R"])
+@pytest.mark.parametrize(
+    "path", ["system", "system.A", "system.Q", "system.Sigma_x", "agents", "graph", "cost", "estimators", "agents[1].C", "agents[3].R"]
+)
 def test_missing_required_key(path):
     d = base_dict()
     if "[" in path:
@@ -306,14 +309,17 @@ def test_missing_required_key(path):
     assert msg.startswith(f"{path}: missing"), msg
 
 
-@pytest.mark.parametrize("where, key, expected", [
-    ("", "horizn", "horizn: unknown key; did you mean 'horizon'?"),
-    ("system", "Sigma", "system.Sigma: unknown key; did you mean 'Sigma_x'?"),
-    ("cost", "lamda", "cost.lamda: unknown key; did you mean 'lambda'?"),
-    ("graph", "dealy", "graph.dealy: unknown key; did you mean 'delay'?"),
-    ("agents[2]", "Rr", "agents[2].Rr: unknown key; did you mean 'R'?"),
-    ("information", "comon_lag", "information.comon_lag: unknown key; did you mean 'common_lag'?"),
-])
+@pytest.mark.parametrize(
+    "where, key, expected",
+    [
+        ("", "horizn", "horizn: unknown key; did you mean 'horizon'?"),
+        ("system", "Sigma", "system.Sigma: unknown key; did you mean 'Sigma_x'?"),
+        ("cost", "lamda", "cost.lamda: unknown key; did you mean 'lambda'?"),
+        ("graph", "dealy", "graph.dealy: unknown key; did you mean 'delay'?"),
+        ("agents[2]", "Rr", "agents[2].Rr: unknown key; did you mean 'R'?"),
+        ("information", "comon_lag", "information.comon_lag: unknown key; did you mean 'common_lag'?"),
+    ],
+)
 def test_unknown_key(where, key, expected):
     d = base_dict()
     d["information"] = {"common_lag": 3, "local": copy.deepcopy(IS1_LOCAL)}
@@ -350,51 +356,68 @@ def test_non_symmetric_Q():
     assert error_of(d).startswith("system.Q: expected a symmetric matrix")
 
 
-@pytest.mark.parametrize("mutate, prefix", [
-    (lambda d: d["system"].__setitem__("A", [[0.9, 0.0], [0.0, 0.9]]), "agents[0].C: expected a kx2 matrix, found 4x4 (every C_i needs d_x columns"),
-    (lambda d: d["system"].__setitem__("A", [[0.9, 0, 0], [0, 0.9, 0]]), "system.A: expected a square"),
-    (lambda d: d["system"].__setitem__("A", 0.9), "system.A: expected a matrix"),
-    (lambda d: d["system"].__setitem__("A", [[0.9, 0, 0, 0], [0.7, 0.9, 0], [0, 0, 1, 0], [0, 0, 0, 1]]), "system.A: expected rows of equal length, found row 0 with 4 entries and row 1 with 3"),
-    (lambda d: d["system"].__setitem__("A", [[0.9, "x", 0, 0]] * 4), "system.A: expected a number or nested lists of numbers, found the string 'x' at [0][1]"),
-    (lambda d: d["system"].__setitem__("Sigma_x", np.eye(3).tolist()), "system.Sigma_x: expected a 4x4"),
-    (lambda d: d["agents"][3].__setitem__("C", [[1, 0, 0]]), "agents[3].C: expected a kx4 matrix, found 1x3"),
-    (lambda d: d["agents"][0].__setitem__("C", True), "agents[0].C: expected a number or nested lists of numbers, found the boolean true"),
-    (lambda d: d.__setitem__("agents", []), "agents: expected a non-empty list"),
-    (lambda d: d.__setitem__("agents", [1, 2]), "agents[0]: expected a table"),
-    (lambda d: d.__setitem__("system", [1]), "system: expected a table"),
-    (lambda d: d.__setitem__("horizon", 0), "horizon: expected an integer number of steps >= 1"),
-    (lambda d: d.__setitem__("horizon", 2.5), "horizon: expected an integer"),
-    (lambda d: d.__setitem__("name", ""), "name: expected a non-empty string"),
-    (lambda d: d["cost"].__setitem__("lambda", -1.0), "cost.lambda: expected a non-negative number"),
-    (lambda d: d["cost"].__setitem__("lambda", "big"), "cost.lambda: expected a non-negative number"),
-    (lambda d: d["cost"].pop("lambda"), "cost.lambda: missing required key"),
-    (lambda d: d["cost"].__setitem__("kind", "platon"), "cost.kind: unknown cost kind 'platon'; did you mean 'platoon'?"),
-    (lambda d: d.__setitem__("cost", {"kind": "mse", "lambda": 1.0}), "cost.lambda: the 'mse' cost (S = I, every agent estimates the whole state) has no lambda"),
-    (lambda d: d.__setitem__("cost", {"kind": "platoon", "lambda": 1.0, "S": 1.0}), "cost: give either kind"),
-    (lambda d: d.__setitem__("cost", {"S": np.eye(4).tolist()}), "cost.L: missing required key"),
-    (lambda d: d.__setitem__("cost", {"S": np.eye(3).tolist(), "L": np.eye(4).tolist()}), "cost.S: expected a size that is a multiple"),
-    (lambda d: d.__setitem__("cost", {"S": np.eye(4).tolist(), "L": np.eye(4)[:, :3].tolist()}), "cost.L: expected 4 columns"),
-    (lambda d: d.__setitem__("cost", {"S": (-np.eye(4)).tolist(), "L": np.eye(4).tolist()}), "cost.S: expected a symmetric positive definite"),
-    (lambda d: d.__setitem__("cost", {}), "cost: expected kind"),
-    (lambda d: d.__setitem__("graph", {"kind": "tree"}), "graph.kind: unknown graph kind 'tree'"),
-    (lambda d: d.__setitem__("graph", {"kind": "line", "delay": 0}), "graph.delay: expected an integer delay >= 1"),
-    (lambda d: d.__setitem__("graph", {"kind": "line", "delay": 1.5}), "graph.delay: expected an integer delay >= 1"),
-    (lambda d: d.__setitem__("graph", {"kind": "line", "directed": True}), 'graph.directed: only used with kind = "ring"'),
-    (lambda d: d.__setitem__("graph", {"kind": "line", "colour": 1}), "graph.colour: unknown key"),
-    (lambda d: d.__setitem__("graph", {"kind": "line", "edges": [[0, 1, 1]]}), "graph: give either edges or kind"),
-    (lambda d: d.__setitem__("graph", {}), "graph: expected edges"),
-    (lambda d: d.__setitem__("graph", {"edges": [[0, 1, 1], [1, 0, 1], [1, 2, 1], [2, 1, 1], [2, 3, 1]]}),
-     "graph: expected a strongly connected graph, found no directed path from agent 3"),
-    (lambda d: d.__setitem__("graph", {"edges": [[0, 4, 1]]}), "graph.edges[0] target: expected an agent index in 0..3"),
-    (lambda d: d.__setitem__("graph", {"edges": [[0, 1, 0]]}), "graph.edges[0] delay: expected an integer delay >= 1"),
-    (lambda d: d.__setitem__("graph", {"edges": "0-1"}), "graph.edges: expected a list"),
-    (lambda d: d.__setitem__("estimators", ["mtmse", "kalman"]), "estimators[1]: unknown estimator 'kalman'"),
-    (lambda d: d.__setitem__("estimators", ["mtmes"]), "estimators[0]: unknown estimator 'mtmes'; did you mean 'mtmse'?"),
-    (lambda d: d.__setitem__("estimators", []), "estimators: expected a non-empty list"),
-    (lambda d: d.__setitem__("estimators", "mtmse"), "estimators: expected a non-empty list"),
-    (lambda d: d.__setitem__("estimators", ["mmse", "mmse"]), "estimators[1]: 'mmse' is listed twice"),
-    (lambda d: d["system"].__setitem__("A", [np.eye(4).tolist()] * 3), "system.A: a horizon of 5 steps needs 4 matrices, found 3"),
-])
+@pytest.mark.parametrize(
+    "mutate, prefix",
+    [
+        (
+            lambda d: d["system"].__setitem__("A", [[0.9, 0.0], [0.0, 0.9]]),
+            "agents[0].C: expected a kx2 matrix, found 4x4 (every C_i needs d_x columns",
+        ),
+        (lambda d: d["system"].__setitem__("A", [[0.9, 0, 0], [0, 0.9, 0]]), "system.A: expected a square"),
+        (lambda d: d["system"].__setitem__("A", 0.9), "system.A: expected a matrix"),
+        (
+            lambda d: d["system"].__setitem__("A", [[0.9, 0, 0, 0], [0.7, 0.9, 0], [0, 0, 1, 0], [0, 0, 0, 1]]),
+            "system.A: expected rows of equal length, found row 0 with 4 entries and row 1 with 3",
+        ),
+        (
+            lambda d: d["system"].__setitem__("A", [[0.9, "x", 0, 0]] * 4),
+            "system.A: expected a number or nested lists of numbers, found the string 'x' at [0][1]",
+        ),
+        (lambda d: d["system"].__setitem__("Sigma_x", np.eye(3).tolist()), "system.Sigma_x: expected a 4x4"),
+        (lambda d: d["agents"][3].__setitem__("C", [[1, 0, 0]]), "agents[3].C: expected a kx4 matrix, found 1x3"),
+        (lambda d: d["agents"][0].__setitem__("C", True), "agents[0].C: expected a number or nested lists of numbers, found the boolean true"),
+        (lambda d: d.__setitem__("agents", []), "agents: expected a non-empty list"),
+        (lambda d: d.__setitem__("agents", [1, 2]), "agents[0]: expected a table"),
+        (lambda d: d.__setitem__("system", [1]), "system: expected a table"),
+        (lambda d: d.__setitem__("horizon", 0), "horizon: expected an integer number of steps >= 1"),
+        (lambda d: d.__setitem__("horizon", 2.5), "horizon: expected an integer"),
+        (lambda d: d.__setitem__("name", ""), "name: expected a non-empty string"),
+        (lambda d: d["cost"].__setitem__("lambda", -1.0), "cost.lambda: expected a non-negative number"),
+        (lambda d: d["cost"].__setitem__("lambda", "big"), "cost.lambda: expected a non-negative number"),
+        (lambda d: d["cost"].pop("lambda"), "cost.lambda: missing required key"),
+        (lambda d: d["cost"].__setitem__("kind", "platon"), "cost.kind: unknown cost kind 'platon'; did you mean 'platoon'?"),
+        (
+            lambda d: d.__setitem__("cost", {"kind": "mse", "lambda": 1.0}),
+            "cost.lambda: the 'mse' cost (S = I, every agent estimates the whole state) has no lambda",
+        ),
+        (lambda d: d.__setitem__("cost", {"kind": "platoon", "lambda": 1.0, "S": 1.0}), "cost: give either kind"),
+        (lambda d: d.__setitem__("cost", {"S": np.eye(4).tolist()}), "cost.L: missing required key"),
+        (lambda d: d.__setitem__("cost", {"S": np.eye(3).tolist(), "L": np.eye(4).tolist()}), "cost.S: expected a size that is a multiple"),
+        (lambda d: d.__setitem__("cost", {"S": np.eye(4).tolist(), "L": np.eye(4)[:, :3].tolist()}), "cost.L: expected 4 columns"),
+        (lambda d: d.__setitem__("cost", {"S": (-np.eye(4)).tolist(), "L": np.eye(4).tolist()}), "cost.S: expected a symmetric positive definite"),
+        (lambda d: d.__setitem__("cost", {}), "cost: expected kind"),
+        (lambda d: d.__setitem__("graph", {"kind": "tree"}), "graph.kind: unknown graph kind 'tree'"),
+        (lambda d: d.__setitem__("graph", {"kind": "line", "delay": 0}), "graph.delay: expected an integer delay >= 1"),
+        (lambda d: d.__setitem__("graph", {"kind": "line", "delay": 1.5}), "graph.delay: expected an integer delay >= 1"),
+        (lambda d: d.__setitem__("graph", {"kind": "line", "directed": True}), 'graph.directed: only used with kind = "ring"'),
+        (lambda d: d.__setitem__("graph", {"kind": "line", "colour": 1}), "graph.colour: unknown key"),
+        (lambda d: d.__setitem__("graph", {"kind": "line", "edges": [[0, 1, 1]]}), "graph: give either edges or kind"),
+        (lambda d: d.__setitem__("graph", {}), "graph: expected edges"),
+        (
+            lambda d: d.__setitem__("graph", {"edges": [[0, 1, 1], [1, 0, 1], [1, 2, 1], [2, 1, 1], [2, 3, 1]]}),
+            "graph: expected a strongly connected graph, found no directed path from agent 3",
+        ),
+        (lambda d: d.__setitem__("graph", {"edges": [[0, 4, 1]]}), "graph.edges[0] target: expected an agent index in 0..3"),
+        (lambda d: d.__setitem__("graph", {"edges": [[0, 1, 0]]}), "graph.edges[0] delay: expected an integer delay >= 1"),
+        (lambda d: d.__setitem__("graph", {"edges": "0-1"}), "graph.edges: expected a list"),
+        (lambda d: d.__setitem__("estimators", ["mtmse", "kalman"]), "estimators[1]: unknown estimator 'kalman'"),
+        (lambda d: d.__setitem__("estimators", ["mtmes"]), "estimators[0]: unknown estimator 'mtmes'; did you mean 'mtmse'?"),
+        (lambda d: d.__setitem__("estimators", []), "estimators: expected a non-empty list"),
+        (lambda d: d.__setitem__("estimators", "mtmse"), "estimators: expected a non-empty list"),
+        (lambda d: d.__setitem__("estimators", ["mmse", "mmse"]), "estimators[1]: 'mmse' is listed twice"),
+        (lambda d: d["system"].__setitem__("A", [np.eye(4).tolist()] * 3), "system.A: a horizon of 5 steps needs 4 matrices, found 3"),
+    ],
+)
 def test_bad_input_names_the_key(mutate, prefix):
     d = base_dict()
     mutate(d)
@@ -409,8 +432,11 @@ def test_kcf_in_scenarios():
     sc = scenario_from_dict(d)
     k = sc.design("kcf")
     assert k.info["variant"] == "ideal" and k.epsilon == 0.05
-    for bad, prefix in [({"epsilon": -1.0}, "kcf.epsilon: expected a positive number"),
-                        ({"variant": "fast"}, "kcf.variant: expected"), ({"eps": 1.0}, "kcf.eps: unknown key")]:
+    for bad, prefix in [
+        ({"epsilon": -1.0}, "kcf.epsilon: expected a positive number"),
+        ({"variant": "fast"}, "kcf.variant: expected"),
+        ({"eps": 1.0}, "kcf.eps: unknown key"),
+    ]:
         d2 = base_dict()
         d2["estimators"] = ["kcf"]
         d2["kcf"] = bad

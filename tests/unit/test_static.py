@@ -54,8 +54,8 @@ def _brute_static(Sig, dims, cost):
     eta = np.zeros(o[-1])
     for i in range(n):
         for j in range(n):
-            G[o[i]:o[i + 1], o[j]:o[j + 1]] = np.kron(Sij[i][j], S[i*dz:(i+1)*dz, j*dz:(j+1)*dz])
-        eta[o[i]:o[i + 1]] = (S[i*dz:(i+1)*dz] @ L @ Th[i]).ravel(order="F")
+            G[o[i] : o[i + 1], o[j] : o[j + 1]] = np.kron(Sij[i][j], S[i * dz : (i + 1) * dz, j * dz : (j + 1) * dz])
+        eta[o[i] : o[i + 1]] = (S[i * dz : (i + 1) * dz] @ L @ Th[i]).ravel(order="F")
     f = np.linalg.solve(G, eta)
     W = L.T @ S @ L
     J = np.trace(W @ Sig[:dx, :dx]) - f @ eta

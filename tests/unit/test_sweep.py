@@ -98,7 +98,9 @@ def slow_evaluate(scenario, estimators, runs, seed):
 # loading
 # ---------------------------------------------------------------------------
 def test_load_sweep_grid_points_ids_and_seeds(tmp_path, monkeypatch):
-    p = write_files(tmp_path, """
+    p = write_files(
+        tmp_path,
+        """
 scenario = "scen/short.toml"
 runs = 4
 seed = 11
@@ -106,7 +108,8 @@ estimators = ["mmse", "mtmse"]
 [grid]
 "cost.lambda" = [1, 2.5, 10]
 "graph.delay" = [1, 2]
-""")
+""",
+    )
     monkeypatch.chdir(ROOT)  # the scenario path is relative to the sweep file, not to the working directory
     spec = load_sweep(p)
     assert spec.name == "s" and spec.runs == 4 and spec.seed == 11
@@ -117,8 +120,11 @@ estimators = ["mmse", "mtmse"]
     assert spec.grid["graph.delay"] == (1, 2)
     pts = spec.points
     assert spec.n_points == len(pts) == 6
-    assert [p.params for p in pts[:3]] == [{"cost.lambda": 1.0, "graph.delay": 1}, {"cost.lambda": 1.0, "graph.delay": 2},
-                                          {"cost.lambda": 2.5, "graph.delay": 1}]
+    assert [p.params for p in pts[:3]] == [
+        {"cost.lambda": 1.0, "graph.delay": 1},
+        {"cost.lambda": 1.0, "graph.delay": 2},
+        {"cost.lambda": 2.5, "graph.delay": 1},
+    ]
     assert len({p.point_id for p in pts}) == 6
     assert pts[3].point_id == point_id({"graph.delay": 2, "cost.lambda": 2.5})
     children = np.random.SeedSequence(11).spawn(6)
@@ -156,41 +162,80 @@ def test_sweep_from_dict_errors_name_the_key():
 
 
 BAD = [
-    ("unknown-top-key", 'scenario = "scen/short.toml"\ngrd = 1\n[grid]\n"cost.lambda" = [1.0]\n',
-     ["grd: unknown key in the sweep file; did you mean 'grid'?"]),
+    (
+        "unknown-top-key",
+        'scenario = "scen/short.toml"\ngrd = 1\n[grid]\n"cost.lambda" = [1.0]\n',
+        ["grd: unknown key in the sweep file; did you mean 'grid'?"],
+    ),
     ("missing-scenario", '[grid]\n"cost.lambda" = [1.0]\n', ["scenario: missing required key"]),
     ("missing-grid", 'scenario = "scen/short.toml"\n', ["grid: missing required key"]),
     ("empty-grid", 'scenario = "scen/short.toml"\n[grid]\n', ["grid: expected at least one dotted key", "found an empty table"]),
-    ("empty-list", 'scenario = "scen/short.toml"\n[grid]\n"cost.lambda" = []\n',
-     ['grid["cost.lambda"]: expected a non-empty list of values', "found an empty list"]),
-    ("not-a-list", 'scenario = "scen/short.toml"\n[grid]\n"cost.lambda" = 10.0\n',
-     ['grid["cost.lambda"]: expected a non-empty list of values (one point each), found the number 10.0', "write [10.0]"]),
+    (
+        "empty-list",
+        'scenario = "scen/short.toml"\n[grid]\n"cost.lambda" = []\n',
+        ['grid["cost.lambda"]: expected a non-empty list of values', "found an empty list"],
+    ),
+    (
+        "not-a-list",
+        'scenario = "scen/short.toml"\n[grid]\n"cost.lambda" = 10.0\n',
+        ['grid["cost.lambda"]: expected a non-empty list of values (one point each), found the number 10.0', "write [10.0]"],
+    ),
     ("grid-not-table", 'scenario = "scen/short.toml"\ngrid = [1, 2]\n', ["grid: expected a table of dotted keys", "a list of 2 items"]),
-    ("runs-string", 'scenario = "scen/short.toml"\nruns = "10"\n[grid]\n"cost.lambda" = [1.0]\n',
-     ["runs: expected an integer >= 0, found the string '10'"]),
+    (
+        "runs-string",
+        'scenario = "scen/short.toml"\nruns = "10"\n[grid]\n"cost.lambda" = [1.0]\n',
+        ["runs: expected an integer >= 0, found the string '10'"],
+    ),
     ("runs-negative", 'scenario = "scen/short.toml"\nruns = -1\n[grid]\n"cost.lambda" = [1.0]\n', ["runs: expected an integer >= 0, found -1"]),
-    ("runs-float", 'scenario = "scen/short.toml"\nruns = 2.5\n[grid]\n"cost.lambda" = [1.0]\n',
-     ["runs: expected an integer >= 0, found the number 2.5"]),
+    (
+        "runs-float",
+        'scenario = "scen/short.toml"\nruns = 2.5\n[grid]\n"cost.lambda" = [1.0]\n',
+        ["runs: expected an integer >= 0, found the number 2.5"],
+    ),
     ("runs-one", 'scenario = "scen/short.toml"\nruns = 1\n[grid]\n"cost.lambda" = [1.0]\n', ["runs: expected 0", "at least 2"]),
-    ("seed-float", 'scenario = "scen/short.toml"\nseed = 1.5\n[grid]\n"cost.lambda" = [1.0]\n',
-     ["seed: expected an integer >= 0, found the number 1.5"]),
-    ("unknown-dotted-key", 'scenario = "scen/short.toml"\n[grid]\n"cost.lamda" = [1.0, 2.0]\n',
-     ['grid["cost.lamda"] = 1.0: cost.lamda: unknown key; did you mean \'lambda\'?']),
-    ("unknown-table", 'scenario = "scen/short.toml"\n[grid]\n"costs.lambda" = [1.0]\n',
-     ['grid["costs.lambda"] = 1.0: costs: unknown key; did you mean \'cost\'?']),
-    ("bad-value", 'scenario = "scen/short.toml"\n[grid]\n"graph.delay" = [1, 0]\n',
-     ['grid["graph.delay"] = 0: graph.edges[0] delay: expected an integer delay >= 1, found 0']),
-    ("wrong-value-type", 'scenario = "scen/short.toml"\n[grid]\n"cost.lambda" = ["big"]\n',
-     ['grid["cost.lambda"] = "big": cost.lambda: expected a non-negative number, found the string \'big\'']),
-    ("mixed-types", 'scenario = "scen/short.toml"\n[grid]\n"cost.lambda" = [1.0, "x"]\n',
-     ['grid["cost.lambda"]: expected values of one type, found the number 1.0 (value 0) and the string \'x\' (value 1)']),
+    (
+        "seed-float",
+        'scenario = "scen/short.toml"\nseed = 1.5\n[grid]\n"cost.lambda" = [1.0]\n',
+        ["seed: expected an integer >= 0, found the number 1.5"],
+    ),
+    (
+        "unknown-dotted-key",
+        'scenario = "scen/short.toml"\n[grid]\n"cost.lamda" = [1.0, 2.0]\n',
+        ["grid[\"cost.lamda\"] = 1.0: cost.lamda: unknown key; did you mean 'lambda'?"],
+    ),
+    (
+        "unknown-table",
+        'scenario = "scen/short.toml"\n[grid]\n"costs.lambda" = [1.0]\n',
+        ["grid[\"costs.lambda\"] = 1.0: costs: unknown key; did you mean 'cost'?"],
+    ),
+    (
+        "bad-value",
+        'scenario = "scen/short.toml"\n[grid]\n"graph.delay" = [1, 0]\n',
+        ['grid["graph.delay"] = 0: graph.edges[0] delay: expected an integer delay >= 1, found 0'],
+    ),
+    (
+        "wrong-value-type",
+        'scenario = "scen/short.toml"\n[grid]\n"cost.lambda" = ["big"]\n',
+        ['grid["cost.lambda"] = "big": cost.lambda: expected a non-negative number, found the string \'big\''],
+    ),
+    (
+        "mixed-types",
+        'scenario = "scen/short.toml"\n[grid]\n"cost.lambda" = [1.0, "x"]\n',
+        ["grid[\"cost.lambda\"]: expected values of one type, found the number 1.0 (value 0) and the string 'x' (value 1)"],
+    ),
     ("duplicate", 'scenario = "scen/short.toml"\n[grid]\n"cost.lambda" = [1, 1.0]\n', ['grid["cost.lambda"]: value 1.0 is listed twice']),
     ("A-scale-string", 'scenario = "scen/short.toml"\n[grid]\n"system.A_scale" = ["x"]\n', ['grid["system.A_scale"]: expected numbers']),
     ("swept-column", 'scenario = "scen/short.toml"\n[grid]\n"seed" = [1, 2]\n', ['grid["seed"]: cannot be swept']),
-    ("no-scenario-file", 'scenario = "scen/nope.toml"\n[grid]\n"cost.lambda" = [1.0]\n',
-     ["scenario: ", "nope.toml: no such file (paths are relative to the sweep file's folder)"]),
-    ("bad-estimator", 'scenario = "scen/short.toml"\nestimators = ["mtmse", "mmsee"]\n[grid]\n"cost.lambda" = [1.0]\n',
-     ["estimators[1]: unknown estimator 'mmsee'; did you mean 'mmse'?"]),
+    (
+        "no-scenario-file",
+        'scenario = "scen/nope.toml"\n[grid]\n"cost.lambda" = [1.0]\n',
+        ["scenario: ", "nope.toml: no such file (paths are relative to the sweep file's folder)"],
+    ),
+    (
+        "bad-estimator",
+        'scenario = "scen/short.toml"\nestimators = ["mtmse", "mmsee"]\n[grid]\n"cost.lambda" = [1.0]\n',
+        ["estimators[1]: unknown estimator 'mmsee'; did you mean 'mmse'?"],
+    ),
     ("bad-toml", 'scenario = "scen/short.toml"\n[grid\n', ["invalid TOML"]),
 ]
 
@@ -365,8 +410,11 @@ def test_failed_point_is_one_error_and_keeps_finished_points(tmp_path, capsys, m
             raise ConvergenceError("doubling did not converge")
         return evaluate_point(scenario, estimators, runs, seed)
 
-    with pytest.raises(SweepError, match=r"grid point 2 \(cost.lambda = 10.0, graph.delay = 1\) failed: doubling did not "
-                                         r"converge; the 2 finished points are kept in"):
+    with pytest.raises(
+        SweepError,
+        match=r"grid point 2 \(cost.lambda = 10.0, graph.delay = 1\) failed: doubling did not "
+        r"converge; the 2 finished points are kept in",
+    ):
         run_sweep(spec, tmp_path / "o", "serial", progress=False, evaluate=fails_on_third)
     assert len(parts(tmp_path / "o")) == 2
 
@@ -395,9 +443,22 @@ def test_progress_text_line_without_tqdm(monkeypatch):
 def _toy_result() -> SweepResult:
     points = []
     for k, (lam, d) in enumerate([(1.0, 1), (1.0, 2), (100.0, 1), (100.0, 2)]):
-        points.append([{"cost.lambda": lam, "graph.delay": d, "point_id": f"p{k}", "point_index": k, "estimator": est,
-                        "method": "analytic", "total_cost": j, "ci95_low": None, "ci95_high": None}
-                       for est, j in (("mtmse", 10.0 * lam + d), ("mmse", 12.0 * lam + d), ("centralized", 5.0 * lam))])
+        points.append(
+            [
+                {
+                    "cost.lambda": lam,
+                    "graph.delay": d,
+                    "point_id": f"p{k}",
+                    "point_index": k,
+                    "estimator": est,
+                    "method": "analytic",
+                    "total_cost": j,
+                    "ci95_low": None,
+                    "ci95_high": None,
+                }
+                for est, j in (("mtmse", 10.0 * lam + d), ("mmse", 12.0 * lam + d), ("centralized", 5.0 * lam))
+            ]
+        )
     # points out of order (as read from part files): sorted into grid order
     return SweepResult(tuple(r for rows in reversed(points) for r in rows), ("cost.lambda", "graph.delay"))
 
@@ -430,8 +491,7 @@ def test_plots(tmp_path):
     assert ax.get_xscale() == "log" and ax.get_ylabel() == "J_T" and len(ax.get_lines()) == 6  # 3 estimators x 2 delays
     ax2 = res.plot(x="graph.delay", baseline="mtmse")
     assert "[%]" in ax2.get_ylabel() and len(ax2.get_legend().get_texts()) == 4  # mmse, centralized x 2 lambdas
-    kinds = SweepResult(tuple({**r, "cost.kind": "platoon" if r["cost.lambda"] == 1.0 else "ring"} for r in res.rows),
-                        ("cost.kind", "graph.delay"))
+    kinds = SweepResult(tuple({**r, "cost.kind": "platoon" if r["cost.lambda"] == 1.0 else "ring"} for r in res.rows), ("cost.kind", "graph.delay"))
     ax4 = kinds.plot()  # non-numeric values: one tick each
     assert [t.get_text() for t in ax4.get_xticklabels()] == ["platoon", "ring"]
     from teamkf.scenario import load_packaged
@@ -465,8 +525,7 @@ def cluster():
         pytest.skip("needs pyarrow and pandas")
     import logging
 
-    c = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
-                                 silence_logs=logging.ERROR)
+    c = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None, silence_logs=logging.ERROR)
     try:
         yield c
     finally:
@@ -518,14 +577,17 @@ def test_killing_a_worker_mid_sweep(tmp_path):
 
     expected_env = {**WORKER_ENV, "MALLOC_TRIM_THRESHOLD_": None}
 
-    p = write_files(tmp_path, """
+    p = write_files(
+        tmp_path,
+        """
 scenario = "scen/short.toml"
 runs = 10
 seed = 3
 [grid]
 "cost.lambda" = [1.0, 10.0, 100.0]
 "graph.delay" = [1, 2]
-""")
+""",
+    )
     spec = load_sweep(p)
     cluster = local_cluster(2)  # the embedded cluster of scheduler="local", started here to kill one of its workers
     client = Client(cluster)

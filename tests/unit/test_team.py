@@ -95,12 +95,14 @@ def test_relabelling_agents_permutes_results():
     # gains: the same columns, reordered as the local measurements (sorted by step, then source)
     for k in range(T):
         for a in range(n):
+
             def columns(design, system, agent, rename):
                 out, pos = {}, 0
-                for (j, s) in design.structure.local_pairs(agent, k):
+                for j, s in design.structure.local_pairs(agent, k):
                     out[(rename(j), s)] = slice(pos, pos + system.dy[j])
                     pos += system.dy[j]
                 return out
+
             c_old = columns(d0, sys, perm[a], lambda j: j)
             c_new = columns(d1, sys_p, a, lambda j: perm[j])
             assert c_old.keys() == c_new.keys()
@@ -111,8 +113,9 @@ def test_relabelling_agents_permutes_results():
 def test_more_information_never_hurts():
     sys, cost, g = platoon()
     IS0 = InformationStructure.from_graph(g)
-    IS1 = InformationStructure(4, 3, [[(0, 0, 1), (1, 1, 1)], [(0, 1, 1), (1, 0, 1), (2, 1, 1)],
-                                      [(1, 1, 1), (2, 0, 1), (3, 1, 1)], [(2, 1, 1), (3, 0, 1)]])
+    IS1 = InformationStructure(
+        4, 3, [[(0, 0, 1), (1, 1, 1)], [(0, 1, 1), (1, 0, 1), (2, 1, 1)], [(1, 1, 1), (2, 0, 1), (3, 1, 1)], [(2, 1, 1), (3, 0, 1)]]
+    )
     IS2 = InformationStructure.own_window(4, 3)
     IS3 = InformationStructure.own_window(4, 3, length=1)
     assert IS1.is_sub_structure_of(IS0) and IS2.is_sub_structure_of(IS0) and IS3.is_sub_structure_of(IS2)

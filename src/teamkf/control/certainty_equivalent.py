@@ -136,8 +136,9 @@ def stability_region_mask(a: float, K_values: ArrayLike, af_values: ArrayLike, *
     return in_stability_region(a, Kv[None, :], Av[:, None], c=c, h=h)  # type: ignore[no-any-return]
 
 
-def a_m_of_af(a_f: float, *, c: float = 1.0, h: float = 1.0, sigma_w: float = 1.0, sigma_v: float = 1.0,
-              grid_step: float = 1e-3, tol: float = 1e-10) -> float:
+def a_m_of_af(
+    a_f: float, *, c: float = 1.0, h: float = 1.0, sigma_w: float = 1.0, sigma_v: float = 1.0, grid_step: float = 1e-3, tol: float = 1e-10
+) -> float:
     """a_m(a_f): the largest a with (K*(a), a_f) in S(a) (Section 3.1, Table 1's last column).
 
     Scans a in [0, a_s] with step ``grid_step`` and refines the upper end of the
@@ -406,7 +407,7 @@ def simulate_population(
                 else:
                     hist[:, k] = yc
                     L = min(k + 1, n)
-                    kk = Kf[k, n - L:]
+                    kk = Kf[k, n - L :]
                     xc = np.stack([kk @ hist[j, k + 1 - L : k + 1] for j in range(Rc)])
                 xh = Ex[k + 1] + xc
                 m2[r0:r1, k + 1] = np.mean(x * x, axis=1)
@@ -417,4 +418,3 @@ def simulate_population(
             final[r0:r1] = x
             cost[r0:r1] = acc / T
     return PopulationSimulation(R_, N, T, final, cost, m2, mean, states, ests)
-

@@ -107,8 +107,10 @@ def check_measurements(y: Any, system: Any, horizon: int | None) -> tuple[list[F
         y = y.y
     n = system.n_agents
     if not isinstance(y, (list, tuple)) or len(y) != n:
-        raise ShapeError(f"y: expected a list of {n} measurement arrays (one per agent), found {type(y).__name__}"
-                         + (f" of length {len(y)}" if isinstance(y, (list, tuple)) else ""))
+        raise ShapeError(
+            f"y: expected a list of {n} measurement arrays (one per agent), found {type(y).__name__}"
+            + (f" of length {len(y)}" if isinstance(y, (list, tuple)) else "")
+        )
     ys = [V.as_float_array(yi, f"y[{i}]") for i, yi in enumerate(y)]
     n_runs, T = ys[0].shape[:2] if ys[0].ndim == 3 else (0, 0)
     for i, yi in enumerate(ys):

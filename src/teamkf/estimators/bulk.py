@@ -190,7 +190,7 @@ def stationarity_index(K_prev: Any, K_last: Any) -> float:
     a = np.asarray(K_prev, dtype=float)
     b = np.asarray(K_last, dtype=float)
     L = min(a.size, b.size)
-    return float(np.linalg.norm(a[a.size - L:] - b[b.size - L:]))
+    return float(np.linalg.norm(a[a.size - L :] - b[b.size - L :]))
 
 
 def discrepancy_index(K: Any, K_isolated: Any) -> float:
@@ -200,8 +200,8 @@ def discrepancy_index(K: Any, K_isolated: Any) -> float:
     L = max(a.size, b.size)
     pa = np.zeros(L)
     pb = np.zeros(L)
-    pa[L - a.size:] = a
-    pb[L - b.size:] = b
+    pa[L - a.size :] = a
+    pb[L - b.size :] = b
     return float(np.linalg.norm(pa - pb))
 
 
@@ -253,12 +253,17 @@ class ClosedLoopCovariances:
 
     def to_pandas(self) -> Any:
         pd = V.require("pandas", "dask")
-        return pd.DataFrame({
-            "k": np.arange(self.state_variance.size), "state_mean": self.state_mean,
-            "state_variance": self.state_variance, "estimate_variance": self.estimate_variance,
-            "error_variance": self.error_variance, "mean_variance": self.mean_variance,
-            "cross_covariance": self.cross_covariance,
-        })
+        return pd.DataFrame(
+            {
+                "k": np.arange(self.state_variance.size),
+                "state_mean": self.state_mean,
+                "state_variance": self.state_variance,
+                "estimate_variance": self.estimate_variance,
+                "error_variance": self.error_variance,
+                "mean_variance": self.mean_variance,
+                "cross_covariance": self.cross_covariance,
+            }
+        )
 
 
 def _covariances(model: PopulationModel, vx: np.ndarray, vxh: np.ndarray, sig: np.ndarray, vm: np.ndarray) -> ClosedLoopCovariances:
@@ -467,7 +472,7 @@ class FiniteMemoryFilter(_GainsMixin):
         if k > self.horizon:
             raise ShapeError(f"k: expected 1 <= k <= horizon = {self.horizon}, found {k}")
         L = min(k, self.memory)
-        return _ro(self.K[k - 1, self.memory - L:].copy())
+        return _ro(self.K[k - 1, self.memory - L :].copy())
 
     def gains(self) -> FloatArray:
         """The (T, n) array of gains (row k-1 = K^{(n)}_k, right-aligned)."""
@@ -646,13 +651,19 @@ def exact_bulk_filter(model: PopulationModel, horizon: int, *, flush: float = FL
             flops += 2 * (k - lo2) * (k - lo) + 40 * (k - lo2)
             # new row of C (columns lo2 .. k-1)
             crow = -h * u
-            crow[lo - lo2:] += ch * mu - c * af * be
+            crow[lo - lo2 :] += ch * mu - c * af * be
             crow /= sk
             anew = (ch * vm1 - c * af * cmtp - h * mumu) / sk  # Cov(m_{k+1}, eta_{k+1})
             mube = float(be @ mu)
             bnew0 = (ch * cmtp - c * af * vmt - h * mube) / sk  # Cov(mtilde_k, eta_{k+1})
-            cd = (ch * ch * vm1 - 2.0 * ch * c * af * cmtp + c * c * af * af * vmt + rm
-                  - 2.0 * h * (ch * mumu - c * af * mube) + h * h * float(mu @ u[lo - lo2:])) / s2
+            cd = (
+                ch * ch * vm1
+                - 2.0 * ch * c * af * cmtp
+                + c * c * af * af * vmt
+                + rm
+                - 2.0 * h * (ch * mumu - c * af * mube)
+                + h * h * float(mu @ u[lo - lo2 :])
+            ) / s2
             # updates
             alpha[lo:k] = mu
             alpha[k] = anew
@@ -744,7 +755,7 @@ def finite_memory_filter(model: PopulationModel, horizon: int, memory: int | Non
     a, bf = model.a, model.b * model.f
     subs = _subsystems(model)
     Ps = []
-    for (_, _, _, p0j) in subs:
+    for _, _, _, p0j in subs:
         P = np.zeros((n + 1, n + 1))
         P[0, 0] = p0j
         Ps.append(P)
@@ -784,7 +795,7 @@ def finite_memory_filter(model: PopulationModel, horizon: int, memory: int | Non
                 kk = cho_solve(cho_factor(Pyy, lower=True, check_finite=False), pxy, check_finite=False)
             except np.linalg.LinAlgError:
                 kk = np.linalg.lstsq(Pyy, pxy, rcond=None)[0]
-            K[k, n - L:] = kk
+            K[k, n - L :] = kk
             kprev = K[k]
             e = float(kk @ pxy)
             vx[k + 1] = Pt[0, 0]

@@ -265,8 +265,9 @@ def pseudo_state_model(system: LinearGaussianSystem, *, rtol: float = G_RTOL) ->
     w, Q = np.linalg.eigh(G)
     top = max(float(w[-1]), 0.0)
     if top <= 0.0:
-        raise DetectabilityError("system: expected at least one observed direction (G = sum_n H_n' R_n^-1 H_n != 0), found G = 0; "
-                                 "give some agent a non-zero C")
+        raise DetectabilityError(
+            "system: expected at least one observed direction (G = sum_n H_n' R_n^-1 H_n != 0), found G = 0; give some agent a non-zero C"
+        )
     keep = w > float(rtol) * top
     U, lam = Q[:, keep], w[keep]
     G_pinv = (U / lam) @ U.T
@@ -278,9 +279,20 @@ def pseudo_state_model(system: LinearGaussianSystem, *, rtol: float = G_RTOL) ->
     A_check_r = lam[:, None] * (U.T @ A @ I_tilde)
     C_tilde = tuple(V.frozen((system.C_at(n, 0) @ U) / lam[None, :]) for n in range(N))
     return PseudoStateModel(
-        V.frozen(G), V.frozen(G_pinv), V.frozen(I_tilde), V.frozen(A_tilde), V.frozen(A_check),
-        _frozen_stack(H_bar), _frozen_stack([Hb @ G_pinv for Hb in H_bar]), _frozen_stack([Hb @ I_tilde for Hb in H_bar]),
-        V.frozen(U), V.frozen(lam), V.frozen(G_r), V.frozen(A_tilde_r), V.frozen(A_check_r), C_tilde,
+        V.frozen(G),
+        V.frozen(G_pinv),
+        V.frozen(I_tilde),
+        V.frozen(A_tilde),
+        V.frozen(A_check),
+        _frozen_stack(H_bar),
+        _frozen_stack([Hb @ G_pinv for Hb in H_bar]),
+        _frozen_stack([Hb @ I_tilde for Hb in H_bar]),
+        V.frozen(U),
+        V.frozen(lam),
+        V.frozen(G_r),
+        V.frozen(A_tilde_r),
+        V.frozen(A_check_r),
+        C_tilde,
         tuple(V.frozen(m) for m in maps),
     )
 
@@ -322,8 +334,7 @@ def _psd_solve(S_xy: FloatArray, S_yy: FloatArray, rcond: float, how: str = "cho
     return ((S_xy @ Qk) / w[keep]) @ Qk.T  # type: ignore[no-any-return]
 
 
-_SETTERS = ("openblas_set_num_threads", "openblas_set_num_threads64_", "scipy_openblas_set_num_threads64_",
-            "scipy_openblas_set_num_threads")
+_SETTERS = ("openblas_set_num_threads", "openblas_set_num_threads64_", "scipy_openblas_set_num_threads64_", "scipy_openblas_set_num_threads")
 
 
 def _openblas_handles() -> list[tuple[Any, Any]]:
@@ -606,13 +617,13 @@ class CIKFDesign(Design):
     def _check_y(self, y: Any) -> tuple[list[FloatArray], int, int]:
         return check_measurements(y, self.system, self.horizon)
 
-    def _recursion(self, ys: Sequence[FloatArray] | None, x0: FloatArray | None, w: FloatArray | None, n_runs: int, T: int,
-                   form: str) -> FloatArray:
+    def _recursion(self, ys: Sequence[FloatArray] | None, x0: FloatArray | None, w: FloatArray | None, n_runs: int, T: int, form: str) -> FloatArray:
         with _blas_threads(self.info.get("threads", 1)):
             return self._recursion_impl(ys, x0, w, n_runs, T, form)
 
-    def _recursion_impl(self, ys: Sequence[FloatArray] | None, x0: FloatArray | None, w: FloatArray | None, n_runs: int, T: int,
-                        form: str) -> FloatArray:
+    def _recursion_impl(
+        self, ys: Sequence[FloatArray] | None, x0: FloatArray | None, w: FloatArray | None, n_runs: int, T: int, form: str
+    ) -> FloatArray:
         """Algorithm 1 on data (``ys``) or its error recursion (30)-(33) on the primitive noises (x0, w, ys = v).
 
         Agent-major layout (N, n_runs, .) so that every per-agent product is a contiguous GEMM.
@@ -628,7 +639,9 @@ class CIKFDesign(Design):
             yh = np.zeros((N, n_runs, r))  # ŷ^n_{0|-1} = G_r x̄_0 = 0
             xh = np.zeros((N, n_runs, M))
         dz = cost.dz
-        identity_L = dz == M and all(np.array_equal(cost.L_block(n, k), np.eye(M)) for n in range(N) for k in range(min(T, 1 if not cost.is_time_varying else T)))
+        identity_L = dz == M and all(
+            np.array_equal(cost.L_block(n, k), np.eye(M)) for n in range(N) for k in range(min(T, 1 if not cost.is_time_varying else T))
+        )
         out = np.empty((n_runs, T, N * dz))
         sign = -1.0 if errors else 1.0
         for k in range(T):
@@ -717,8 +730,10 @@ class CIKFDesign(Design):
         w = np.asarray(paths.w, dtype=float)
         v = [np.asarray(vi, dtype=float) for vi in paths.v]
         if w.shape != (n_runs, max(T - 1, 0), sys.dx) or len(v) != N or any(vi.shape != (n_runs, T, sys.dy[i]) for i, vi in enumerate(v)):
-            raise ShapeError(f"paths: expected w of shape {(n_runs, max(T - 1, 0), sys.dx)} and {N} noise arrays v[i] of shape "
-                             f"(n_runs, {T}, d_y^i), found w {w.shape} and {[vi.shape for vi in v]}")
+            raise ShapeError(
+                f"paths: expected w of shape {(n_runs, max(T - 1, 0), sys.dx)} and {N} noise arrays v[i] of shape "
+                f"(n_runs, {T}, d_y^i), found w {w.shape} and {[vi.shape for vi in v]}"
+            )
         f = self.form if form is None else form
         if f not in ("filter", "predictor"):
             raise ShapeError(f"form: expected 'filter' or 'predictor', found {f!r}")
@@ -757,7 +772,9 @@ class CIKFAgent:
         d = self.design
         return {"y": np.zeros((n_runs, d.model.rank)), "x": np.zeros((n_runs, d.system.dx))}
 
-    def step(self, state: dict[str, FloatArray], k: int, own: FloatArray, inbox: Sequence[Any]) -> tuple[dict[str, FloatArray], FloatArray, FloatArray]:
+    def step(
+        self, state: dict[str, FloatArray], k: int, own: FloatArray, inbox: Sequence[Any]
+    ) -> tuple[dict[str, FloatArray], FloatArray, FloatArray]:
         d, n = self.design, self.index
         if k >= d.horizon:  # type: ignore[operator]
             raise ShapeError(f"k: the CIKF was designed for horizon = {d.horizon} steps, found step {k}; design a longer horizon")
@@ -792,8 +809,10 @@ def _neighbors(graph: CommGraph, n_agents: int) -> tuple[tuple[int, ...], ...]:
         raise GraphError(f"graph: expected a graph of {n_agents} agents (as the system), found one of {graph.n_agents}")
     slow = [(i, j, d) for (i, j, d) in graph.edges if d != 1]
     if slow:
-        raise GraphError(f"graph: expected every edge to have delay 1 (the CIKF exchanges once per step), found {len(slow)} "
-                         f"edges with other delays, e.g. {slow[0]}; use graph.with_delay(1)")
+        raise GraphError(
+            f"graph: expected every edge to have delay 1 (the CIKF exchanges once per step), found {len(slow)} "
+            f"edges with other delays, e.g. {slow[0]}; use graph.with_delay(1)"
+        )
     return tuple(graph.in_neighbors(n) for n in range(n_agents))
 
 
@@ -810,12 +829,12 @@ def _is_mse(cost: TeamCost, N: int, M: int, T: int) -> bool:
     if cost.dz != M:
         return False
     steps = range(T) if cost.is_time_varying else range(1)
-    return all(np.array_equal(cost.S_at(k), np.eye(N * M)) and all(np.array_equal(cost.L_block(n, k), np.eye(M)) for n in range(N))
-               for k in steps)
+    return all(np.array_equal(cost.S_at(k), np.eye(N * M)) and all(np.array_equal(cost.L_block(n, k), np.eye(M)) for n in range(N)) for k in steps)
 
 
-def _theorem4_pseudo(P: FloatArray, n: int, nb: Sequence[int], r: int, Ct: FloatArray, Rn: FloatArray,
-                     rcond: float, how: str) -> tuple[FloatArray, FloatArray]:
+def _theorem4_pseudo(
+    P: FloatArray, n: int, nb: Sequence[int], r: int, Ct: FloatArray, Rn: FloatArray, rcond: float, how: str
+) -> tuple[FloatArray, FloatArray]:
     """Theorem 4's B̂^n = Σ_{eν̃} Σ_ν̃^+ in reduced coordinates: returns (B_cons (r, d r), B_u (r, M_n))."""
     d, mn = len(nb), Ct.shape[0]
     dr = d * r
@@ -857,8 +876,19 @@ class _CheckA:
         return ops.bd_right(ops.bd_right(X, self.Wt), self.Aw)
 
 
-def _iterate(system: LinearGaussianSystem, model: PseudoStateModel, nbrs: Sequence[Sequence[int]], cost: TeamCost, T: int,
-             rcond: float, form: str, ops: _Structured, fixed: CIKFDesign | None, equations: str, pinv: str) -> dict[str, Any]:
+def _iterate(
+    system: LinearGaussianSystem,
+    model: PseudoStateModel,
+    nbrs: Sequence[Sequence[int]],
+    cost: TeamCost,
+    T: int,
+    rcond: float,
+    form: str,
+    ops: _Structured,
+    fixed: CIKFDesign | None,
+    equations: str,
+    pinv: str,
+) -> dict[str, Any]:
     """Algorithm 2 with the corrected eqs. (41)-(47) (module docstring), in reduced coordinates.
 
     Stored: P = P_{k|k-1} (Nr x Nr), Pt = Π'_{k|k-1} = E[e ε'] (Nr x NM), Sig = Σ_{k|k-1} (NM x NM). Keeping
@@ -965,10 +995,18 @@ def _iterate(system: LinearGaussianSystem, model: PseudoStateModel, nbrs: Sequen
         Sig = ops.bd_right(ops.bd_left(A, Sf), A)  # symmetric to round-off (Σ_f is symmetrized)
         Sig += VV
         if not (np.isfinite(P[0, 0]) and np.isfinite(Sig[0, 0])):
-            raise FloatingPointError(f"CIKF gain design: the error covariances overflowed at step {k + 1}; "
-                                     "the error dynamics diverge (see tracking_capacity)")
-    return {"B_cons": tuple(B_cons), "B_innov": tuple(B_innov), "K": K_all, "Sigma_pred": Sp, "Sigma_filt": Sf_all,
-            "P_pred_trace": Ptr, "stage": stage}
+            raise FloatingPointError(
+                f"CIKF gain design: the error covariances overflowed at step {k + 1}; the error dynamics diverge (see tracking_capacity)"
+            )
+    return {
+        "B_cons": tuple(B_cons),
+        "B_innov": tuple(B_innov),
+        "K": K_all,
+        "Sigma_pred": Sp,
+        "Sigma_filt": Sf_all,
+        "P_pred_trace": Ptr,
+        "stage": stage,
+    }
 
 
 @lru_cache(maxsize=8)
@@ -977,10 +1015,21 @@ def _mse_cost(N: int, M: int) -> TeamCost:
     return TeamCost.mse(N, M)
 
 
-def design_cikf(system: LinearGaussianSystem, graph: CommGraph, horizon: int, *, cost: TeamCost | None = None,
-                form: Form = "filter", rcond: float = DEFAULT_RCOND, method: Method = "structured", check: bool = True,
-                gains: CIKFDesign | None = None, equations: Literal["corrected", "printed", "printed-43", "printed-45"] = "corrected",
-                threads: int | None = 1, pinv: Literal["cholesky", "eigh"] = "cholesky") -> CIKFDesign:
+def design_cikf(
+    system: LinearGaussianSystem,
+    graph: CommGraph,
+    horizon: int,
+    *,
+    cost: TeamCost | None = None,
+    form: Form = "filter",
+    rcond: float = DEFAULT_RCOND,
+    method: Method = "structured",
+    check: bool = True,
+    gains: CIKFDesign | None = None,
+    equations: Literal["corrected", "printed", "printed-43", "printed-45"] = "corrected",
+    threads: int | None = 1,
+    pinv: Literal["cholesky", "eigh"] = "cholesky",
+) -> CIKFDesign:
     """Algorithm 2: optimal CIKF gains (Theorem 4) and the error covariances (corrected eqs. 41-47).
 
     Parameters
@@ -1064,7 +1113,8 @@ def design_cikf(system: LinearGaussianSystem, graph: CommGraph, horizon: int, *,
         if bad:
             raise DetectabilityError(
                 f"system: expected (A, H) detectable (Assumption 4 of the CIKF), found unobservable unstable modes "
-                f"{[complex(b) for b in bad[:4]]}; observe them with some agent's C, or pass check=False")
+                f"{[complex(b) for b in bad[:4]]}; observe them with some agent's C, or pass check=False"
+            )
     r = model.rank
     hoods = [np.array([n, *nbrs[n]], dtype=int) for n in range(N)]
     r_idx = [np.concatenate([np.arange(l * r, (l + 1) * r) for l in h]) for h in hoods]
@@ -1076,12 +1126,39 @@ def design_cikf(system: LinearGaussianSystem, graph: CommGraph, horizon: int, *,
         threads = V.positive_int(threads, "threads")
     with _blas_threads(threads):
         res = _iterate(system, model, nbrs, cost, T, rcond, form, ops, gains, equations, pinv)
-    info = {"rank_G": r, "G_invertible": model.invertible, "lambda_1": model.lambda_1, "lambda_m": model.lambda_m,
-            "rcond": rcond, "method": method, "equations": equations, "form": form, "design_seconds": time.perf_counter() - t0,
-            "n_edges": graph.n_edges, "evaluated_gains": gains is not None, "threads": threads, "pinv": pinv}
+    info = {
+        "rank_G": r,
+        "G_invertible": model.invertible,
+        "lambda_1": model.lambda_1,
+        "lambda_m": model.lambda_m,
+        "rcond": rcond,
+        "method": method,
+        "equations": equations,
+        "form": form,
+        "design_seconds": time.perf_counter() - t0,
+        "n_edges": graph.n_edges,
+        "evaluated_gains": gains is not None,
+        "threads": threads,
+        "pinv": pinv,
+    }
     return CIKFDesign(
-        "cikf", T, V.frozen(res["stage"]), None, info, system, cost, graph, model, form, rcond, nbrs,
-        res["B_cons"], res["B_innov"], V.frozen(res["K"]), V.frozen(res["Sigma_pred"]), V.frozen(res["Sigma_filt"]),
+        "cikf",
+        T,
+        V.frozen(res["stage"]),
+        None,
+        info,
+        system,
+        cost,
+        graph,
+        model,
+        form,
+        rcond,
+        nbrs,
+        res["B_cons"],
+        res["B_innov"],
+        V.frozen(res["K"]),
+        V.frozen(res["Sigma_pred"]),
+        V.frozen(res["Sigma_filt"]),
         V.frozen(res["P_pred_trace"]),
     )
 
@@ -1181,8 +1258,7 @@ def tracking_capacity_upper_bound(system: LinearGaussianSystem) -> float:
     return float("inf") if frac <= 0 else ratio / float(np.sqrt(frac))
 
 
-def tracking_capacity(system: LinearGaussianSystem, graph: CommGraph, *, solver: str | None = None,
-                      zero_tol: float = 1e-7) -> TrackingCapacity:
+def tracking_capacity(system: LinearGaussianSystem, graph: CommGraph, *, solver: str | None = None, zero_tol: float = 1e-7) -> TrackingCapacity:
     r"""Theorem 3: C = max over structured B^C, B^I of λ_1 / (λ_m ||I - B^C - B^I D̃_H||_2), with cvxpy.
 
     B^C has the graph's Laplacian block pattern ([B^C]_{nl} = -B^{nl}, [B^C]_{nn} = Σ_l B^{nl}) and B^I is
@@ -1237,7 +1313,12 @@ def tracking_capacity(system: LinearGaussianSystem, graph: CommGraph, *, solver:
     cap = float("inf") if min_norm <= zero_tol else ratio / min_norm
     cap_up = float("inf") if lb <= zero_tol else ratio / lb
     return TrackingCapacity(
-        cap, min_norm, lb, cap_up, ratio,
+        cap,
+        min_norm,
+        lb,
+        cap_up,
+        ratio,
         tuple(np.hstack([Bc[(n, l)].value for l in nbrs[n]]) if nbrs[n] else np.zeros((r, 0)) for n in range(N)),
-        tuple(Bu[n].value for n in range(N)), str(prob.status),
+        tuple(Bu[n].value for n in range(N)),
+        str(prob.status),
     )

@@ -115,8 +115,7 @@ class KCFMessage(NamedTuple):
     xbar: FloatArray
 
 
-def _update(xbar: FloatArray, s: FloatArray, S: FloatArray, M: FloatArray, gamma: float,
-            neighbour_priors: Sequence[FloatArray]) -> FloatArray:
+def _update(xbar: FloatArray, s: FloatArray, S: FloatArray, M: FloatArray, gamma: float, neighbour_priors: Sequence[FloatArray]) -> FloatArray:
     """x̂ = x̄ + M (s - S x̄) + γ M Σ_j (x̄_j - x̄), batched over runs (the one kernel of both online paths)."""
     r = s - xbar @ S.T
     if neighbour_priors:
@@ -230,10 +229,9 @@ class KCFDesign(Design):
             for i in range(n):
                 src = self.sources[i][k]
                 s_i = u[(i, k)]
-                for (j, sj) in src:
+                for j, sj in src:
                     s_i = s_i + u[(j, sj)]
-                xh = _update(xbar[(i, k)], s_i, self.S_fused[i, k], self.M[i, k], float(self.gamma[i, k]),
-                             [xbar[(j, sj)] for (j, sj) in src])
+                xh = _update(xbar[(i, k)], s_i, self.S_fused[i, k], self.M[i, k], float(self.gamma[i, k]), [xbar[(j, sj)] for (j, sj) in src])
                 out[:, k, i * cost.dz : (i + 1) * cost.dz] = xh @ cost.L_block(i, k).T
                 if k + 1 < T:
                     xbar[(i, k + 1)] = xh @ sys.A_at(k).T
@@ -294,8 +292,10 @@ class KCFDesign(Design):
         w = np.asarray(paths.w, dtype=float)
         v = [np.asarray(vi, dtype=float) for vi in paths.v]
         if w.shape != (n_runs, max(T - 1, 0), dx) or len(v) != n or any(vi.shape != (n_runs, T, sys.dy[i]) for i, vi in enumerate(v)):
-            raise ShapeError(f"paths: expected w of shape {(n_runs, max(T - 1, 0), dx)} and {n} noise arrays v[i] of shape "
-                             f"(n_runs, {T}, d_y^i), found w {w.shape} and {[vi.shape for vi in v]}")
+            raise ShapeError(
+                f"paths: expected w of shape {(n_runs, max(T - 1, 0), dx)} and {n} noise arrays v[i] of shape "
+                f"(n_runs, {T}, d_y^i), found w {w.shape} and {[vi.shape for vi in v]}"
+            )
         keep = 1 + max((d for (_, _, d) in self.graph.edges), default=0)
         eye = np.eye(dx)
         incr: dict[int, FloatArray] = {}  # x(s+1) - x(s)
@@ -322,7 +322,7 @@ class KCFDesign(Design):
                 ei = et[(i, k)]
                 r = ei @ self.S_fused[i, k].T + Gv[(i, k)]
                 cons = np.zeros_like(ei)
-                for (j, sj) in src:
+                for j, sj in src:
                     r = r + Gv[(j, sj)]
                     c = ei - et[(j, sj)]
                     if sj != k:
@@ -369,7 +369,9 @@ class KCFAgent:
     def init_state(self, n_runs: int) -> dict[str, FloatArray]:
         return {"xbar": np.zeros((n_runs, self.system.dx))}
 
-    def step(self, state: dict[str, FloatArray], k: int, own: FloatArray, inbox: Sequence[Any]) -> tuple[dict[str, FloatArray], FloatArray, KCFMessage]:
+    def step(
+        self, state: dict[str, FloatArray], k: int, own: FloatArray, inbox: Sequence[Any]
+    ) -> tuple[dict[str, FloatArray], FloatArray, KCFMessage]:
         d, i = self.design, self.index
         if k >= d.horizon:  # type: ignore[operator]
             raise ShapeError(f"k: the KCF was designed for horizon = {d.horizon} steps, found step {k}; design a longer horizon")
@@ -403,8 +405,9 @@ def _epsilon(epsilon: Any) -> float:
     return eps
 
 
-def design_kcf(system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, horizon: int | None, *,
-               epsilon: float = 0.1, variant: Variant = "honest") -> KCFDesign:
+def design_kcf(
+    system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, horizon: int | None, *, epsilon: float = 0.1, variant: Variant = "honest"
+) -> KCFDesign:
     """Design the Kalman-consensus filter: the deterministic schedules M_i(k), γ_i(k), P_i(k), S_i(k).
 
     Parameters
@@ -445,8 +448,10 @@ def design_kcf(system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, h
         raise ShapeError(f"variant: expected 'honest' or 'ideal', found {variant!r}")
     eps = _epsilon(epsilon)
     if horizon is None:
-        raise ShapeError("horizon: the KCF has no steady-state (infinite-horizon) design here, found horizon=None; "
-                         "give a finite number of steps T (its cost is evaluated by Monte Carlo over T steps)")
+        raise ShapeError(
+            "horizon: the KCF has no steady-state (infinite-horizon) design here, found horizon=None; "
+            "give a finite number of steps T (its cost is evaluated by Monte Carlo over T steps)"
+        )
     T = V.positive_int(horizon, "horizon")
     system.require_horizon(T)
     cost.require_horizon(T)
@@ -484,7 +489,7 @@ def design_kcf(system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, h
             _, Mk = kalman_step(P[i, k], Ct, Rt)  # (P^-1 + S)^-1 in Joseph form, P may be singular
             M[i, k] = Mk
             Sk = np.zeros((dx, dx))
-            for (j, s) in fused:
+            for j, s in fused:
                 Sk = Sk + (U[j][0] if U[j].shape[0] == 1 else U[j][s])
             S_f[i, k] = Sk
             gam[i, k] = eps / (1.0 + np.linalg.norm(Mk, "fro"))
@@ -492,7 +497,29 @@ def design_kcf(system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, h
                 A = system.A_at(k)
                 Pn = A @ Mk @ A.T + system.Q_at(k)
                 P[i, k + 1] = 0.5 * (Pn + Pn.T)
-    info = {"variant": variant, "epsilon": eps, "variant_description": VARIANTS[variant],
-            "realizable": variant == "honest", "cost_method": "monte-carlo"}
-    return KCFDesign("kcf", T, None, None, info, system, cost, graph, variant, eps,
-                     V.frozen(P), V.frozen(M), V.frozen(gam), V.frozen(S_f), sources, tuple(G), tuple(U))
+    info = {
+        "variant": variant,
+        "epsilon": eps,
+        "variant_description": VARIANTS[variant],
+        "realizable": variant == "honest",
+        "cost_method": "monte-carlo",
+    }
+    return KCFDesign(
+        "kcf",
+        T,
+        None,
+        None,
+        info,
+        system,
+        cost,
+        graph,
+        variant,
+        eps,
+        V.frozen(P),
+        V.frozen(M),
+        V.frozen(gam),
+        V.frozen(S_f),
+        sources,
+        tuple(G),
+        tuple(U),
+    )

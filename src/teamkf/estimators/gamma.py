@@ -146,8 +146,15 @@ class GammaProblem:
         dense, cg = self.flop_estimates()
         return "cg" if cg < dense else "dense"
 
-    def solve(self, eta: list[FloatArray], method: Method = "auto", *, rtol: float = 1e-12,
-              max_iter: int | None = None, dense_max_bytes: int = DENSE_MAX_BYTES) -> list[FloatArray]:
+    def solve(
+        self,
+        eta: list[FloatArray],
+        method: Method = "auto",
+        *,
+        rtol: float = 1e-12,
+        max_iter: int | None = None,
+        dense_max_bytes: int = DENSE_MAX_BYTES,
+    ) -> list[FloatArray]:
         """Solve Gamma F = eta; ``eta`` and the result are lists of (d_z, d_i) arrays."""
         b = self.flatten(eta)
         if b.size == 0:

@@ -138,8 +138,9 @@ class CentralizedDesign(Design):
         return [CentralizedAgent(self, i) for i in range(self.system.n_agents)]
 
 
-def design_centralized(system: LinearGaussianSystem, cost: TeamCost, horizon: int | None = None, *,
-                       form: Form = "filter", check: bool = True) -> CentralizedDesign:
+def design_centralized(
+    system: LinearGaussianSystem, cost: TeamCost, horizon: int | None = None, *, form: Form = "filter", check: bool = True
+) -> CentralizedDesign:
     """Design the centralized Kalman filter/predictor and its analytic team cost.
 
     Parameters
@@ -161,9 +162,7 @@ def design_centralized(system: LinearGaussianSystem, cost: TeamCost, horizon: in
     T = V.positive_int(horizon, "horizon")
     cost.require_horizon(T)
     P, K, Pf = kalman_covariances(system, T)
-    stage = np.array([
-        np.trace(cost.L_at(k).T @ cost.S_at(k) @ cost.L_at(k) @ (Pf[k] if form == "filter" else P[k])) for k in range(T)
-    ])
+    stage = np.array([np.trace(cost.L_at(k).T @ cost.S_at(k) @ cost.L_at(k) @ (Pf[k] if form == "filter" else P[k])) for k in range(T)])
     return CentralizedDesign("centralized", T, stage, None, {"form": form}, system, cost, form, P, K, Pf)
 
 

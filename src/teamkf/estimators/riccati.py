@@ -85,9 +85,7 @@ def _square(x: ArrayLike, name: str) -> FloatArray:
     return a
 
 
-def _system(
-    A: ArrayLike, C: ArrayLike, Q: ArrayLike, R: ArrayLike
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+def _system(A: ArrayLike, C: ArrayLike, Q: ArrayLike, R: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """Validate (A, C, Q, R): A dx x dx, C dy x dx, Q dx x dx PSD, R dy x dy PD."""
     A_ = _square(A, "A")
     dx = A_.shape[0]
@@ -218,9 +216,7 @@ def _pbh_offenders(T11: np.ndarray, Cr: np.ndarray, lams: np.ndarray, tol: float
     return bad
 
 
-def _modes_from_subspace(
-    T: FloatArray, Z: FloatArray, sel: np.ndarray, C: FloatArray, tol: float, *, left: bool
-) -> list[complex]:
+def _modes_from_subspace(T: FloatArray, Z: FloatArray, sel: np.ndarray, C: FloatArray, tol: float, *, left: bool) -> list[complex]:
     """Offending modes of a pair, given the Schur form of A and the unstable mask.
 
     ``left=False``: (A, C), unstable right invariant subspace (unstable first).
@@ -431,9 +427,7 @@ def riccati_residual(A: ArrayLike, C: ArrayLike, Q: ArrayLike, R: ArrayLike, P: 
     return _residual(A_, C_, Q_, R_, P_)[0]
 
 
-def _residual(
-    A: FloatArray, C: FloatArray, Q: FloatArray, R: FloatArray, P: FloatArray
-) -> tuple[float, FloatArray, FloatArray, FloatArray]:
+def _residual(A: FloatArray, C: FloatArray, Q: FloatArray, R: FloatArray, P: FloatArray) -> tuple[float, FloatArray, FloatArray, FloatArray]:
     """(relative residual, K, P_filt, A K)."""
     K, Pf = _gain_and_filtered(A, C, R, P)
     AP = A @ P
@@ -452,19 +446,14 @@ def _spectral_radius(M: FloatArray) -> float:
     return float(np.max(np.abs(np.linalg.eigvals(M))))
 
 
-def _verify(
-    A: FloatArray, C: FloatArray, Q: FloatArray, R: FloatArray, P: FloatArray, what: str
-) -> tuple[FloatArray, FloatArray, float, float]:
+def _verify(A: FloatArray, C: FloatArray, Q: FloatArray, R: FloatArray, P: FloatArray, what: str) -> tuple[FloatArray, FloatArray, float, float]:
     """Reject a candidate solution with a large residual or a non-Schur closed loop."""
     if not np.all(np.isfinite(P)):
         raise ConvergenceError(f"{what}: the solution has NaN or inf entries")
     rel, K, Pf, AK = _residual(A, C, Q, R, P)
     rho = _spectral_radius(A - AK @ C)
     if not rel <= RESIDUAL_RTOL:
-        raise ConvergenceError(
-            f"{what}: relative Riccati residual {rel:.3g} exceeds {RESIDUAL_RTOL:g} "
-            f"(closed-loop spectral radius {rho:.6g})"
-        )
+        raise ConvergenceError(f"{what}: relative Riccati residual {rel:.3g} exceeds {RESIDUAL_RTOL:g} (closed-loop spectral radius {rho:.6g})")
     if not rho < 1.0:
         raise ConvergenceError(
             f"{what}: the solution is not stabilizing, closed-loop spectral radius rho(A - A K C) = {rho:.6g} >= 1 "
@@ -642,9 +631,7 @@ def solve_filter_dare(
     return _solve(A_, C_, Q_, R_, method, tol, max_iter, check)
 
 
-def _solve(
-    A_: FloatArray, C_: FloatArray, Q_: FloatArray, R_: FloatArray, method: str, tol: float, max_iter: int, check: bool
-) -> FloatArray:
+def _solve(A_: FloatArray, C_: FloatArray, Q_: FloatArray, R_: FloatArray, method: str, tol: float, max_iter: int, check: bool) -> FloatArray:
     if method not in ("auto", "sda", "scipy"):
         raise _OptionError(f"method: expected 'auto', 'sda' or 'scipy', found {method!r}")
     tol_ = float(tol)

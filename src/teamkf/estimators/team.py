@@ -136,7 +136,7 @@ def static_team_estimate(joint_cov: Any, dims: Sequence[int], cost: TeamCost, *,
     cost.check_system(dims[0], n)
     off = np.concatenate([[0], np.cumsum(dims)]).astype(int)
     blk = [slice(off[m], off[m + 1]) for m in range(len(dims))]
-    x, y0, ys = blk[0], blk[1], blk[2:]
+    x, y0 = blk[0], blk[1]
     ys_all = np.concatenate([np.arange(off[m], off[m + 1]) for m in range(2, len(dims))])
     if dims[1] > 0:
         S00 = Sig[y0, y0]
@@ -159,8 +159,14 @@ def static_team_estimate(joint_cov: Any, dims: Sequence[int], cost: TeamCost, *,
             V.covariance(Sig_loc[np.ix_(idx[i], idx[i])], f"Sigma_hat[{i}]", definite=True)
     F, J, J_mmse = _solve_step(cost.S_at(0), cost.L_at(0), Sig_loc, Theta, P0, idx, cost.dz, method=method)
     return StaticTeamEstimate(
-        F=F, common_gain=common_gain, local_prediction=[pred[idx[i]] for i in range(n)], cost=J, mmse_cost=J_mmse,
-        P0=P0, Theta_hat=[Theta[:, idx[i]] for i in range(n)], Sigma_hat=Sig_loc,
+        F=F,
+        common_gain=common_gain,
+        local_prediction=[pred[idx[i]] for i in range(n)],
+        cost=J,
+        mmse_cost=J_mmse,
+        P0=P0,
+        Theta_hat=[Theta[:, idx[i]] for i in range(n)],
+        Sigma_hat=Sig_loc,
     )
 
 
@@ -230,9 +236,20 @@ def gains_team_cost(gamma: GammaProblem, eta: list[FloatArray], F: list[FloatArr
     return float(trace_term - 2.0 * sum(float(np.sum(f * e)) for f, e in zip(F, eta)) + gamma.quad(F))
 
 
-def _solve_step(S: FloatArray, L: FloatArray, Sigma_W: FloatArray, Theta_W: FloatArray, P0: FloatArray,
-                idx: list[np.ndarray], dz: int, *, method: Any = "auto", dense_max_bytes: int = DENSE_MAX_BYTES,
-                want: str = "both", gamma_info: dict[str, Any] | None = None) -> tuple[list[FloatArray], float, float]:
+def _solve_step(
+    S: FloatArray,
+    L: FloatArray,
+    Sigma_W: FloatArray,
+    Theta_W: FloatArray,
+    P0: FloatArray,
+    idx: list[np.ndarray],
+    dz: int,
+    *,
+    method: Any = "auto",
+    dense_max_bytes: int = DENSE_MAX_BYTES,
+    want: str = "both",
+    gamma_info: dict[str, Any] | None = None,
+) -> tuple[list[FloatArray], float, float]:
     """MTMSE gains and cost, and the MMSE cost, for one step."""
     gamma = GammaProblem(S, Sigma_W, idx, dz)
     eta = _eta(S, L, Theta_W, idx, dz)
@@ -311,7 +328,7 @@ class TeamDesign(Design):
         pairs = self.structure.local_pairs(i, k)
         dx, nw = sys.dx, k - a
         C_loc, W_rows = [np.zeros((0, dx))], [np.zeros((0, nw * dx))]
-        for (j, s) in pairs:
+        for j, s in pairs:
             Cj = sys.C_at(j, s)
             C_loc.append(Cj @ sys.transition(s, a))
             Wr = np.zeros((Cj.shape[0], nw * dx))
@@ -360,8 +377,14 @@ class TeamDesign(Design):
         Phi = sys.transition(k, a)
         cov = self.local_covariances(i, i, k)
         return {
-            "C_loc": C_loc, "P_w": cov["P_w"], "P_v": cov["P_v"], "P_sigma": Psig, "Sigma_w": Sw,
-            "Sigma_hat": cov["Sigma_hat"], "Theta_hat": Phi @ P @ C_loc.T + Psig, "P0": Phi @ P @ Phi.T + Sw,
+            "C_loc": C_loc,
+            "P_w": cov["P_w"],
+            "P_v": cov["P_v"],
+            "P_sigma": Psig,
+            "Sigma_w": Sw,
+            "Sigma_hat": cov["Sigma_hat"],
+            "Theta_hat": Phi @ P @ C_loc.T + Psig,
+            "P0": Phi @ P @ Phi.T + Sw,
         }
 
     def errors(self, paths: Any) -> FloatArray:
@@ -412,8 +435,9 @@ def _as_structure(structure: Any, n_agents: int) -> InformationStructure:
     return st
 
 
-def _design(kind: Kind, system: LinearGaussianSystem, cost: TeamCost, structure: Any, horizon: int | None,
-            method: Any, dense_max_bytes: int, check: bool) -> TeamDesign:
+def _design(
+    kind: Kind, system: LinearGaussianSystem, cost: TeamCost, structure: Any, horizon: int | None, method: Any, dense_max_bytes: int, check: bool
+) -> TeamDesign:
     cost.check_system(system.dx, system.n_agents)
     st = _as_structure(structure, system.n_agents)
     c, dz, n = st.common_lag, cost.dz, system.n_agents
@@ -424,8 +448,9 @@ def _design(kind: Kind, system: LinearGaussianSystem, cost: TeamCost, structure:
         Sigma_W, Theta_W, P0 = window_covariances(system, k, a, P_a)
         idx = [_local_index(system, st, i, k, a) for i in range(n)]
         ginfo: dict[str, Any] = {}
-        F, J, Jm = _solve_step(cost.S_at(k), cost.L_at(k), Sigma_W, Theta_W, P0, idx, dz, method=method,
-                               dense_max_bytes=dense_max_bytes, want=want, gamma_info=ginfo)
+        F, J, Jm = _solve_step(
+            cost.S_at(k), cost.L_at(k), Sigma_W, Theta_W, P0, idx, dz, method=method, dense_max_bytes=dense_max_bytes, want=want, gamma_info=ginfo
+        )
         if ginfo and record:
             info["gamma"] = ginfo  # the last (largest) step
         return tuple(F), (J if kind == "mtmse" else Jm)
@@ -435,20 +460,27 @@ def _design(kind: Kind, system: LinearGaussianSystem, cost: TeamCost, structure:
         cost.require_time_invariant()
         P_bar, K_bar, _ = steady_state(system, check=check)
         F_bar, J_bar = step(c - 1, 0, P_bar)  # full window of length c, anchor covariance P-bar (eqs. 38-40)
-        return TeamDesign(kind, None, None, J_bar, info, system, cost, st, (), F_bar, K_bar, P_bar,
-                          warmup=lambda k: step(k, 0, system.Sigma_x, record=False)[0])
+        return TeamDesign(
+            kind, None, None, J_bar, info, system, cost, st, (), F_bar, K_bar, P_bar, warmup=lambda k: step(k, 0, system.Sigma_x, record=False)[0]
+        )
     T = V.positive_int(horizon, "horizon")
     system.require_horizon(T)
     cost.require_horizon(T)
     P_pred, K, _ = kalman_covariances(system, max(T - c + 1, 1))
     res = [step(k, max(0, k - c + 1), P_pred[max(0, k - c + 1)]) for k in range(T)]
-    return TeamDesign(kind, T, np.array([j for _, j in res]), None, info, system, cost, st,
-                      tuple(g for g, _ in res), None, K, P_pred)
+    return TeamDesign(kind, T, np.array([j for _, j in res]), None, info, system, cost, st, tuple(g for g, _ in res), None, K, P_pred)
 
 
-def design_mtmse(system: LinearGaussianSystem, cost: TeamCost, structure: Any, horizon: int | None = None, *,
-                 method: Literal["auto", "dense", "cg"] = "auto", dense_max_bytes: int = DENSE_MAX_BYTES,
-                 check: bool = True) -> TeamDesign:
+def design_mtmse(
+    system: LinearGaussianSystem,
+    cost: TeamCost,
+    structure: Any,
+    horizon: int | None = None,
+    *,
+    method: Literal["auto", "dense", "cg"] = "auto",
+    dense_max_bytes: int = DENSE_MAX_BYTES,
+    check: bool = True,
+) -> TeamDesign:
     """MTMSE filter for any information structure: Theorem 2 (``horizon=T``) or Theorem 3 (``horizon=None``).
 
     Parameters
@@ -477,8 +509,7 @@ def design_mtmse(system: LinearGaussianSystem, cost: TeamCost, structure: Any, h
     return _design("mtmse", system, cost, structure, horizon, method, dense_max_bytes, check)
 
 
-def design_mmse(system: LinearGaussianSystem, cost: TeamCost, structure: Any, horizon: int | None = None, *,
-                check: bool = True) -> TeamDesign:
+def design_mmse(system: LinearGaussianSystem, cost: TeamCost, structure: Any, horizon: int | None = None, *, check: bool = True) -> TeamDesign:
     """Per-agent MMSE baseline z_i = L_i E[x(k) | I_i(k)] (eq. 46) with its team cost (eq. 47)."""
     return _design("mmse", system, cost, structure, horizon, "auto", DENSE_MAX_BYTES, check)
 
@@ -507,7 +538,7 @@ class TeamAgent:
     def step(self, state: dict[str, Any], k: int, received: Sequence[Packet]) -> tuple[dict[str, Any], FloatArray]:
         sys, c, d = self.system, self.structure.common_lag, self.design
         buf = dict(state["buf"])
-        for (j, s, v) in received:
+        for j, s, v in received:
             buf[(j, s)] = np.asarray(v)
         xhat, a = state["xhat"], state["anchor"]
         while a < k - c + 1:  # fold the newly common y(a) into the predictor (eq. 20)
@@ -528,6 +559,8 @@ class TeamAgent:
             try:
                 innov = np.concatenate([buf[(j, s)] - preds[s - a] @ sys.C_at(j, s).T for (j, s) in pairs], axis=1)
             except KeyError as exc:
-                raise ValueError(f"agent {self.index}: local measurement y_{exc.args[0][0]}({exc.args[0][1]}) was not delivered by step {k}") from None
+                raise ValueError(
+                    f"agent {self.index}: local measurement y_{exc.args[0][0]}({exc.args[0][1]}) was not delivered by step {k}"
+                ) from None
             z = z + innov @ d.gain_at(k)[self.index].T
         return {"xhat": xhat, "anchor": a, "buf": buf}, z

@@ -58,8 +58,7 @@ class ExperimentResult:
         return "\n".join(lines)
 
     def to_json(self) -> dict[str, Any]:
-        return {"name": self.name, "title": self.title, "columns": self.columns, "rows": self.rows,
-                "notes": self.notes, "figures": self.figures}
+        return {"name": self.name, "title": self.title, "columns": self.columns, "rows": self.rows, "notes": self.notes, "figures": self.figures}
 
     def write_csv(self, out_dir: Path) -> Path:
         out_dir.mkdir(parents=True, exist_ok=True)

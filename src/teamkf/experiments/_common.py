@@ -19,8 +19,9 @@ def uav(n: int, lam: float) -> tuple[LinearGaussianSystem, TeamCost, CommGraph]:
 
 
 #: IS1 of Section V-C: own y(t-1:t) and the neighbours' y(t-1)
-IS1_PLATOON = InformationStructure(4, 3, [[(0, 0, 1), (1, 1, 1)], [(0, 1, 1), (1, 0, 1), (2, 1, 1)],
-                                          [(1, 1, 1), (2, 0, 1), (3, 1, 1)], [(2, 1, 1), (3, 0, 1)]])
+IS1_PLATOON = InformationStructure(
+    4, 3, [[(0, 0, 1), (1, 1, 1)], [(0, 1, 1), (1, 0, 1), (2, 1, 1)], [(1, 1, 1), (2, 0, 1), (3, 1, 1)], [(2, 1, 1), (3, 0, 1)]]
+)
 
 
 def platoon_structures() -> dict[str, InformationStructure]:

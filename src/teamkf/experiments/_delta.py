@@ -14,8 +14,16 @@ from . import plotting_available, save_figure
 EPSILON = 0.1  # consensus step of the KCF (our choice; the paper does not state it)
 
 
-def delta_rows(build: Callable[[float], tuple[Any, Any, Any]], lams: Sequence[float], T: int, runs: int, seed: int,
-               label: dict[str, Any], x_name: str, x_of: Callable[[float], float]) -> list[dict[str, Any]]:
+def delta_rows(
+    build: Callable[[float], tuple[Any, Any, Any]],
+    lams: Sequence[float],
+    T: int,
+    runs: int,
+    seed: int,
+    label: dict[str, Any],
+    x_name: str,
+    x_of: Callable[[float], float],
+) -> list[dict[str, Any]]:
     """One row per lambda: J_T of every estimator and Delta = (J_baseline - J*) / J* in %."""
     rows = []
     for lam in lams:
@@ -24,18 +32,25 @@ def delta_rows(build: Callable[[float], tuple[Any, Any, Any]], lams: Sequence[fl
         kcf = {v: design_kcf(system, cost, graph, T, epsilon=EPSILON, variant=v) for v in ("honest", "ideal")}
         mc = monte_carlo({f"kcf-{v}": d for v, d in kcf.items()}, T, runs, rng=seed)
         J = t.total_cost
-        row = {**label, x_name: x_of(lam), "lambda": lam, "J* (MTMSE)": J, "J mmse": m.total_cost, "J centralized": c.total_cost,
-               "J KCF honest (MC)": mc["kcf-honest"].total_mean, "J KCF ideal (MC)": mc["kcf-ideal"].total_mean,
-               "Delta mmse %": 100 * (m.total_cost - J) / J,
-               "Delta KCF honest %": 100 * (mc["kcf-honest"].total_mean - J) / J,
-               "Delta KCF ideal %": 100 * (mc["kcf-ideal"].total_mean - J) / J,
-               "KCF ideal 95% CI half-width %": 100 * 1.96 * mc["kcf-ideal"].total_sem / J}
+        row = {
+            **label,
+            x_name: x_of(lam),
+            "lambda": lam,
+            "J* (MTMSE)": J,
+            "J mmse": m.total_cost,
+            "J centralized": c.total_cost,
+            "J KCF honest (MC)": mc["kcf-honest"].total_mean,
+            "J KCF ideal (MC)": mc["kcf-ideal"].total_mean,
+            "Delta mmse %": 100 * (m.total_cost - J) / J,
+            "Delta KCF honest %": 100 * (mc["kcf-honest"].total_mean - J) / J,
+            "Delta KCF ideal %": 100 * (mc["kcf-ideal"].total_mean - J) / J,
+            "KCF ideal 95% CI half-width %": 100 * 1.96 * mc["kcf-ideal"].total_sem / J,
+        }
         rows.append(row)
     return rows
 
 
-def plot_deltas(rows: list[dict[str, Any]], group: str, x_name: str, title: str, out_dir: Path | None, name: str,
-                figures: list[str]) -> None:
+def plot_deltas(rows: list[dict[str, Any]], group: str, x_name: str, title: str, out_dir: Path | None, name: str, figures: list[str]) -> None:
     if out_dir is None or not plotting_available():
         return
     from ..plotting import _pyplot

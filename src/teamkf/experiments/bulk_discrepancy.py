@@ -54,22 +54,45 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
         bf = exact_bulk_filter(m, T)
         K = bf.final_gains()
         pv = PAPER_VECTORS[key]
-        rows.append({"quantity": f"K_T, a=2.5 f=2 N={N:g}", "ours": _fmt(K[-len(pv):]), "paper": _fmt(pv),
-                     "max |ours - paper|": float(np.max(np.abs(K[-len(pv):] - np.array(pv))))})
+        rows.append(
+            {
+                "quantity": f"K_T, a=2.5 f=2 N={N:g}",
+                "ours": _fmt(K[-len(pv) :]),
+                "paper": _fmt(pv),
+                "max |ours - paper|": float(np.max(np.abs(K[-len(pv) :] - np.array(pv)))),
+            }
+        )
     m = PopulationModel(n_agents=1, a=2.5, f=2.0)
     iso = isolated_gains(m, 4)
     pv = PAPER_VECTORS["isolated a=2.5 f=2 (Sec. 4.3)"]
-    rows.append({"quantity": "K_isolated, a=2.5 f=2", "ours": "[..., " + ", ".join(f"{x:.8f}" for x in iso) + "]",
-                 "paper": "[..., 0.00026616, 0.0039, 0.0584, 0.8650]", "max |ours - paper|": float(np.max(np.abs(iso - np.array(pv))))})
-    rows.append({"quantity": "K*(5) (eq. 6)", "ours": f"{isolated_kalman_gain(5.0):.4f}", "paper": "0.9616",
-                 "max |ours - paper|": abs(isolated_kalman_gain(5.0) - 0.9616)})
+    rows.append(
+        {
+            "quantity": "K_isolated, a=2.5 f=2",
+            "ours": "[..., " + ", ".join(f"{x:.8f}" for x in iso) + "]",
+            "paper": "[..., 0.00026616, 0.0039, 0.0584, 0.8650]",
+            "max |ours - paper|": float(np.max(np.abs(iso - np.array(pv)))),
+        }
+    )
+    rows.append(
+        {
+            "quantity": "K*(5) (eq. 6)",
+            "ours": f"{isolated_kalman_gain(5.0):.4f}",
+            "paper": "0.9616",
+            "max |ours - paper|": abs(isolated_kalman_gain(5.0) - 0.9616),
+        }
+    )
     for af in afs:
         for a in (2.0, 2.5, 3.0, 3.5):
             j = int(np.argmin(np.abs(a_grid - a)))
             vals = {N: float(data[f"delta_p a_f={af} N={N}"][j]) for N in Ns}
-            rows.append({"quantity": f"delta_p a_f={af} a={a_grid[j]:g}",
-                         "ours": ", ".join(f"N={N:g}: {v:.2e}" for N, v in vals.items()), "paper": "(Fig. 6, not tabulated)",
-                         "max |ours - paper|": None})
+            rows.append(
+                {
+                    "quantity": f"delta_p a_f={af} a={a_grid[j]:g}",
+                    "ours": ", ".join(f"N={N:g}: {v:.2e}" for N, v in vals.items()),
+                    "paper": "(Fig. 6, not tabulated)",
+                    "max |ours - paper|": None,
+                }
+            )
     figures: list[str] = []
     if out_dir is not None and plotting_available():
         from ..plotting import _pyplot
@@ -85,10 +108,19 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
             ax.legend(fontsize=8)
         axes[-1].set_xlabel("a")
         save_figure(fig, out_dir, "bulk-discrepancy", figures)
-    notes = (f"Exact gains K_T over T = {T} against the isolated sequence of Proposition 1. The 'paper' column is "
-             "printed text, for comparison only (the paper rounds to 4 decimals). Below a_m(a_f) delta_p falls like 1/N "
-             "(the interference enters through Var m = O(1/N)); for N = 1e9 it jumps by orders of magnitude exactly at "
-             "a_m(a_f), where the naive pair (K*(a), a_f) leaves S(a). Past it delta_p depends on the phase of the "
-             "persistent oscillation at step T (Section 4.4) and is 1e-5 .. 1e-1.")
-    return ExperimentResult("bulk-discrepancy", "Discrepancy between bulk and isolated Kalman gains (Fig. 6)", rows,
-                            ["quantity", "ours", "paper", "max |ours - paper|"], notes=notes, figures=figures, data=data)
+    notes = (
+        f"Exact gains K_T over T = {T} against the isolated sequence of Proposition 1. The 'paper' column is "
+        "printed text, for comparison only (the paper rounds to 4 decimals). Below a_m(a_f) delta_p falls like 1/N "
+        "(the interference enters through Var m = O(1/N)); for N = 1e9 it jumps by orders of magnitude exactly at "
+        "a_m(a_f), where the naive pair (K*(a), a_f) leaves S(a). Past it delta_p depends on the phase of the "
+        "persistent oscillation at step T (Section 4.4) and is 1e-5 .. 1e-1."
+    )
+    return ExperimentResult(
+        "bulk-discrepancy",
+        "Discrepancy between bulk and isolated Kalman gains (Fig. 6)",
+        rows,
+        ["quantity", "ours", "paper", "max |ours - paper|"],
+        notes=notes,
+        figures=figures,
+        data=data,
+    )

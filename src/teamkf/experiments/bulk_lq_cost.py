@@ -63,9 +63,20 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
         p["index"] = i
         p["seed"] = SEED
     res = map_points(lq_point, pts)
-    rows = [{"a": r["a"], "f": r["f"], "a_f": round(r["a"] - r["f"], 6), "N": r["n_agents"], "exact cost": r["exact_cost"],
-             "MC mean": r["mc_mean"], "MC std": r["mc_std"], "runs": r["runs"], "Delta (eq. 61)": r["stationarity_index"]}
-            for r in res]
+    rows = [
+        {
+            "a": r["a"],
+            "f": r["f"],
+            "a_f": round(r["a"] - r["f"], 6),
+            "N": r["n_agents"],
+            "exact cost": r["exact_cost"],
+            "MC mean": r["mc_mean"],
+            "MC std": r["mc_std"],
+            "runs": r["runs"],
+            "Delta (eq. 61)": r["stationarity_index"],
+        }
+        for r in res
+    ]
     summary = []
     for a in (2.0, 5.0):
         fstar = riccati_feedback_gain(a, R_WEIGHT)
@@ -73,12 +84,16 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
             sub = [r for r in res if r["a"] == a and r["n_agents"] == N]
             best = min(sub, key=lambda r: r["exact_cost"])
             at_star = min(sub, key=lambda r: abs(r["f"] - fstar))
-            summary.append(f"a={a:g} N={N:g}: argmin_f (grid) = {best['f']:.3f} (cost {best['exact_cost']:.4g}); "
-                           f"f* = {fstar:.3f} (cost {at_star['exact_cost']:.4g})")
-    notes = (f"T = {T}, {runs} runs per point for N in {Ns_sim}, exact expected cost for every N; r = {R_WEIGHT} (assumed: "
-             "the paper does not state r). MC std is the standard deviation of the runs' population-average costs (the "
-             "paper's markers). " + "; ".join(summary) + ". The Riccati gain f* is optimal (on the grid) only in the "
-             "stationary range a = 2; at a = 5 the dual effect moves the optimum (Section 4.5).")
+            summary.append(
+                f"a={a:g} N={N:g}: argmin_f (grid) = {best['f']:.3f} (cost {best['exact_cost']:.4g}); "
+                f"f* = {fstar:.3f} (cost {at_star['exact_cost']:.4g})"
+            )
+    notes = (
+        f"T = {T}, {runs} runs per point for N in {Ns_sim}, exact expected cost for every N; r = {R_WEIGHT} (assumed: "
+        "the paper does not state r). MC std is the standard deviation of the runs' population-average costs (the "
+        "paper's markers). " + "; ".join(summary) + ". The Riccati gain f* is optimal (on the grid) only in the "
+        "stationary range a = 2; at a = 5 the dual effect moves the optimum (Section 4.5)."
+    )
     figures: list[str] = []
     data: dict[str, Any] = {"rows": rows}
     if out_dir is not None and plotting_available():
@@ -90,7 +105,7 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
             for N in Ns_sim + Ns_exact:
                 sub = sorted((r for r in res if r["a"] == a and r["n_agents"] == N), key=lambda r: r["f"])
                 fv = np.array([r["f"] for r in sub])
-                line, = ax.plot(fv, [r["exact_cost"] for r in sub], label=f"N = {N:g} (exact)")
+                (line,) = ax.plot(fv, [r["exact_cost"] for r in sub], label=f"N = {N:g} (exact)")
                 if N in Ns_sim:
                     mc = np.array([r["mc_mean"] for r in sub])
                     sd = np.array([r["mc_std"] for r in sub])
@@ -104,6 +119,12 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
             ax.set_title(f"Fig. {fig_no}: a = {a:g}, T = {T} (markers: {runs} runs, mean and +-std)")
             ax.legend(fontsize=8)
             save_figure(fig, out_dir, f"bulk-lq-cost-a{a:g}", figures)
-    return ExperimentResult("bulk-lq-cost", "Average LQ cost vs f (Figs. 10-11)", rows,
-                            ["a", "f", "a_f", "N", "exact cost", "MC mean", "MC std", "runs", "Delta (eq. 61)"],
-                            notes=notes, figures=figures, data=data)
+    return ExperimentResult(
+        "bulk-lq-cost",
+        "Average LQ cost vs f (Figs. 10-11)",
+        rows,
+        ["a", "f", "a_f", "N", "exact cost", "MC mean", "MC std", "runs", "Delta (eq. 61)"],
+        notes=notes,
+        figures=figures,
+        data=data,
+    )

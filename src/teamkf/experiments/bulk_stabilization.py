@@ -40,8 +40,14 @@ def stabilization_point(p: dict[str, Any]) -> dict[str, Any]:
     if m.memory > 0:
         filt: Any = finite_memory_filter(m, T)
         if filt.diverged_at is not None:
-            return {**p, "cost": SATURATE, "max_abs": float("inf"), "diverged_at": filt.diverged_at,
-                    "final_state_variance": float("inf"), "state_variance_ratio": float("inf")}
+            return {
+                **p,
+                "cost": SATURATE,
+                "max_abs": float("inf"),
+                "diverged_at": filt.diverged_at,
+                "final_state_variance": float("inf"),
+                "state_variance_ratio": float("inf"),
+            }
     else:
         filt = exact_bulk_filter(m, T)
     sim = simulate_population(m, T, n_runs=1, rng=ss, filt=filt)
@@ -50,9 +56,14 @@ def stabilization_point(p: dict[str, Any]) -> dict[str, Any]:
     with np.errstate(invalid="ignore", over="ignore"):
         raw = float(np.max(np.abs(sim.final_states[0])))
         ratio = float(sv[-1] / sv[len(sv) // 2])
-    return {**p, "cost": float(sim.max_abs_final(SATURATE)[0]), "max_abs": raw if np.isfinite(raw) else float("inf"),
-            "diverged_at": None, "final_state_variance": v if np.isfinite(v) else float("inf"),
-            "state_variance_ratio": ratio if np.isfinite(ratio) else float("inf")}
+    return {
+        **p,
+        "cost": float(sim.max_abs_final(SATURATE)[0]),
+        "max_abs": raw if np.isfinite(raw) else float("inf"),
+        "diverged_at": None,
+        "final_state_variance": v if np.isfinite(v) else float("inf"),
+        "state_variance_ratio": ratio if np.isfinite(ratio) else float("inf"),
+    }
 
 
 @register("bulk-stabilization", "Finite-memory bulk filters: stabilization map max_i |x_T,i| over (a, a_f) (Fig. 12)")
@@ -62,8 +73,7 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
     a_grid = np.array([1.0, 3.0, 5.0, 7.0]) if quick else np.round(np.arange(0.5, 8.01, 0.5), 4)
     af_grid = np.array([0.2, 0.5, 0.8]) if quick else np.round(np.arange(0.0, 0.91, 0.1), 4)
     mems = (3, 10) if quick else MEMORIES
-    pts = [{"a": float(a), "a_f": float(af), "memory": n, "n_agents": N, "horizon": T}
-           for n in mems for af in af_grid for a in a_grid]
+    pts = [{"a": float(a), "a_f": float(af), "memory": n, "n_agents": N, "horizon": T} for n in mems for af in af_grid for a in a_grid]
     for i, p in enumerate(pts):
         p["index"] = i
         p["seed"] = SEED
@@ -75,22 +85,44 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
         M = maps[n]
         ok = M < SATURATE
         bounded = ratios[n] < BOUNDED_RATIO
-        row: dict[str, Any] = {"filter": f"memory n={n}", "stabilized points": int(ok.sum()), "of": int(ok.size),
-                               "bounded (exact)": int(bounded.sum()),
-                               "largest stabilized a (any a_f)": float(a_grid[np.flatnonzero(ok.any(axis=0))[-1]]) if ok.any() else None}
+        row: dict[str, Any] = {
+            "filter": f"memory n={n}",
+            "stabilized points": int(ok.sum()),
+            "of": int(ok.size),
+            "bounded (exact)": int(bounded.sum()),
+            "largest stabilized a (any a_f)": float(a_grid[np.flatnonzero(ok.any(axis=0))[-1]]) if ok.any() else None,
+        }
         for af in (0.5, 0.9):
             j = int(np.argmin(np.abs(af_grid - af)))
             okj = np.flatnonzero(ok[j])
             row[f"largest stabilized a at a_f={af_grid[j]:g}"] = float(a_grid[okj[-1]]) if okj.size else None
         rows.append(row)
     # Figs. 2-4: the exact filter at very unstable a
-    exact_pts = [{"a": a, "a_f": 0.9, "memory": 0, "n_agents": N, "horizon": 200 if quick else T, "index": 10**6 + i, "seed": SEED}
-                 for i, a in enumerate((10.0, 100.0) if quick else (10.0, 100.0, 1000.0))]
+    exact_pts = [
+        {"a": a, "a_f": 0.9, "memory": 0, "n_agents": N, "horizon": 200 if quick else T, "index": 10**6 + i, "seed": SEED}
+        for i, a in enumerate((10.0, 100.0) if quick else (10.0, 100.0, 1000.0))
+    ]
     for r in map_points(stabilization_point, exact_pts):
-        rows.append({"filter": f"exact, a={r['a']:g} a_f=0.9 (Figs. 2-4)", "max_i |x_T,i| (not saturated)": r["max_abs"],
-                     "Var x_T (exact)": r["final_state_variance"], "Var x_T / Var x_T/2": r["state_variance_ratio"]})
-    columns = ["filter", "stabilized points", "of", "bounded (exact)", "largest stabilized a (any a_f)", "largest stabilized a at a_f=0.5",
-               "largest stabilized a at a_f=0.9", "max_i |x_T,i| (not saturated)", "Var x_T (exact)", "Var x_T / Var x_T/2"]
+        rows.append(
+            {
+                "filter": f"exact, a={r['a']:g} a_f=0.9 (Figs. 2-4)",
+                "max_i |x_T,i| (not saturated)": r["max_abs"],
+                "Var x_T (exact)": r["final_state_variance"],
+                "Var x_T / Var x_T/2": r["state_variance_ratio"],
+            }
+        )
+    columns = [
+        "filter",
+        "stabilized points",
+        "of",
+        "bounded (exact)",
+        "largest stabilized a (any a_f)",
+        "largest stabilized a at a_f=0.5",
+        "largest stabilized a at a_f=0.9",
+        "max_i |x_T,i| (not saturated)",
+        "Var x_T (exact)",
+        "Var x_T / Var x_T/2",
+    ]
     figures: list[str] = []
     if out_dir is not None and plotting_available():
         from ..plotting import _pyplot
@@ -106,14 +138,23 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
         fig.colorbar(im, ax=list(axes), label="log10 max_i |x_T,i| (saturated at 1000)")
         save_figure(fig, out_dir, "bulk-stabilization", figures)
     counts = ", ".join(f"n={n}: {int((maps[n] < SATURATE).sum())}" for n in mems)
-    notes = (f"N = {N}, T = {T}, one run per point (seed {SEED}, one stream per point); cost saturated at {SATURATE:g}; "
-             f"a point is 'stabilized' when the cost is below the saturation ({counts} of {maps[mems[0]].size}). "
-             "Stabilization improves with the memory n, as in the paper's Fig. 12, but not point by point: at a = 8, "
-             "a_f = 0.4 the memory-50 closed loop diverges while memory 10..30 stay bounded (the same in 80-bit arithmetic, "
-             "so it is the filter, not round-off). 'bounded (exact)' counts the points whose exact memory-n closed-loop "
-             f"variance does not grow (Var x_T <= {BOUNDED_RATIO:g} Var x_T/2), independent of the "
-             "random run. Grid chosen by us (the paper gives none). The exact-filter rows (Figs. 2-4) give the exact "
-             "state variance at T and its ratio to the variance at T/2 (1 = bounded, stationary in size); their states are "
-             "large (sd ~ a^1.5 .. a^2) but bounded, as the paper reports.")
-    return ExperimentResult("bulk-stabilization", "Stabilization map of finite-memory bulk filters (Fig. 12)", rows, columns,
-                            notes=notes, figures=figures, data={"a": a_grid, "a_f": af_grid, **{f"cost n={n}": maps[n] for n in mems}})
+    notes = (
+        f"N = {N}, T = {T}, one run per point (seed {SEED}, one stream per point); cost saturated at {SATURATE:g}; "
+        f"a point is 'stabilized' when the cost is below the saturation ({counts} of {maps[mems[0]].size}). "
+        "Stabilization improves with the memory n, as in the paper's Fig. 12, but not point by point: at a = 8, "
+        "a_f = 0.4 the memory-50 closed loop diverges while memory 10..30 stay bounded (the same in 80-bit arithmetic, "
+        "so it is the filter, not round-off). 'bounded (exact)' counts the points whose exact memory-n closed-loop "
+        f"variance does not grow (Var x_T <= {BOUNDED_RATIO:g} Var x_T/2), independent of the "
+        "random run. Grid chosen by us (the paper gives none). The exact-filter rows (Figs. 2-4) give the exact "
+        "state variance at T and its ratio to the variance at T/2 (1 = bounded, stationary in size); their states are "
+        "large (sd ~ a^1.5 .. a^2) but bounded, as the paper reports."
+    )
+    return ExperimentResult(
+        "bulk-stabilization",
+        "Stabilization map of finite-memory bulk filters (Fig. 12)",
+        rows,
+        columns,
+        notes=notes,
+        figures=figures,
+        data={"a": a_grid, "a_f": af_grid, **{f"cost n={n}": maps[n] for n in mems}},
+    )

@@ -56,8 +56,13 @@ def stationarity_point(p: dict[str, Any]) -> dict[str, Any]:
     T = int(p["horizon"])
     bf = exact_bulk_filter(m, T)
     KT = bf.final_gains()
-    return {**p, "delta": bf.stationarity_index(), "discrepancy": discrepancy_index(KT, isolated_gains(m, T)),
-            "last_gain": float(KT[-1]), "band": bf.band}
+    return {
+        **p,
+        "delta": bf.stationarity_index(),
+        "discrepancy": discrepancy_index(KT, isolated_gains(m, T)),
+        "last_gain": float(KT[-1]),
+        "band": bf.band,
+    }
 
 
 def _delta(a: float, a_f: float, N: int, T: int) -> float:
@@ -151,5 +156,12 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
         "stationarizes exactly where the naive pair (K*(a), a_f) stabilizes. a_m(a_f) agrees with the paper to its printed digits; the paper's 'a_m ~ 3.6' (sup over a_f) is "
         "3.686 (teamkf.control.a_m), consistent with its own a_m(0.99) = 3.67."
     )
-    return ExperimentResult("bulk-stationarity", "Stationarity thresholds abar(a_f, N) of the bulk filter (Table 1)", rows, columns,
-                            notes=notes, figures=figures, data=data)
+    return ExperimentResult(
+        "bulk-stationarity",
+        "Stationarity thresholds abar(a_f, N) of the bulk filter (Table 1)",
+        rows,
+        columns,
+        notes=notes,
+        figures=figures,
+        data=data,
+    )

@@ -41,13 +41,22 @@ def timevarying_point(p: dict[str, Any]) -> dict[str, Any]:
     freq = np.fft.rfftfreq(x.size)
     j = int(np.argmax(spec[1:])) + 1 if spec.size > 1 else 0
     period = float(1.0 / freq[j]) if j > 0 else float("nan")
-    return {**p, "last_entries": le, "cross_covariance": cross, "mean_variance": vm,
-            "state_variance": np.asarray(cov.state_variance[1:]), "period": period,
-            "K_last_min": float(le[h].min()), "K_last_max": float(le[h].max()),
-            "vm_min": float(vm[h].min()), "vm_max": float(vm[h].max()),
-            "corr_K_cross": float(np.corrcoef(le[h], cross[h])[0, 1]) if m.n_agents > 1 else float("nan"),
-            "corr_vm_cross": float(np.corrcoef(vm[h], cross[h])[0, 1]) if m.n_agents > 1 else float("nan"),
-            "delta": bf.stationarity_index(), "K_T": np.asarray(bf.final_gains())}
+    return {
+        **p,
+        "last_entries": le,
+        "cross_covariance": cross,
+        "mean_variance": vm,
+        "state_variance": np.asarray(cov.state_variance[1:]),
+        "period": period,
+        "K_last_min": float(le[h].min()),
+        "K_last_max": float(le[h].max()),
+        "vm_min": float(vm[h].min()),
+        "vm_max": float(vm[h].max()),
+        "corr_K_cross": float(np.corrcoef(le[h], cross[h])[0, 1]) if m.n_agents > 1 else float("nan"),
+        "corr_vm_cross": float(np.corrcoef(vm[h], cross[h])[0, 1]) if m.n_agents > 1 else float("nan"),
+        "delta": bf.stationarity_index(),
+        "K_T": np.asarray(bf.final_gains()),
+    }
 
 
 @register("bulk-timevarying", "Bulk filter in the persistently time-varying regime a = 5, f = 4.5 (Figs. 7-9)")
@@ -60,10 +69,20 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
     rows = []
     for N in Ns:
         r = res[N]
-        rows.append({"N": N, "period [steps]": r["period"], "K_k(k) min": r["K_last_min"], "K_k(k) max": r["K_last_max"],
-                     "Var m min": r["vm_min"], "Var m max": r["vm_max"], "corr(K_k(k), cross)": r["corr_K_cross"],
-                     "corr(Var m, cross)": r["corr_vm_cross"], "Delta (eq. 61)": r["delta"],
-                     "max Var x": float(r["state_variance"].max())})
+        rows.append(
+            {
+                "N": N,
+                "period [steps]": r["period"],
+                "K_k(k) min": r["K_last_min"],
+                "K_k(k) max": r["K_last_max"],
+                "Var m min": r["vm_min"],
+                "Var m max": r["vm_max"],
+                "corr(K_k(k), cross)": r["corr_K_cross"],
+                "corr(Var m, cross)": r["corr_vm_cross"],
+                "Delta (eq. 61)": r["delta"],
+                "max Var x": float(r["state_variance"].max()),
+            }
+        )
     main = res[N0]
     notes = (
         f"T = {T}; statistics over the second half of the horizon. K*(5) = {Kst:.4f} (paper: 0.9616); the naive pair "
@@ -73,9 +92,13 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
         "follows Var m_k (correlation ~1), as in Figs. 7-9. The period grows with N (~log N / log rho_mean^2): the mean's "
         "variance restarts from O(1/N). The paper's figures do not state their horizon."
     )
-    data: dict[str, Any] = {"k": np.arange(1, T + 1), "last_entries": main["last_entries"],
-                            "cross_covariance": main["cross_covariance"], "mean_variance": main["mean_variance"],
-                            "K_T": main["K_T"]}
+    data: dict[str, Any] = {
+        "k": np.arange(1, T + 1),
+        "last_entries": main["last_entries"],
+        "cross_covariance": main["cross_covariance"],
+        "mean_variance": main["mean_variance"],
+        "K_T": main["K_T"],
+    }
     figures: list[str] = []
     if out_dir is not None and plotting_available():
         from ..plotting import _pyplot
@@ -105,7 +128,18 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
         axes[2].set_xlabel("k")
         axes[0].set_title("last 60 steps (zoom)")
         save_figure(fig, out_dir, "bulk-timevarying-zoom", figures)
-    cols = ["N", "period [steps]", "K_k(k) min", "K_k(k) max", "Var m min", "Var m max", "corr(K_k(k), cross)",
-            "corr(Var m, cross)", "Delta (eq. 61)", "max Var x"]
-    return ExperimentResult("bulk-timevarying", "Persistently time-varying bulk filter at a = 5, f = 4.5", rows, cols,
-                            notes=notes, figures=figures, data=data)
+    cols = [
+        "N",
+        "period [steps]",
+        "K_k(k) min",
+        "K_k(k) max",
+        "Var m min",
+        "Var m max",
+        "corr(K_k(k), cross)",
+        "corr(Var m, cross)",
+        "Delta (eq. 61)",
+        "max Var x",
+    ]
+    return ExperimentResult(
+        "bulk-timevarying", "Persistently time-varying bulk filter at a = 5, f = 4.5", rows, cols, notes=notes, figures=figures, data=data
+    )

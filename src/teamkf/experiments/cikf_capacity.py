@@ -65,14 +65,31 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
         row: dict = {"graph": name, "edges": len(edges), "closed-form ceiling": closed}
         if have_cvx:
             tc = tracking_capacity(sysm, g)
-            row.update({"capacity (53)": tc.capacity, "min ||M||": tc.min_norm, "graph-free ceiling": tc.capacity_upper,
-                        "lambda1/lambdam": tc.lambda_ratio, "status": tc.status})
+            row.update(
+                {
+                    "capacity (53)": tc.capacity,
+                    "min ||M||": tc.min_norm,
+                    "graph-free ceiling": tc.capacity_upper,
+                    "lambda1/lambdam": tc.lambda_ratio,
+                    "status": tc.status,
+                }
+            )
         d = design_cikf(sysm, g, 31)
         row["bound with Alg. 2 gains"] = d.tracking_bound(30)
         row["CIKF MSE dB (k=30)"] = float(10 * np.log10(d.mse("predictor")[-1]))
         rows.append(row)
-    cols = ["graph", "edges", "capacity (53)", "min ||M||", "graph-free ceiling", "closed-form ceiling", "lambda1/lambdam",
-            "bound with Alg. 2 gains", "CIKF MSE dB (k=30)", "status"]
+    cols = [
+        "graph",
+        "edges",
+        "capacity (53)",
+        "min ||M||",
+        "graph-free ceiling",
+        "closed-form ceiling",
+        "lambda1/lambdam",
+        "bound with Alg. 2 gains",
+        "CIKF MSE dB (k=30)",
+        "status",
+    ]
     if not have_cvx:
         cols = [c for c in cols if c not in ("capacity (53)", "min ||M||", "graph-free ceiling", "lambda1/lambdam", "status")]
     figures: list[str] = []
@@ -89,10 +106,23 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
         ax.set_ylabel("bound on ||A||")
         ax.legend()
         save_figure(fig, out_dir, "cikf-capacity", figures)
-    notes = ("The capacity rises from lambda_1/lambda_m (no links) to the graph-independent ceiling once every connected "
-             "component observes all sites, and stays there up to the complete graph: (53) does not grow with connectivity "
-             "beyond that, and is finite on the complete graph because M (1 (x) y) does not depend on B^C. "
-             + ("" if have_cvx else "cvxpy is not installed (pip install 'teamkf[cvx]'): only the closed-form ceiling and the "
-                                   "bounds with Algorithm 2's gains are shown. "))
-    return ExperimentResult("cikf-capacity", "Tracking capacity of the CIKF on nested graphs (6 agents, 3 sites)", rows, cols,
-                            notes=notes, figures=figures, data={"have_cvxpy": have_cvx})
+    notes = (
+        "The capacity rises from lambda_1/lambda_m (no links) to the graph-independent ceiling once every connected "
+        "component observes all sites, and stays there up to the complete graph: (53) does not grow with connectivity "
+        "beyond that, and is finite on the complete graph because M (1 (x) y) does not depend on B^C. "
+        + (
+            ""
+            if have_cvx
+            else "cvxpy is not installed (pip install 'teamkf[cvx]'): only the closed-form ceiling and the "
+            "bounds with Algorithm 2's gains are shown. "
+        )
+    )
+    return ExperimentResult(
+        "cikf-capacity",
+        "Tracking capacity of the CIKF on nested graphs (6 agents, 3 sites)",
+        rows,
+        cols,
+        notes=notes,
+        figures=figures,
+        data={"have_cvxpy": have_cvx},
+    )

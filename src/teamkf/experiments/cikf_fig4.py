@@ -88,19 +88,21 @@ def _run(out_dir: Path | None, quick: bool) -> ExperimentResult:
     rows = []
     for i in range(I_MAX + 1):
         k = i + 1  # Σ_{i+1|i}
-        rows.append({
-            "i": i,
-            "CKF theory dB": float(_db(th_ckf[k])),
-            "CIKF theory dB": float(_db(th_cikf[k])),
-            "gap dB": float(_db(th_cikf[k] / th_ckf[k])),
-            "CKF MC dB": float(_db(m_ckf[k])),
-            "CIKF MC dB": float(_db(m_cikf[k])),
-            "CIKF MC 95% +-dB": float(_db((m_cikf[k] + h_cikf[k]) / m_cikf[k])),
-            "CIKF z": float(z_cikf[k]),
-            "filter: CKF dB": float(_db(f_ckf[k])),
-            "filter: MTMSE dB": float(_db(f_mt[k])) if np.isfinite(f_mt[k]) else None,
-            "filter: CIKF dB": float(_db(f_cikf[k])),
-        })
+        rows.append(
+            {
+                "i": i,
+                "CKF theory dB": float(_db(th_ckf[k])),
+                "CIKF theory dB": float(_db(th_cikf[k])),
+                "gap dB": float(_db(th_cikf[k] / th_ckf[k])),
+                "CKF MC dB": float(_db(m_ckf[k])),
+                "CIKF MC dB": float(_db(m_cikf[k])),
+                "CIKF MC 95% +-dB": float(_db((m_cikf[k] + h_cikf[k]) / m_cikf[k])),
+                "CIKF z": float(z_cikf[k]),
+                "filter: CKF dB": float(_db(f_ckf[k])),
+                "filter: MTMSE dB": float(_db(f_mt[k])) if np.isfinite(f_mt[k]) else None,
+                "filter: CIKF dB": float(_db(f_cikf[k])),
+            }
+        )
     gap = float(_db(th_cikf[-1] / th_ckf[-1]))
     k_mt = T_mt - 1
     gap_mt = float(_db(f_cikf[k_mt] / f_mt[k_mt]))
@@ -140,17 +142,54 @@ def _run(out_dir: Path | None, quick: bool) -> ExperimentResult:
         ax.plot(ii, _db(th_ckf[ks]), "k-", lw=0.8, label="CKF theory")
         ax.plot(ii, _db(th_cikf[ks]), "b-", lw=0.8, label="CIKF theory")
         ax.plot(ii, _db(m_ckf[ks]), "ko", ms=3, label=f"CKF MC ({runs} runs)")
-        ax.errorbar(ii, _db(m_cikf[ks]), yerr=[_db(m_cikf[ks] / (m_cikf[ks] - h_cikf[ks])), _db((m_cikf[ks] + h_cikf[ks]) / m_cikf[ks])],
-                    fmt="bs", ms=3, label=f"CIKF MC ({runs} runs)")
+        ax.errorbar(
+            ii,
+            _db(m_cikf[ks]),
+            yerr=[_db(m_cikf[ks] / (m_cikf[ks] - h_cikf[ks])), _db((m_cikf[ks] + h_cikf[ks]) / m_cikf[ks])],
+            fmt="bs",
+            ms=3,
+            label=f"CIKF MC ({runs} runs)",
+        )
         ax.set_title("(b) Monte Carlo")
         ax.set_xlabel("i")
         ax.legend()
         save_figure(fig, out_dir, "cikf-fig4", figures)
-    cols = ["i", "CKF theory dB", "CIKF theory dB", "gap dB", "CKF MC dB", "CIKF MC dB", "CIKF MC 95% +-dB", "CIKF z",
-            "filter: CKF dB", "filter: MTMSE dB", "filter: CIKF dB"]
+    cols = [
+        "i",
+        "CKF theory dB",
+        "CIKF theory dB",
+        "gap dB",
+        "CKF MC dB",
+        "CIKF MC dB",
+        "CIKF MC 95% +-dB",
+        "CIKF z",
+        "filter: CKF dB",
+        "filter: MTMSE dB",
+        "filter: CIKF dB",
+    ]
     return ExperimentResult(
-        "cikf-fig4", "CIKF and centralized KF: MSE (dB) on the Section VII-A random field", rows, cols, notes=notes, figures=figures,
-        data={"theory_cikf": th_cikf, "theory_ckf": th_ckf, "mc_cikf": m_cikf, "mc_ckf": m_ckf, "mc_cikf_halfwidth": h_cikf,
-              "filter_cikf": f_cikf, "filter_mtmse": f_mt, "filter_ckf": f_ckf, "gap_db": gap, "gap_mtmse_db": gap_mt,
-              "worst_z": worst_z, "design_seconds": t_design, "mc_seconds": t_mc, "runs": runs, "M": M, "N": N},
+        "cikf-fig4",
+        "CIKF and centralized KF: MSE (dB) on the Section VII-A random field",
+        rows,
+        cols,
+        notes=notes,
+        figures=figures,
+        data={
+            "theory_cikf": th_cikf,
+            "theory_ckf": th_ckf,
+            "mc_cikf": m_cikf,
+            "mc_ckf": m_ckf,
+            "mc_cikf_halfwidth": h_cikf,
+            "filter_cikf": f_cikf,
+            "filter_mtmse": f_mt,
+            "filter_ckf": f_ckf,
+            "gap_db": gap,
+            "gap_mtmse_db": gap_mt,
+            "worst_z": worst_z,
+            "design_seconds": t_design,
+            "mc_seconds": t_mc,
+            "runs": runs,
+            "M": M,
+            "N": N,
+        },
     )

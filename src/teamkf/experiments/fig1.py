@@ -36,12 +36,19 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
     rows = []
     for lam in LAMBDAS:
         j = int(np.argmax(curves[lam]))
-        rows.append({"lambda": lam, "max Delta %": 100 * curves[lam][j], "at sigma": float(sigmas[j]),
-                     "Delta % at sigma=1": 100 * improvement(1.0, lam)[2]})
+        rows.append(
+            {"lambda": lam, "max Delta %": 100 * curves[lam][j], "at sigma": float(sigmas[j]), "Delta % at sigma=1": 100 * improvement(1.0, lam)[2]}
+        )
     limit = sigmas**2 / (2 * (1 + sigmas**2) ** 2)  # lambda -> infinity (alpha -> 1/2)
     j = int(np.argmax(limit))
-    rows.append({"lambda": float("inf"), "max Delta %": 100 * float(limit[j]), "at sigma": float(sigmas[j]),
-                 "Delta % at sigma=1": 100 * improvement(1.0, 1e12)[2]})
+    rows.append(
+        {
+            "lambda": float("inf"),
+            "max Delta %": 100 * float(limit[j]),
+            "at sigma": float(sigmas[j]),
+            "Delta % at sigma=1": 100 * improvement(1.0, 1e12)[2],
+        }
+    )
     figures: list[str] = []
     if out_dir is not None and plotting_available():
         from ..plotting import _pyplot
@@ -56,9 +63,12 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
         ax.legend()
         save_figure(fig, out_dir, "fig1", figures)
     return ExperimentResult(
-        "fig1", "Relative improvement Delta of MTMSE over MMSE (two-agent example)", rows,
+        "fig1",
+        "Relative improvement Delta of MTMSE over MMSE (two-agent example)",
+        rows,
         ["lambda", "max Delta %", "at sigma", "Delta % at sigma=1"],
         notes="The last row is the lambda -> infinity limit sigma^2/(2(1+sigma^2)^2), maximal (12.5 %) at sigma = 1; "
-              "its last column is computed at lambda = 1e12.",
-        figures=figures, data={"sigma": sigmas, **{f"lambda={k:g}": v for k, v in curves.items()}},
+        "its last column is computed at lambda = 1e12.",
+        figures=figures,
+        data={"sigma": sigmas, **{f"lambda={k:g}": v for k, v in curves.items()}},
     )

@@ -34,6 +34,7 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
     T, runs = 100, (200 if quick else 1000)
     rows = []
     for n in (4, 10):
+
         def build(lam: float, n: int = n) -> tuple:
             return uav(n, lam)
 
@@ -43,7 +44,24 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
         rows += delta_rows(build, [r * n * n for r in RATIOS], T, runs, seed=2021 + n, label={"n": n}, x_name="lambda/n^2", x_of=x_of)
     figures: list[str] = []
     plot_deltas(rows, "n", "lambda/n^2", "Fig. 3: UAV formation (complete graph, delay 2)", out_dir, "fig3", figures)
-    cols = ["n", "lambda/n^2", "J* (MTMSE)", "J mmse", "J centralized", "J KCF honest (MC)", "J KCF ideal (MC)",
-            "Delta mmse %", "Delta KCF honest %", "Delta KCF ideal %", "KCF ideal 95% CI half-width %"]
-    return ExperimentResult("fig3", f"UAV formation, T = {T}: relative improvement of MTMSE (KCF: {runs} Monte Carlo paths, epsilon = {EPSILON})",
-                            rows, cols, notes=__doc__.split("\n\n", 1)[1].strip() if __doc__ else "", figures=figures)
+    cols = [
+        "n",
+        "lambda/n^2",
+        "J* (MTMSE)",
+        "J mmse",
+        "J centralized",
+        "J KCF honest (MC)",
+        "J KCF ideal (MC)",
+        "Delta mmse %",
+        "Delta KCF honest %",
+        "Delta KCF ideal %",
+        "KCF ideal 95% CI half-width %",
+    ]
+    return ExperimentResult(
+        "fig3",
+        f"UAV formation, T = {T}: relative improvement of MTMSE (KCF: {runs} Monte Carlo paths, epsilon = {EPSILON})",
+        rows,
+        cols,
+        notes=__doc__.split("\n\n", 1)[1].strip() if __doc__ else "",
+        figures=figures,
+    )

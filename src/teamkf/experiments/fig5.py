@@ -26,7 +26,23 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
     rows = delta_rows(platoon, LAMBDAS, T, runs, seed=2021, label={}, x_name="lambda", x_of=lambda lam: lam)
     figures: list[str] = []
     plot_deltas(rows, "", "lambda", "Fig. 5: vehicular platoon (line graph, unit delays)", out_dir, "fig5", figures)
-    cols = ["lambda", "J* (MTMSE)", "J mmse", "J centralized", "J KCF honest (MC)", "J KCF ideal (MC)",
-            "Delta mmse %", "Delta KCF honest %", "Delta KCF ideal %", "KCF ideal 95% CI half-width %"]
-    return ExperimentResult("fig5", f"Platoon, T = {T}: relative improvement of MTMSE (KCF: {runs} Monte Carlo paths, epsilon = {EPSILON})",
-                            rows, cols, notes=__doc__.split("\n\n", 1)[1].strip() if __doc__ else "", figures=figures)
+    cols = [
+        "lambda",
+        "J* (MTMSE)",
+        "J mmse",
+        "J centralized",
+        "J KCF honest (MC)",
+        "J KCF ideal (MC)",
+        "Delta mmse %",
+        "Delta KCF honest %",
+        "Delta KCF ideal %",
+        "KCF ideal 95% CI half-width %",
+    ]
+    return ExperimentResult(
+        "fig5",
+        f"Platoon, T = {T}: relative improvement of MTMSE (KCF: {runs} Monte Carlo paths, epsilon = {EPSILON})",
+        rows,
+        cols,
+        notes=__doc__.split("\n\n", 1)[1].strip() if __doc__ else "",
+        figures=figures,
+    )

@@ -43,9 +43,20 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
         k = T // 2
         F = [float(f.ravel()[0]) for f in opt.F_at(k)]
         F_hist.append(F)
-        rows.append({"rho": rho, "J* (Thm 4)": opt.cost, "J CE": ce.cost, "CE excess %": 100 * (ce.cost - opt.cost) / opt.cost,
-                     "MC J* ": mc_opt["mean"], "MC J* 95% half-width": 1.96 * mc_opt["sem"], "MC J CE": mc_ce["mean"],
-                     "F_1(T/2)": F[0], "F_2(T/2)": F[1], "K(T/2)[0,0]": float(opt.estimation.K_at(k)[0, 0])})
+        rows.append(
+            {
+                "rho": rho,
+                "J* (Thm 4)": opt.cost,
+                "J CE": ce.cost,
+                "CE excess %": 100 * (ce.cost - opt.cost) / opt.cost,
+                "MC J* ": mc_opt["mean"],
+                "MC J* 95% half-width": 1.96 * mc_opt["sem"],
+                "MC J CE": mc_ce["mean"],
+                "F_1(T/2)": F[0],
+                "F_2(T/2)": F[1],
+                "K(T/2)[0,0]": float(opt.estimation.K_at(k)[0, 0]),
+            }
+        )
     figures: list[str] = []
     if out_dir is not None and plotting_available():
         from ..plotting import _pyplot
@@ -68,6 +79,11 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
         axes[1].set_title("MTMSE gains change with the control weight")
         axes[1].legend()
         save_figure(fig, out_dir, "lqg", figures)
-    return ExperimentResult("lqg", f"Decentralized LQG, T = {T}: optimal (Theorem 4) vs certainty equivalence ({runs} closed-loop runs)",
-                            rows, list(rows[0].keys()), notes="K does not depend on rho; the MTMSE gains F_i do (no separation).",
-                            figures=figures)
+    return ExperimentResult(
+        "lqg",
+        f"Decentralized LQG, T = {T}: optimal (Theorem 4) vs certainty equivalence ({runs} closed-loop runs)",
+        rows,
+        list(rows[0].keys()),
+        notes="K does not depend on rho; the MTMSE gains F_i do (no separation).",
+        figures=figures,
+    )

@@ -41,9 +41,17 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
     rows = []
     for idx in sorted(range(len(cands)), key=lambda i: (dims[i], J[i])):
         h = cands[idx]
-        rows.append({"structure": h.label, "paper name": NAMED.get(h.m, ""), "local scalars": dims[idx],
-                     "links": links[idx], "J_T*/lambda": J[idx] / LAMBDA,
-                     "on (dim, J) front": idx in front, "on (dim, links, J) front": idx in front3})
+        rows.append(
+            {
+                "structure": h.label,
+                "paper name": NAMED.get(h.m, ""),
+                "local scalars": dims[idx],
+                "links": links[idx],
+                "J_T*/lambda": J[idx] / LAMBDA,
+                "on (dim, J) front": idx in front,
+                "on (dim, links, J) front": idx in front3,
+            }
+        )
     figures: list[str] = []
     if out_dir is not None and plotting_available():
         from ..plotting import _pyplot
@@ -70,9 +78,14 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
         fig.suptitle(f"Information shedding on the platoon (lambda = {LAMBDA:g})")
         save_figure(fig, out_dir, "shedding", figures)
     return ExperimentResult(
-        "shedding", f"Hop-window structures on the platoon: size vs J_T*/lambda (lambda = 100, T = {horizon})", rows,
+        "shedding",
+        f"Hop-window structures on the platoon: size vs J_T*/lambda (lambda = 100, T = {horizon})",
+        rows,
         ["structure", "paper name", "local scalars", "links", "J_T*/lambda", "on (dim, J) front", "on (dim, links, J) front"],
-        notes=("m = (m_0, m_1, m_2): window length per hop distance. IS2 = (3,0,0) is dominated on the (dim, J) front by "
-               "(1,1,0) under the stated model; with communication links as a third objective it is non-dominated."),
-        figures=figures, data={"dims": dims, "links": links, "J": J},
+        notes=(
+            "m = (m_0, m_1, m_2): window length per hop distance. IS2 = (3,0,0) is dominated on the (dim, J) front by "
+            "(1,1,0) under the stated model; with communication links as a third objective it is non-dominated."
+        ),
+        figures=figures,
+        data={"dims": dims, "links": links, "J": J},
     )

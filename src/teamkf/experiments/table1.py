@@ -42,9 +42,17 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
         d = design_mtmse(system, cost, st, T)
         vec = [len(st.local_lags(i)) for i in range(4)]
         stage[name] = np.asarray(d.stage_costs)
-        rows.append({"structure": name, "local vectors i in {1,4}": vec[0], "local vectors i in {2,3}": vec[1],
-                     "local scalars (total)": sum(st.local_dims(system.dy)), "J_T*/lambda (teamkf)": d.total_cost / LAMBDA,
-                     "own-reading bound": bound, "J_T*/lambda (paper, Table I)": PUBLISHED[name]})
+        rows.append(
+            {
+                "structure": name,
+                "local vectors i in {1,4}": vec[0],
+                "local vectors i in {2,3}": vec[1],
+                "local scalars (total)": sum(st.local_dims(system.dy)),
+                "J_T*/lambda (teamkf)": d.total_cost / LAMBDA,
+                "own-reading bound": bound,
+                "J_T*/lambda (paper, Table I)": PUBLISHED[name],
+            }
+        )
     figures: list[str] = []
     if out_dir is not None and plotting_available():
         from ..plotting import _pyplot
@@ -59,11 +67,23 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
         ax.legend()
         save_figure(fig, out_dir, "table1", figures)
     return ExperimentResult(
-        "table1", "Table I: local-information size and J_T*/lambda (platoon, lambda = 100, T = 100)", rows,
-        ["structure", "local vectors i in {1,4}", "local vectors i in {2,3}", "local scalars (total)",
-         "J_T*/lambda (teamkf)", "own-reading bound", "J_T*/lambda (paper, Table I)"],
-        notes=("The published column cannot come from the stated model: reporting one's own reading of one's own "
-               f"position already gives J_T*/lambda <= 0.1 trace(S) T / lambda = {bound:.1f} under every structure "
-               "(see the module docstring). Sigma_x = I is our choice; the paper does not state it."),
-        figures=figures, data={"stage_costs": stage},
+        "table1",
+        "Table I: local-information size and J_T*/lambda (platoon, lambda = 100, T = 100)",
+        rows,
+        [
+            "structure",
+            "local vectors i in {1,4}",
+            "local vectors i in {2,3}",
+            "local scalars (total)",
+            "J_T*/lambda (teamkf)",
+            "own-reading bound",
+            "J_T*/lambda (paper, Table I)",
+        ],
+        notes=(
+            "The published column cannot come from the stated model: reporting one's own reading of one's own "
+            f"position already gives J_T*/lambda <= 0.1 trace(S) T / lambda = {bound:.1f} under every structure "
+            "(see the module docstring). Sigma_x = I is our choice; the paper does not state it."
+        ),
+        figures=figures,
+        data={"stage_costs": stage},
     )

@@ -82,7 +82,9 @@ class TeamCost:
         if L_arr.ndim == 2:
             L_arr = L_arr[None]
         if L_arr.ndim != 3 or L_arr.shape[1] != m:
-            raise ShapeError(f"L: expected a {m} x d_x matrix (n d_z rows, as S), found {V.shape_str(L_arr.shape[-2:] if L_arr.ndim >= 2 else L_arr.shape)}")
+            raise ShapeError(
+                f"L: expected a {m} x d_x matrix (n d_z rows, as S), found {V.shape_str(L_arr.shape[-2:] if L_arr.ndim >= 2 else L_arr.shape)}"
+            )
         object.__setattr__(self, "n_agents", n)
         object.__setattr__(self, "S", V.frozen(S_arr))
         object.__setattr__(self, "L", V.frozen(L_arr))

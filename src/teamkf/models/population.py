@@ -65,7 +65,20 @@ __all__ = [
 
 #: keys of the ``[population]`` table (scenario-and-cli.md); ``r`` and ``a_f`` are teamkf additions
 POPULATION_KEYS: tuple[str, ...] = (
-    "n_agents", "a", "b", "c", "h", "f", "a_f", "sigma_w", "sigma_v", "sigma_0", "x0_mean", "memory", "r", "cdma",
+    "n_agents",
+    "a",
+    "b",
+    "c",
+    "h",
+    "f",
+    "a_f",
+    "sigma_w",
+    "sigma_v",
+    "sigma_0",
+    "x0_mean",
+    "memory",
+    "r",
+    "cdma",
 )
 _TOP_KEYS = ("name", "horizon", "description", "population")
 _CDMA_KEYS = ("alpha", "beta", "h_prime")
@@ -138,8 +151,11 @@ class PopulationModel:
         object.__setattr__(self, "c", _positive(self.c, "c", hint="the own-state gain of eq. (2) must be positive"))
         object.__setattr__(self, "h", _positive(self.h, "h", strict=False, hint="use h = 0 for agents without interference"))
         object.__setattr__(self, "sigma_w", _positive(self.sigma_w, "sigma_w", strict=False))
-        object.__setattr__(self, "sigma_v", _positive(
-            self.sigma_v, "sigma_v", hint="the measurement noise must be strictly positive (innovation variances are >= sigma_v**2)"))
+        object.__setattr__(
+            self,
+            "sigma_v",
+            _positive(self.sigma_v, "sigma_v", hint="the measurement noise must be strictly positive (innovation variances are >= sigma_v**2)"),
+        )
         object.__setattr__(self, "sigma_0", _positive(self.sigma_0, "sigma_0", strict=False))
         object.__setattr__(self, "x0_mean", _real(self.x0_mean, "x0_mean"))
         object.__setattr__(self, "memory", positive_int(self.memory, "memory", minimum=0))
@@ -313,7 +329,9 @@ def population_from_dict(d: Mapping[str, Any]) -> PopulationScenario:
     if not isinstance(desc, str):
         raise _fail("description", f"expected a string, found {_describe(desc)}")
     if "horizon" not in d:
-        raise _fail("horizon", "missing required key; a population scenario needs a finite horizon T (the bulk filter grows with T), e.g. horizon = 1000")
+        raise _fail(
+            "horizon", "missing required key; a population scenario needs a finite horizon T (the bulk filter grows with T), e.g. horizon = 1000"
+        )
     h = d["horizon"]
     if isinstance(h, bool) or not isinstance(h, (int, float)) or (isinstance(h, float) and not h.is_integer()) or h < 1:
         raise _fail("horizon", f"expected an integer number of steps >= 1, found {_describe(h)}")
@@ -332,11 +350,18 @@ def population_from_dict(d: Mapping[str, Any]) -> PopulationScenario:
     kw: dict[str, Any] = {}
     nv = tab["n_agents"]
     if isinstance(nv, bool) or not isinstance(nv, (int, float)) or (isinstance(nv, float) and not (math.isfinite(nv) and nv.is_integer())) or nv < 1:
-        raise _fail("population.n_agents", f"expected an integer >= 1, found {nv!r}" if isinstance(nv, (int, float)) and not isinstance(nv, bool) else f"expected an integer >= 1, found {_describe(nv)}")
+        raise _fail(
+            "population.n_agents",
+            f"expected an integer >= 1, found {nv!r}"
+            if isinstance(nv, (int, float)) and not isinstance(nv, bool)
+            else f"expected an integer >= 1, found {_describe(nv)}",
+        )
     kw["n_agents"] = int(nv)
     mv = tab.get("memory", 0)
     if isinstance(mv, bool) or not isinstance(mv, (int, float)) or (isinstance(mv, float) and not (math.isfinite(mv) and mv.is_integer())) or mv < 0:
-        raise _fail("population.memory", f"expected an integer >= 0 (0: exact growing-memory filter; n: keep the last n measurements), found {_describe(mv)}")
+        raise _fail(
+            "population.memory", f"expected an integer >= 0 (0: exact growing-memory filter; n: keep the last n measurements), found {_describe(mv)}"
+        )
     kw["memory"] = int(mv)
     for k in ("a", "b", "sigma_w", "sigma_v", "sigma_0", "x0_mean", "r"):
         if k in tab:

@@ -146,10 +146,21 @@ def _lattice_dynamics(gen: np.random.Generator, M: int, n_clusters: int, a_norm:
     return A, tuple(clusters)
 
 
-def random_field_instance(M: int = 50, N: int = 50, *, rng: Any, sites_per_agent: int = 2, n_clusters: int | None = None,
-                          a_norm: float = 1.05, v_norm: float = 4.0, r_norm: float = 8.0, sigma0_norm: float = 16.0,
-                          edge_probability: float = PAPER_EDGE_PROBABILITY, require_local_undetectable: bool = True,
-                          max_tries: int = 200) -> RandomFieldInstance:
+def random_field_instance(
+    M: int = 50,
+    N: int = 50,
+    *,
+    rng: Any,
+    sites_per_agent: int = 2,
+    n_clusters: int | None = None,
+    a_norm: float = 1.05,
+    v_norm: float = 4.0,
+    r_norm: float = 8.0,
+    sigma0_norm: float = 16.0,
+    edge_probability: float = PAPER_EDGE_PROBABILITY,
+    require_local_undetectable: bool = True,
+    max_tries: int = 200,
+) -> RandomFieldInstance:
     """Draw a Section VII-A instance (see the module docstring) and check its properties.
 
     Parameters
@@ -213,30 +224,34 @@ def random_field_instance(M: int = 50, N: int = 50, *, rng: Any, sites_per_agent
         if is_detectable(A, H):
             break
     else:
-        raise DetectabilityError(f"random_field: expected a detectable (A, H), found none in max_tries={tries} observation "
-                                 f"patterns with {N} agents x {spa} sites over {M} sites; raise N or sites_per_agent")
+        raise DetectabilityError(
+            f"random_field: expected a detectable (A, H), found none in max_tries={tries} observation "
+            f"patterns with {N} agents x {spa} sites over {M} sites; raise N or sites_per_agent"
+        )
     C = [eye[s] for s in sites]
     local = tuple(bool(is_detectable(A, c)) for c in C)
     if require_local_undetectable and any(local):
         raise DetectabilityError(
             f"random_field: expected no agent to detect the field alone, found agents {[i for i, d in enumerate(local) if d][:5]} "
             f"that do (n_clusters={nc}, sites_per_agent={spa}, a_norm={a_norm}); use more groups than sites per agent and a_norm > 1, "
-            "or pass require_local_undetectable=False")
+            "or pass require_local_undetectable=False"
+        )
     m_edges = max(N - 1, int(round(p * N * (N - 1) / 2)))
     for _ in range(tries):
         Gnx = nx.gnm_random_graph(N, m_edges, seed=int(gen.integers(2**31 - 1)))
         if nx.is_connected(Gnx):
             break
     else:
-        raise ShapeError(f"edge_probability: expected a density that gives a connected graph of {N} agents, found none in "
-                         f"max_tries={tries} draws with {m_edges} edges; raise edge_probability")
+        raise ShapeError(
+            f"edge_probability: expected a density that gives a connected graph of {N} agents, found none in "
+            f"max_tries={tries} draws with {m_edges} edges; raise edge_probability"
+        )
     graph = CommGraph.from_networkx(Gnx, default_delay=1)
     system = LinearGaussianSystem(A=A, Q=Q, Sigma_x=Sigma0, C=C, R=R)
     observed = np.unique(sites)
     unobserved = np.setdiff1d(np.arange(M), observed)
     lam = np.abs(np.linalg.eigvals(A))
-    return RandomFieldInstance(system, graph, sites, clusters, unobserved, float(lam.max()), int(np.sum(lam >= 1.0)),
-                               True, local)
+    return RandomFieldInstance(system, graph, sites, clusters, unobserved, float(lam.max()), int(np.sum(lam >= 1.0)), True, local)
 
 
 def random_field(M: int = 50, N: int = 50, *, rng: Any, **kwargs: Any) -> tuple[LinearGaussianSystem, Any]:

@@ -171,7 +171,9 @@ class LinearGaussianSystem:
         """Check that the time-varying matrices cover ``n_steps`` steps."""
         for name, m, need in (("A", self.A, n_steps - 1), ("Q", self.Q, n_steps - 1)):
             if m.shape[0] > 1 and m.shape[0] < need:
-                raise ShapeError(f"{name}: a horizon of {n_steps} steps needs {need} matrices, found {m.shape[0]}; give more steps or a shorter horizon")
+                raise ShapeError(
+                    f"{name}: a horizon of {n_steps} steps needs {need} matrices, found {m.shape[0]}; give more steps or a shorter horizon"
+                )
         for i in range(self.n_agents):
             for name, m in ((f"C[{i}]", self.C[i]), (f"R[{i}]", self.R[i])):
                 if m.shape[0] > 1 and m.shape[0] < n_steps:
@@ -217,8 +219,18 @@ class LinearGaussianSystem:
 
     # --- builders ----------------------------------------------------------
     @classmethod
-    def uav_formation(cls, n_agents: int, *, a_diag: float = 0.65, a_off: float = 0.1, c1: float = 2.0, c_other: float = 0.1,
-                      q: float = 1.0, r: float = 0.1, sigma_x: float = 1.0) -> "LinearGaussianSystem":
+    def uav_formation(
+        cls,
+        n_agents: int,
+        *,
+        a_diag: float = 0.65,
+        a_off: float = 0.1,
+        c1: float = 2.0,
+        c_other: float = 0.1,
+        q: float = 1.0,
+        r: float = 0.1,
+        sigma_x: float = 1.0,
+    ) -> "LinearGaussianSystem":
         """The UAV formation of Section IV-A.
 
         A_ii = 0.65, A_ij = 0.1 (i != j), C_1 = 2 * 1', C_i = 0.1 e_i' (i >= 2),
@@ -232,8 +244,9 @@ class LinearGaussianSystem:
         return cls(A=A, Q=q, Sigma_x=sigma_x, C=C, R=r)
 
     @classmethod
-    def platoon(cls, n_agents: int = 4, *, q: float = 1.0, r: float = 0.1, sigma_x: float = 1.0,
-                A: ArrayLike | None = None) -> "LinearGaussianSystem":
+    def platoon(
+        cls, n_agents: int = 4, *, q: float = 1.0, r: float = 0.1, sigma_x: float = 1.0, A: ArrayLike | None = None
+    ) -> "LinearGaussianSystem":
         """The vehicular platoon of Section IV-B: every vehicle measures all positions (C_i = I).
 
         For ``n_agents = 4`` the paper's A is used; for other sizes A is the

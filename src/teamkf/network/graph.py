@@ -100,10 +100,7 @@ def _rng(rng: Any) -> np.random.Generator:
         return rng
     if isinstance(rng, (Integral, np.integer)) and not isinstance(rng, (bool, np.bool_)):
         return np.random.default_rng(int(rng))
-    raise GraphError(
-        f"rng: expected a numpy.random.Generator or an int seed, found {rng!r}; "
-        "pass rng=np.random.default_rng(seed) or rng=seed"
-    )
+    raise GraphError(f"rng: expected a numpy.random.Generator or an int seed, found {rng!r}; pass rng=np.random.default_rng(seed) or rng=seed")
 
 
 # ----------------------------------------------------------------------------
@@ -192,10 +189,7 @@ class CommGraph:
             except TypeError:
                 items = ()
             if len(items) != 3 or isinstance(e, (str, bytes)):
-                raise GraphError(
-                    f"{name}: expected a (source, target, delay) triple, found {e!r}; "
-                    "write each edge as [from, to, delay]"
-                )
+                raise GraphError(f"{name}: expected a (source, target, delay) triple, found {e!r}; write each edge as [from, to, delay]")
             s = _agent(items[0], f"{name} source", n)
             t = _agent(items[1], f"{name} target", n)
             if s == t:
@@ -617,9 +611,7 @@ class CommGraph:
     def from_dict(cls, data: Mapping[str, Any]) -> CommGraph:
         """Inverse of :meth:`to_dict`; both keys are required, others are rejected."""
         if not isinstance(data, Mapping):
-            raise GraphError(
-                f"graph: expected a mapping with keys 'n_agents' and 'edges', found {type(data).__name__}"
-            )
+            raise GraphError(f"graph: expected a mapping with keys 'n_agents' and 'edges', found {type(data).__name__}")
         missing = [k for k in ("n_agents", "edges") if k not in data]
         if missing:
             raise GraphError(
@@ -628,7 +620,5 @@ class CommGraph:
             )
         extra = sorted(str(k) for k in data if k not in ("n_agents", "edges"))
         if extra:
-            raise GraphError(
-                f"graph: expected only keys 'n_agents' and 'edges', found also {extra}; remove or rename them"
-            )
+            raise GraphError(f"graph: expected only keys 'n_agents' and 'edges', found also {extra}; remove or rename them")
         return cls(data["n_agents"], data["edges"])

@@ -90,7 +90,9 @@ class InformationStructure:
                 if j >= n:
                     raise InformationStructureError(f"{name}: source agent {j} is out of range 0..{n - 1}")
                 if newest > oldest:
-                    raise InformationStructureError(f"{name}: expected newest <= oldest (lags counted back from k), found newest={newest} > oldest={oldest}; swap them")
+                    raise InformationStructureError(
+                        f"{name}: expected newest <= oldest (lags counted back from k), found newest={newest} > oldest={oldest}; swap them"
+                    )
                 if oldest >= c:
                     raise InformationStructureError(
                         f"{name}: expected oldest <= common_lag - 1 = {c - 1}, found {oldest}; y_{j}(k - {oldest}) is already in the common part y(0:k-{c}) — shorten the window"
@@ -192,7 +194,7 @@ class InformationStructure:
                 f"(weighted diameter tau* = {int(ell.max())}); use common_lag >= {int(ell.max())}"
             )
         for i, wins in enumerate(self.local):
-            for (j, a, b) in wins:
+            for j, a, b in wins:
                 if a < ell[j, i]:
                     raise InformationStructureError(
                         f"local[{i}]: window [{j}, {a}, {b}] uses y_{j}(k - {a}), but y_{j} reaches agent {i} only after {int(ell[j, i])} steps; "
@@ -224,4 +226,3 @@ def _int(x: Any, name: str, *, minimum: int) -> int:
     if int(x) < minimum:
         raise InformationStructureError(f"{name}: expected an integer >= {minimum}, found {int(x)}")
     return int(x)
-

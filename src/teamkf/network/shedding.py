@@ -39,8 +39,9 @@ class HopWindows:
         return sum(1 for i, wins in enumerate(self.structure.local) for (j, _, _) in wins if j != i)
 
 
-def hop_structures(graph: CommGraph, common_lag: int | None = None, *, max_dim: int | None = None,
-                   dy: Sequence[int] | None = None) -> list[HopWindows]:
+def hop_structures(
+    graph: CommGraph, common_lag: int | None = None, *, max_dim: int | None = None, dy: Sequence[int] | None = None
+) -> list[HopWindows]:
     """Every hop-window structure on ``graph`` (optionally with total local dimension <= ``max_dim``)."""
     graph.require_strongly_connected()
     ell = np.asarray(graph.geodesic_delays())
@@ -49,8 +50,10 @@ def hop_structures(graph: CommGraph, common_lag: int | None = None, *, max_dim: 
     dys = list(dy) if dy is not None else [1] * n
     out = []
     for m in itertools.product(*[range(0, c - h + 1) for h in range(c)]):
-        local = [[(j, int(ell[j, i]), int(ell[j, i]) + m[int(ell[j, i])] - 1) for j in range(n)
-                  if ell[j, i] < c and m[int(ell[j, i])] > 0] for i in range(n)]
+        local = [
+            [(j, int(ell[j, i]), int(ell[j, i]) + m[int(ell[j, i])] - 1) for j in range(n) if ell[j, i] < c and m[int(ell[j, i])] > 0]
+            for i in range(n)
+        ]
         st = InformationStructure(n, c, local)
         if max_dim is not None and sum(st.local_dims(dys)) > max_dim:
             continue

@@ -37,8 +37,9 @@ def evaluate_point(scenario: Any, estimators: Sequence[str] | None = None, runs:
     for name, d in designs.items():
         row: dict[str, Any] = {"estimator": name, "runs": int(runs), "seed": int(seed)}
         if name in analytic:
-            row.update({"method": "analytic", key: float(d.total_cost if key == "total_cost" else d.average_cost),
-                        "ci95_low": None, "ci95_high": None})
+            row.update(
+                {"method": "analytic", key: float(d.total_cost if key == "total_cost" else d.average_cost), "ci95_low": None, "ci95_high": None}
+            )
             if name in mc:
                 lo, hi = mc[name].ci95
                 row.update({"mc_cost": mc[name].total_mean, "mc_ci95_low": lo, "mc_ci95_high": hi})

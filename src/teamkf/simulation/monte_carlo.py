@@ -64,14 +64,20 @@ class MonteCarloResult:
 
     def summary(self) -> dict[str, Any]:
         lo, hi = self.ci95
-        return {"method": "monte-carlo", "runs": self.n_runs, "total_cost": self.total_mean, "ci95": [lo, hi],
-                "stage_costs": [float(c) for c in self.stage_mean]}
+        return {
+            "method": "monte-carlo",
+            "runs": self.n_runs,
+            "total_cost": self.total_mean,
+            "ci95": [lo, hi],
+            "stage_costs": [float(c) for c in self.stage_mean],
+        }
 
     def to_pandas(self) -> Any:
         pd = V.require("pandas", "dask")
         lo, hi = self.stage_ci95
-        return pd.DataFrame({"estimator": self.estimator, "step": np.arange(len(self.stage_mean)),
-                             "stage_cost": self.stage_mean, "ci95_low": lo, "ci95_high": hi})
+        return pd.DataFrame(
+            {"estimator": self.estimator, "step": np.arange(len(self.stage_mean)), "stage_cost": self.stage_mean, "ci95_low": lo, "ci95_high": hi}
+        )
 
     def plot(self, ax: Any = None, **kwargs: Any) -> Any:
         """Stage cost against the step with its 95 % band (matplotlib, lazy)."""
@@ -104,8 +110,16 @@ def _team_errors(design: Any, paths: Any, path: str, graph: Any) -> FloatArray:
     return np.stack([paths.x[:, k] @ cost.L_at(k).T - z[:, k] for k in range(paths.n_steps)], axis=1)
 
 
-def monte_carlo(designs: Mapping[str, Any], n_steps: int, n_runs: int, *, rng: int | np.random.SeedSequence | np.random.Generator | None,
-                batch: int = 1000, path: Literal["errors", "runtime"] = "errors", graph: Any = None) -> dict[str, MonteCarloResult]:
+def monte_carlo(
+    designs: Mapping[str, Any],
+    n_steps: int,
+    n_runs: int,
+    *,
+    rng: int | np.random.SeedSequence | np.random.Generator | None,
+    batch: int = 1000,
+    path: Literal["errors", "runtime"] = "errors",
+    graph: Any = None,
+) -> dict[str, MonteCarloResult]:
     """Evaluate every design on the same ``n_runs`` sampled paths.
 
     Parameters
@@ -144,6 +158,7 @@ def monte_carlo(designs: Mapping[str, Any], n_steps: int, n_runs: int, *, rng: i
         if not np.all(np.isfinite(c)):
             raise FloatingPointError(f"{name}: the simulated team cost overflowed; the estimator diverges on this system")
         tot = c.sum(axis=1)
-        out[name] = MonteCarloResult(name, R_, c.mean(axis=0), c.std(axis=0, ddof=1) / np.sqrt(R_),
-                                     float(tot.mean()), float(tot.std(ddof=1) / np.sqrt(R_)), path)
+        out[name] = MonteCarloResult(
+            name, R_, c.mean(axis=0), c.std(axis=0, ddof=1) / np.sqrt(R_), float(tot.mean()), float(tot.std(ddof=1) / np.sqrt(R_)), path
+        )
     return out

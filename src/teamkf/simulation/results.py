@@ -161,8 +161,16 @@ class SweepResult:
         return df
 
     # -- plots ----------------------------------------------------------------
-    def plot(self, x: str | None = None, y: str | None = None, baseline: str | None = None, ax: Any = None,
-             *, logx: bool | str = "auto", title: str | None = None) -> Any:
+    def plot(
+        self,
+        x: str | None = None,
+        y: str | None = None,
+        baseline: str | None = None,
+        ax: Any = None,
+        *,
+        logx: bool | str = "auto",
+        title: str | None = None,
+    ) -> Any:
         """Cost against a swept parameter, one line per estimator (and per value of the other grid keys).
 
         Parameters
@@ -209,8 +217,9 @@ class SweepResult:
             label = gkey[0] + (f" ({', '.join(f'{k}={v}' for k, v in zip(others, gkey[1:]))})" if others else "")
             (line,) = ax.plot(xs, ys, marker="o", label=label)
             if baseline is None and all(p[1].get(lo_col) is not None for p in pts):
-                ax.fill_between(xs, [float(p[1][lo_col]) for p in pts], [float(p[1][hi_col]) for p in pts],
-                                color=line.get_color(), alpha=0.2, linewidth=0)
+                ax.fill_between(
+                    xs, [float(p[1][lo_col]) for p in pts], [float(p[1][hi_col]) for p in pts], color=line.get_color(), alpha=0.2, linewidth=0
+                )
         if baseline is not None:
             ax.axhline(0.0, color="0.5", linewidth=0.8, linestyle="--")
         xvals = list(pos.values())
@@ -255,8 +264,23 @@ def load_results(path: str | Path) -> SweepResult:
     return SweepResult(tuple(rows), keys, path=p, info=info)
 
 
-_FIXED_COLUMNS = ("point_id", "point_index", "estimator", "method", "total_cost", "average_cost", "ci95_low", "ci95_high",
-                  "mc_cost", "mc_ci95_low", "mc_ci95_high", "runs", "seed", "sweep_seed", "teamkf_version")
+_FIXED_COLUMNS = (
+    "point_id",
+    "point_index",
+    "estimator",
+    "method",
+    "total_cost",
+    "average_cost",
+    "ci95_low",
+    "ci95_high",
+    "mc_cost",
+    "mc_ci95_low",
+    "mc_ci95_high",
+    "runs",
+    "seed",
+    "sweep_seed",
+    "teamkf_version",
+)
 
 
 _FLOAT_COLUMNS = ("total_cost", "average_cost", "ci95_low", "ci95_high", "mc_cost", "mc_ci95_low", "mc_ci95_high")
@@ -324,8 +348,7 @@ class CostCurves:
         for n, c, s in zip(names, costs, sems):
             if s is not None and s.shape != c.shape:
                 raise SweepError(f"stage_sem[{n!r}]: expected {c.shape[0]} values (one per step), found {s.shape[0]}")
-        methods = tuple(self.methods) if self.methods is not None else tuple(
-            "analytic" if s is None else "monte-carlo" for s in sems)
+        methods = tuple(self.methods) if self.methods is not None else tuple("analytic" if s is None else "monte-carlo" for s in sems)
         object.__setattr__(self, "estimators", names)
         object.__setattr__(self, "stage_costs", costs)
         object.__setattr__(self, "stage_sem", sems)
@@ -337,16 +360,18 @@ class CostCurves:
         items = list(designs.items()) if isinstance(designs, Mapping) else [(d.estimator, d) for d in designs]
         for name, d in items:
             if getattr(d, "stage_costs", None) is None:
-                raise SweepError(f"designs[{name!r}]: expected a finite-horizon design (with stage costs), "
-                                 "found a steady-state one; design with a horizon T")
+                raise SweepError(
+                    f"designs[{name!r}]: expected a finite-horizon design (with stage costs), found a steady-state one; design with a horizon T"
+                )
         return cls(tuple(n for n, _ in items), tuple(d.stage_costs for _, d in items), title=title)
 
     @classmethod
     def from_monte_carlo(cls, results: Mapping[str, Any], title: str | None = None) -> "CostCurves":
         """Monte Carlo stage costs (``monte_carlo(...)``'s mapping name -> MonteCarloResult), with standard errors."""
         names = tuple(results)
-        return cls(names, tuple(results[n].stage_mean for n in names), tuple(results[n].stage_sem for n in names),
-                   ("monte-carlo",) * len(names), title=title)
+        return cls(
+            names, tuple(results[n].stage_mean for n in names), tuple(results[n].stage_sem for n in names), ("monte-carlo",) * len(names), title=title
+        )
 
     def totals(self) -> dict[str, float]:
         """Sum of the stage costs per estimator (J_T)."""
@@ -359,8 +384,7 @@ class CostCurves:
         assert self.stage_sem is not None and self.methods is not None  # set in __post_init__
         for n, m, c, s in zip(self.estimators, self.methods, self.stage_costs, self.stage_sem):
             for k, v in enumerate(c):
-                recs.append({"estimator": n, "method": m, "t": k + 1, "stage_cost": float(v),
-                             "sem": None if s is None else float(s[k])})
+                recs.append({"estimator": n, "method": m, "t": k + 1, "stage_cost": float(v), "sem": None if s is None else float(s[k])})
         return pd.DataFrame.from_records(recs, columns=["estimator", "method", "t", "stage_cost", "sem"])
 
     def plot(self, ax: Any = None, *, log: bool = False, band: bool = True, cumulative: bool = False) -> Any:
@@ -376,8 +400,7 @@ class CostCurves:
             y = np.cumsum(c) if cumulative else c
             (line,) = ax.plot(t, y, label=n if m == "analytic" else f"{n} ({m})")
             if band and s is not None and not cumulative:
-                ax.fill_between(t, c - 1.959963984540054 * s, c + 1.959963984540054 * s, color=line.get_color(),
-                                alpha=0.2, linewidth=0)
+                ax.fill_between(t, c - 1.959963984540054 * s, c + 1.959963984540054 * s, color=line.get_color(), alpha=0.2, linewidth=0)
         ax.set_xlabel("t")
         ax.set_ylabel("sum over s <= t of E[c(x(s), z(s))]" if cumulative else "E[c(x(t), z(t))]")
         if log:

@@ -58,9 +58,9 @@ class MeasurementRelay:
         seen = set(state["seen"])
         new: list[Packet] = []
         candidates: list[Packet] = list(own) if self.omniscient else [(self.index, k, own)]
-        for (_, _, payload) in inbox:
+        for _, _, payload in inbox:
             candidates.extend(payload)
-        for (j, s, v) in candidates:
+        for j, s, v in candidates:
             if (j, s) not in seen:
                 seen.add((j, s))
                 new.append((j, s, v))

@@ -73,9 +73,14 @@ class Paths:
         return np.concatenate(self.v, axis=2)
 
 
-def sample_paths(system: LinearGaussianSystem, n_steps: int, n_runs: int, *,
-                 rng: int | np.random.SeedSequence | np.random.Generator | None,
-                 streams: Sequence[np.random.SeedSequence] | None = None) -> Paths:
+def sample_paths(
+    system: LinearGaussianSystem,
+    n_steps: int,
+    n_runs: int,
+    *,
+    rng: int | np.random.SeedSequence | np.random.Generator | None,
+    streams: Sequence[np.random.SeedSequence] | None = None,
+) -> Paths:
     """Draw ``n_runs`` independent runs of ``n_steps`` steps.
 
     Parameters
@@ -118,8 +123,9 @@ def sample_paths(system: LinearGaussianSystem, n_steps: int, n_runs: int, *,
     return Paths(x=x, y=y, w=w, v=v)
 
 
-def sample(system: LinearGaussianSystem, n_steps: int, n_runs: int, *,
-           rng: int | np.random.SeedSequence | np.random.Generator | None) -> tuple[FloatArray, list[FloatArray]]:
+def sample(
+    system: LinearGaussianSystem, n_steps: int, n_runs: int, *, rng: int | np.random.SeedSequence | np.random.Generator | None
+) -> tuple[FloatArray, list[FloatArray]]:
     """Draw x(0:T-1) and every y_i(0:T-1) for ``n_runs`` runs (see :func:`sample_paths`).
 
     Returns

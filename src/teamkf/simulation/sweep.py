@@ -133,7 +133,7 @@ import numpy as np
 from .. import _validation as V
 from ..exceptions import ScenarioError, TeamkfError
 from ..scenario import Scenario, _describe, _estimators, load_packaged, load_scenario, packaged_scenarios, read_data_file
-from .evaluate import ANALYTIC, evaluate_point
+from .evaluate import ANALYTIC, evaluate_point  # noqa: F401  (looked up by _module_evaluate)
 from .results import MANIFEST_NAME, SweepError, SweepResult, load_results
 
 __all__ = [
@@ -160,8 +160,23 @@ WORKER_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THRE
 _SWEEP_KEYS = ("scenario", "runs", "seed", "estimators", "grid", "name", "description")
 _FORMAT = "teamkf-sweep-results/1"
 # columns of a row besides the grid keys, in order (cost and mc columns only where they apply)
-_ROW_COLUMNS = ("point_id", "point_index", "estimator", "method", "total_cost", "average_cost", "ci95_low", "ci95_high",
-                "mc_cost", "mc_ci95_low", "mc_ci95_high", "runs", "seed", "sweep_seed", "teamkf_version")
+_ROW_COLUMNS = (
+    "point_id",
+    "point_index",
+    "estimator",
+    "method",
+    "total_cost",
+    "average_cost",
+    "ci95_low",
+    "ci95_high",
+    "mc_cost",
+    "mc_ci95_low",
+    "mc_ci95_high",
+    "runs",
+    "seed",
+    "sweep_seed",
+    "teamkf_version",
+)
 _MAX_SEED = 2**63 - 1
 
 
@@ -358,8 +373,11 @@ def sweep_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", source:
             raise _fail(str(k), f"unknown key in the sweep file; {hint}expected one of: {', '.join(_SWEEP_KEYS)}")
     for k in ("scenario", "grid"):
         if k not in data:
-            what = ('the base scenario, e.g. scenario = "../scenarios/platoon-4.toml" (relative to the sweep file)'
-                    if k == "scenario" else 'a [grid] table of dotted keys and value lists, e.g. "cost.lambda" = [1.0, 10.0]')
+            what = (
+                'the base scenario, e.g. scenario = "../scenarios/platoon-4.toml" (relative to the sweep file)'
+                if k == "scenario"
+                else 'a [grid] table of dotted keys and value lists, e.g. "cost.lambda" = [1.0, 10.0]'
+            )
             raise _fail(k, f"missing required key; add {what}")
 
     name = data.get("name", "sweep")
@@ -386,8 +404,7 @@ def sweep_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", source:
                 raise _fail(f"estimators[{idx}]", f"{e!r} has no analytic cost; set runs >= 2 to evaluate it by Monte Carlo")
 
     grid, kinds = _grid(data["grid"])
-    spec = SweepSpec(scenario, runs, seed, estimators, grid, base, name=name, description=description,
-                     source=source, kinds=kinds)
+    spec = SweepSpec(scenario, runs, seed, estimators, grid, base, name=name, description=description, source=source, kinds=kinds)
     cost_keys = _check_points(spec)
     object.__setattr__(spec, "cost_keys", cost_keys)
     return spec
@@ -403,7 +420,9 @@ def _int(x: Any, key: str, minimum: int) -> int:
 
 def _base_scenario(s: Any, base_dir: Path) -> tuple[str, Scenario]:
     if not isinstance(s, str) or not s.strip():
-        raise _fail("scenario", f"expected the path of a scenario file (relative to the sweep file) or a packaged scenario name, found {_describe(s)}")
+        raise _fail(
+            "scenario", f"expected the path of a scenario file (relative to the sweep file) or a packaged scenario name, found {_describe(s)}"
+        )
     p = Path(os.path.normpath(base_dir / s))
     if p.is_file():
         try:
@@ -456,10 +475,15 @@ def _grid(g: Any) -> tuple[dict[str, tuple[Any, ...]], dict[str, str]]:
     for key, values in flat.items():
         gk = _gkey(key)
         if key in _ROW_COLUMNS or key in ("estimator", "estimators", "name"):
-            hint = "set the estimators with the sweep file's estimators key" if key in ("estimator", "estimators") else "it is a column of the results"
+            hint = (
+                "set the estimators with the sweep file's estimators key" if key in ("estimator", "estimators") else "it is a column of the results"
+            )
             raise _fail(gk, f"cannot be swept ({hint})")
         if not isinstance(values, list):
-            raise _fail(gk, f"expected a non-empty list of values (one point each), found {_describe(values)}; write [{json.dumps(values) if isinstance(values, (int, float, str)) else '...'}] for a single value")
+            raise _fail(
+                gk,
+                f"expected a non-empty list of values (one point each), found {_describe(values)}; write [{json.dumps(values) if isinstance(values, (int, float, str)) else '...'}] for a single value",
+            )
         if not values:
             raise _fail(gk, "expected a non-empty list of values (one point each), found an empty list")
         found = [_kind(v) for v in values]
@@ -503,8 +527,11 @@ def _check_points(spec: SweepSpec) -> tuple[str, ...]:
             raise ScenarioError(f"{exc} (at grid point {p.index}: {p.describe()})") from None
         horizons.add(sc.horizon is None)
         if spec.runs and sc.horizon is None:
-            raise _fail("runs", f"Monte Carlo runs need a finite horizon, but grid point {p.index} ({p.describe()}) has none "
-                        "(steady state); set runs = 0 or give the scenario a horizon")
+            raise _fail(
+                "runs",
+                f"Monte Carlo runs need a finite horizon, but grid point {p.index} ({p.describe()}) has none "
+                "(steady state); set runs = 0 or give the scenario a horizon",
+            )
     seen: dict[str, int] = {}
     for p in spec.points:
         if p.point_id in seen:  # pragma: no cover - 48-bit hash collision
@@ -612,8 +639,10 @@ def run_sweep(
     def failed(p: SweepPoint, exc: BaseException) -> SweepError:
         what = str(exc) if isinstance(exc, TeamkfError) else f"{type(exc).__name__}: {exc}"
         n_kept = len(points) - len(todo) + n_ok
-        return SweepError(f"grid point {p.index} ({p.describe()}) failed: {what}; the {n_kept} finished points are kept in "
-                          f"{out}; fix the problem and run again with --resume (resume=True)")
+        return SweepError(
+            f"grid point {p.index} ({p.describe()}) failed: {what}; the {n_kept} finished points are kept in "
+            f"{out}; fix the problem and run again with --resume (resume=True)"
+        )
 
     try:
         if todo and serial:
@@ -635,8 +664,17 @@ def run_sweep(
                 token = uuid.uuid4().hex[:8]
                 by_key: dict[Any, SweepPoint] = {}
                 for p in todo:
-                    f = client.submit(run_point, fn, spec.scenario_for(p), spec.estimators, spec.runs, p.seed, pure=False,
-                                      retries=retries, key=f"teamkf-sweep-{p.point_id}-{token}")
+                    f = client.submit(
+                        run_point,
+                        fn,
+                        spec.scenario_for(p),
+                        spec.estimators,
+                        spec.runs,
+                        p.seed,
+                        pure=False,
+                        retries=retries,
+                        key=f"teamkf-sweep-{p.point_id}-{token}",
+                    )
                     futures.append(f)
                     by_key[f.key] = p
                 for f in as_completed(futures):
@@ -718,16 +756,21 @@ def local_cluster(n_workers: int | None = None, **kwargs: Any) -> Any:
     distributed = V.require("distributed", "dask")
     import dask
 
-    environ = {k: v for k, v in (dask.config.get("distributed.nanny.pre-spawn-environ", default={}) or {}).items()
-               if k != "MALLOC_TRIM_THRESHOLD_"}
+    environ = {k: v for k, v in (dask.config.get("distributed.nanny.pre-spawn-environ", default={}) or {}).items() if k != "MALLOC_TRIM_THRESHOLD_"}
     environ.update(WORKER_ENV)
     # A nanny copies pre-spawn-environ into this process's environment before it spawns (or restarts) a
     # worker, which inherits it; so a MALLOC_TRIM_THRESHOLD_ left here by an earlier Dask cluster would
     # reach our workers: it is removed for good. The other variables are put back as they were.
     saved = {k: os.environ.get(k) for k in environ}
     os.environ.pop("MALLOC_TRIM_THRESHOLD_", None)
-    options = {"threads_per_worker": 1, "processes": True, "dashboard_address": None, "silence_logs": logging.ERROR,
-               "env": dict(WORKER_ENV), **kwargs}
+    options = {
+        "threads_per_worker": 1,
+        "processes": True,
+        "dashboard_address": None,
+        "silence_logs": logging.ERROR,
+        "env": dict(WORKER_ENV),
+        **kwargs,
+    }
     try:
         with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
             return distributed.LocalCluster(n_workers=n_workers or _cpu_count(), **options)
@@ -760,8 +803,10 @@ def _open_client(scheduler: Any, n_workers: int | None) -> tuple[Any, list[Any]]
     try:
         client = distributed.Client(scheduler, timeout="10s")
     except (OSError, TimeoutError, ValueError) as exc:
-        raise SweepError(f"scheduler: cannot connect to a Dask scheduler at {scheduler!r} ({' '.join(str(exc).split())}); "
-                         "give the address of a running scheduler (tcp://host:8786), or 'local' / 'serial'") from None
+        raise SweepError(
+            f"scheduler: cannot connect to a Dask scheduler at {scheduler!r} ({' '.join(str(exc).split())}); "
+            "give the address of a running scheduler (tcp://host:8786), or 'local' / 'serial'"
+        ) from None
     return client, [client]
 
 
@@ -787,11 +832,12 @@ def _check_out(spec: SweepSpec, out: Path, resume: bool) -> set[str]:
     mine = spec.fingerprint()
     if _canonical(theirs) != _canonical(mine):
         diff = [k for k in mine if _canonical(theirs.get(k) if isinstance(theirs, dict) else None) != _canonical(mine[k])]
-        raise SweepError(f"{out}: holds results of a different sweep ({', '.join(diff) or 'format'} differ); "
-                         "choose another --out, or delete that folder to start again")
+        raise SweepError(
+            f"{out}: holds results of a different sweep ({', '.join(diff) or 'format'} differ); "
+            "choose another --out, or delete that folder to start again"
+        )
     ids = {p.point_id for p in spec.points}
-    return {e.name[len("part-"):-len(".parquet")] for e in entries
-            if e.name.startswith("part-") and e.name.endswith(".parquet")} & ids
+    return {e.name[len("part-") : -len(".parquet")] for e in entries if e.name.startswith("part-") and e.name.endswith(".parquet")} & ids
 
 
 class _Writer:
@@ -802,14 +848,22 @@ class _Writer:
         self.version = _version()
         types = {"int": pa.int64(), "float": pa.float64(), "string": pa.string(), "bool": pa.bool_(), "json": pa.string()}
         fields = [pa.field(k, types[spec.kinds.get(k, "json")]) for k in spec.grid]
-        fields += [pa.field("point_id", pa.string()), pa.field("point_index", pa.int64()),
-                   pa.field("estimator", pa.string()), pa.field("method", pa.string())]
+        fields += [
+            pa.field("point_id", pa.string()),
+            pa.field("point_index", pa.int64()),
+            pa.field("estimator", pa.string()),
+            pa.field("method", pa.string()),
+        ]
         fields += [pa.field(k, pa.float64()) for k in spec.cost_keys]
         fields += [pa.field("ci95_low", pa.float64()), pa.field("ci95_high", pa.float64())]
         if spec.runs and any(e in ANALYTIC for e in spec.estimators):
             fields += [pa.field(k, pa.float64()) for k in ("mc_cost", "mc_ci95_low", "mc_ci95_high")]
-        fields += [pa.field("runs", pa.int64()), pa.field("seed", pa.int64()), pa.field("sweep_seed", pa.int64()),
-                   pa.field("teamkf_version", pa.string())]
+        fields += [
+            pa.field("runs", pa.int64()),
+            pa.field("seed", pa.int64()),
+            pa.field("sweep_seed", pa.int64()),
+            pa.field("teamkf_version", pa.string()),
+        ]
         meta = {"teamkf.grid_keys": json.dumps(list(spec.grid)), "teamkf.sweep": spec.name}
         self.schema = pa.schema(fields, metadata=meta)
 
