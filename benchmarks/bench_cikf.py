@@ -71,9 +71,9 @@ def main() -> None:
     args = ap.parse_args()
 
     from teamkf.estimators.cikf import design_cikf
-    from teamkf.models.random_field import random_field
     from teamkf.simulation.runtime import run_graph
     from teamkf.simulation.sampling import sample_paths
+    from teamkf.study.random_field import random_field
 
     res: dict = {
         "M": args.size,

@@ -40,7 +40,7 @@ def main() -> int:
 
     import pandas as pd
 
-    from teamkf.simulation.sweep import load_sweep, local_cluster, run_sweep
+    from teamkf.study.sweep import load_sweep, local_cluster, run_sweep
 
     spec = load_sweep(args.sweep)
     n = spec.n_points

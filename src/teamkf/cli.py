@@ -47,7 +47,7 @@ def _short_version() -> str:
 # ---------------------------------------------------------------------------
 def _load(arg: str) -> Any:
     """A scenario from a path, or from the name of a packaged scenario."""
-    from .scenario import load_packaged, load_scenario, packaged_scenarios
+    from .study.scenario import load_packaged, load_scenario, packaged_scenarios
 
     p = Path(arg)
     if p.exists():
@@ -170,7 +170,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     designs = sc.designs()
     mc: dict[str, Any] = {}
     seed = args.seed
-    from .simulation.evaluate import DEFAULT_MC_RUNS
+    from .study.evaluate import DEFAULT_MC_RUNS
 
     mc_only = [name for name, d in designs.items() if d.stage_costs is None and d.average_cost is None]  # e.g. kcf
     if runs is None and mc_only:
@@ -386,7 +386,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
-    from .simulation.sweep import load_sweep, run_sweep
+    from .study.sweep import load_sweep, run_sweep
 
     spec = load_sweep(args.sweep)  # everything is checked before anything is written
     out = Path(args.out) if args.out else Path(f"{Path(args.sweep).stem}.parquet")
@@ -437,7 +437,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     print(f"\n  {_cost_label(spec.base.horizon) if key == 'total_cost' else 'average cost'} per estimator{mc}")
     print(
         f"\nresults: {out} ({len(res.rows)} rows; {res.n_computed} points computed now, {res.n_resumed} already there); "
-        f"read them with pandas.read_parquet({str(out)!r}) or teamkf.simulation.results.SweepResult.load"
+        f"read them with pandas.read_parquet({str(out)!r}) or teamkf.study.results.SweepResult.load"
     )
     return 0
 

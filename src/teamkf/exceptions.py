@@ -10,6 +10,9 @@ from __future__ import annotations
 __all__ = [
     "TeamkfError",
     "ShapeError",
+    "ArgumentError",
+    "DivergenceError",
+    "UnsupportedOperationError",
     "NotSymmetricError",
     "NotPositiveDefiniteError",
     "GraphError",
@@ -22,11 +25,75 @@ __all__ = [
 
 
 class TeamkfError(Exception):
-    """Base class of all errors raised by teamkf."""
+    """Base class of all errors raised by teamkf.
+
+    Every error names what was wrong as a structured field, so that callers
+    (the scenario reader, the CLI) can re-label it without parsing messages.
+
+    Attributes
+    ----------
+    argument : str or None
+        The offending argument as the caller wrote it (``"R[2]"``, ``"horizon"``,
+        ``"estimators[1]"``); None when the error is not about one argument.
+    detail : str
+        The message without the leading ``"argument: "``.
+    """
+
+    argument: str | None
+    detail: str
+
+    def __init__(self, message: str = "", *, argument: str | None = None) -> None:
+        message = str(message)
+        if argument is None:
+            head, sep, rest = message.partition(": ")
+            # messages are written "<argument>: <what is wrong>"; the head is an argument path
+            # when it has no spaces (``R[2]``, ``cost.lambda``, ``designs['kcf']``)
+            if sep and head and " " not in head and len(head) <= 80:
+                argument, detail = head, rest
+            else:
+                detail = message
+        else:
+            prefix = f"{argument}: "
+            detail = message[len(prefix) :] if message.startswith(prefix) else message
+            if not message.startswith(prefix):
+                message = prefix + message
+        super().__init__(message)
+        self.argument = argument
+        self.detail = detail
+
+    def rekeyed(self, key: str) -> "TeamkfError":
+        """The same error for the argument path ``key`` (same type, same detail)."""
+        err = type(self).__new__(type(self))
+        TeamkfError.__init__(err, f"{key}: {self.detail}", argument=key)
+        return err
 
 
 class ShapeError(TeamkfError, ValueError):
     """An array has the wrong shape or the dimensions of two arguments disagree."""
+
+
+class ArgumentError(TeamkfError, ValueError):
+    """An argument has a wrong value: out of range, not one of the allowed choices, the wrong type."""
+
+
+class DivergenceError(TeamkfError, FloatingPointError):
+    """A computation left the floating-point range (an estimator or a closed loop diverges)."""
+
+
+class UnsupportedOperationError(TeamkfError, NotImplementedError):
+    """A family (or a variant) does not provide an operation of the family contract.
+
+    Attributes
+    ----------
+    family : str
+    operation : str
+    """
+
+    def __init__(self, family: str, operation: str, reason: str = "") -> None:
+        why = f": {reason}" if reason else ""
+        super().__init__(f"{family}: the {family!r} family does not support {operation}{why}", argument=family)
+        self.family = family
+        self.operation = operation
 
 
 class NotSymmetricError(TeamkfError, ValueError):

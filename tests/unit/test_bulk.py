@@ -24,13 +24,8 @@ from teamkf.estimators.bulk import (
     stationarity_index,
 )
 from teamkf.exceptions import ScenarioError, ShapeError, TeamkfError
-from teamkf.models.population import (
-    PopulationModel,
-    PopulationScenario,
-    cdma_population,
-    evaluate_population,
-    population_from_dict,
-)
+from teamkf.models.population import PopulationModel, cdma_population
+from teamkf.study.population import PopulationScenario, evaluate_population, population_from_dict
 
 SCENARIOS = Path(__file__).resolve().parents[2] / "src" / "teamkf" / "scenarios"
 

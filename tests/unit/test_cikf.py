@@ -10,9 +10,9 @@ from teamkf.estimators.cikf import CIKFDesign, design_cikf, pseudo_state_model, 
 from teamkf.estimators.kalman import design_centralized
 from teamkf.estimators.riccati import is_detectable
 from teamkf.exceptions import DetectabilityError, GraphError, InformationStructureError, ShapeError
-from teamkf.models.random_field import random_field, random_field_instance
 from teamkf.simulation.runtime import run_graph
 from teamkf.simulation.sampling import sample_paths
+from teamkf.study.random_field import random_field, random_field_instance
 
 from ..helpers import eq14_information, joint_moments
 

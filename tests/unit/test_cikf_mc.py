@@ -12,8 +12,8 @@ import pytest
 from teamkf import TeamCost
 from teamkf.estimators.cikf import design_cikf
 from teamkf.estimators.kalman import design_centralized
-from teamkf.models.random_field import random_field
 from teamkf.simulation.sampling import sample_paths
+from teamkf.study.random_field import random_field
 
 K_SIGMA = 4.0  # every step's Monte Carlo mean within K_SIGMA standard errors of the iterations
 

@@ -316,7 +316,7 @@ def test_demo_quick_cli(tmp_path, capsys):
 
 def test_demo_uav_row_equals_packaged_scenario():
     """The demo's UAV n = 4, lambda/n^2 = 10 row is `teamkf evaluate uav-4`."""
-    from teamkf.scenario import load_packaged
+    from teamkf.study.scenario import load_packaged
 
     rows = experiments.run("fig3", quick=True).rows
     row = [r for r in rows if r["n"] == 4 and r["lambda/n^2"] == 10.0][0]

@@ -73,7 +73,7 @@ def test_control_scenario_and_cli(capsys):
     import json
 
     from teamkf.cli import main
-    from teamkf.scenario import load_packaged, scenario_from_dict
+    from teamkf.study.scenario import load_packaged, scenario_from_dict
 
     sc = load_packaged("lqg-2")
     assert sc.control is not None and sc.control.du == 1

@@ -1,4 +1,4 @@
-"""Unit tests for teamkf.scenario: loading, validation messages, dotted keys."""
+"""Unit tests for teamkf.study.scenario: loading, validation messages, dotted keys."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import pytest
 
 from teamkf import CommGraph, InformationStructure, LinearGaussianSystem, TeamCost
 from teamkf.exceptions import ScenarioError, TeamkfError
-from teamkf.scenario import (
+from teamkf.study.scenario import (
     AVAILABLE_ESTIMATORS,
     Scenario,
     load_packaged,
@@ -461,7 +461,7 @@ def test_cikf_in_scenarios():
 
 
 def test_population_scenarios():
-    from teamkf.models.population import PopulationScenario
+    from teamkf.study.population import PopulationScenario
 
     sc = scenario_from_dict({"name": "interference", "horizon": 50, "population": {"n_agents": 1000, "a": 2.5}})
     assert isinstance(sc, PopulationScenario) and sc.model.n_agents == 1000

@@ -1,4 +1,4 @@
-"""Unit tests for parameter sweeps: teamkf.simulation.sweep, teamkf.simulation.results and `teamkf sweep`.
+"""Unit tests for parameter sweeps: teamkf.study.sweep, teamkf.study.results and `teamkf sweep`.
 
 The Dask tests start real LocalClusters with 2 worker processes; they are
 skipped where the ``dask`` extra is not installed (``make test`` installs it).
@@ -21,10 +21,10 @@ import pytest
 from teamkf import __version__
 from teamkf.cli import main
 from teamkf.exceptions import ConvergenceError, ScenarioError
-from teamkf.simulation import sweep as sweep_mod
-from teamkf.simulation.evaluate import evaluate_point
-from teamkf.simulation.results import CostCurves, SweepError, SweepResult
-from teamkf.simulation.sweep import A_SCALE, _Progress, apply_point, load_sweep, point_id, run_sweep, sweep_from_dict
+from teamkf.study import sweep as sweep_mod
+from teamkf.study.evaluate import evaluate_point
+from teamkf.study.results import CostCurves, SweepError, SweepResult
+from teamkf.study.sweep import A_SCALE, _Progress, apply_point, load_sweep, point_id, run_sweep, sweep_from_dict
 
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGED = ROOT / "src" / "teamkf" / "scenarios"
@@ -494,8 +494,8 @@ def test_plots(tmp_path):
     kinds = SweepResult(tuple({**r, "cost.kind": "platoon" if r["cost.lambda"] == 1.0 else "ring"} for r in res.rows), ("cost.kind", "graph.delay"))
     ax4 = kinds.plot()  # non-numeric values: one tick each
     assert [t.get_text() for t in ax4.get_xticklabels()] == ["platoon", "ring"]
-    from teamkf.scenario import load_packaged
     from teamkf.simulation.monte_carlo import monte_carlo
+    from teamkf.study.scenario import load_packaged
 
     sc = load_packaged("platoon-4").updated({"horizon": 6})
     designs = sc.designs()
@@ -570,7 +570,7 @@ def test_killing_a_worker_mid_sweep(tmp_path):
         pytest.skip("needs pyarrow and pandas")
     from dask.distributed import Client
 
-    from teamkf.simulation.sweep import WORKER_ENV, local_cluster
+    from teamkf.study.sweep import WORKER_ENV, local_cluster
 
     def environ():
         return {k: os.environ.get(k) for k in (*WORKER_ENV, "MALLOC_TRIM_THRESHOLD_")}

@@ -2,8 +2,8 @@
 
 from .base import Design
 from .cikf import CIKFDesign, design_cikf
-from .consensus import KCFDesign, design_kcf
 from .kalman import CentralizedDesign, design_centralized, kalman_covariances
+from .kcf import KCFDesign, design_kcf
 from .team import StaticTeamEstimate, TeamDesign, design_mmse, design_mtmse, static_team_estimate
 
 __all__ = [

@@ -1070,7 +1070,7 @@ def design_cikf(
 
     Examples
     --------
-    >>> from teamkf.models.random_field import random_field
+    >>> from teamkf.study.random_field import random_field
     >>> from teamkf.estimators.cikf import design_cikf
     >>> system, graph = random_field(15, 6, rng=1)
     >>> d = design_cikf(system, graph, horizon=10)

@@ -5,8 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-from ..estimators.consensus import design_kcf
 from ..estimators.kalman import design_centralized
+from ..estimators.kcf import design_kcf
 from ..estimators.team import design_mmse, design_mtmse
 from ..simulation.monte_carlo import monte_carlo
 from . import plotting_available, save_figure

@@ -5,7 +5,7 @@ corrected Algorithm 2, and tr P(i+1) of the centralized KF, in dB, for i = 0..30
 (b) Monte Carlo over 1000 runs of Algorithm 1 (vectorized over runs, from the primitive noises) beside the
 theory, with 95 % intervals.
 
-The instance is :func:`teamkf.models.random_field.random_field` with seed 0 (M = N = 50, no agent detects
+The instance is :func:`teamkf.study.random_field.random_field` with seed 0 (M = N = 50, no agent detects
 the field alone, G singular because some sites are unobserved); it is drawn once and not tuned to the
 published 3 dB. The same table gives, on the filtered estimates, the MTMSE optimum with the graph's
 neighbourhood sharing of measurements (unit delay per hop, S = I, L = 1 ⊗ I), which is a lower bound for
@@ -23,7 +23,7 @@ import numpy as np
 from ..estimators.cikf import _blas_threads, design_cikf, tracking_capacity_upper_bound
 from ..estimators.kalman import kalman_covariances, predictor_errors
 from ..models import TeamCost
-from ..models.random_field import random_field_instance
+from ..study.random_field import random_field_instance
 from . import ExperimentResult, plotting_available, register, save_figure
 
 SEED = 0

@@ -18,9 +18,10 @@ the paper's discussion of IS1 vs IS2 is about.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any, Sequence
 
 from ..estimators.team import design_mtmse
-from ..network.shedding import hop_structures, pareto_front, pareto_front_nd
+from ..network.shedding import HopWindows, hop_structures, pareto_front, pareto_front_nd
 from . import ExperimentResult, plotting_available, register, save_figure
 from ._common import platoon
 
@@ -89,3 +90,8 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
         figures=figures,
         data={"dims": dims, "links": links, "J": J},
     )
+
+
+def evaluate_structures(system: Any, cost: Any, structures: Sequence[HopWindows], horizon: int | None) -> list[float]:
+    """MTMSE cost (total for a finite horizon, average otherwise) of each structure."""
+    return [design_mtmse(system, cost, h.structure, horizon).cost_value for h in structures]

@@ -1,7 +1,7 @@
 """Models: the observed process and the team cost."""
 
 from .costs import TeamCost
-from .population import PopulationModel, PopulationScenario, cdma_population
+from .population import PopulationModel, cdma_population
 from .system import LinearGaussianSystem
 
-__all__ = ["LinearGaussianSystem", "TeamCost", "PopulationModel", "PopulationScenario", "cdma_population"]
+__all__ = ["LinearGaussianSystem", "TeamCost", "PopulationModel", "cdma_population"]

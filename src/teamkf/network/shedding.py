@@ -88,8 +88,9 @@ def pareto_front_nd(points: Sequence[Sequence[float]]) -> list[int]:
     return keep
 
 
-def evaluate_structures(system: Any, cost: Any, structures: Sequence[HopWindows], horizon: int | None) -> list[float]:
-    """MTMSE cost (total for a finite horizon, average otherwise) of each structure."""
-    from ..estimators.team import design_mtmse
+def __getattr__(name: str) -> Any:  # deprecated location (moved to teamkf.experiments.shedding in 0.2)
+    if name == "evaluate_structures":
+        from ..experiments.shedding import evaluate_structures
 
-    return [design_mtmse(system, cost, h.structure, horizon).cost_value for h in structures]
+        return evaluate_structures
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -42,7 +42,7 @@ def map_points(func: Callable[[P], R], points: Iterable[P], *, scheduler: Any = 
     sched = scheduler if scheduler is not None else _SCHEDULER.get()
     if sched in (None, "serial") or len(pts) <= 1:
         return [func(p) for p in pts]
-    from .sweep import _open_client
+    from ..study.sweep import _open_client
 
     client, owned = _open_client(sched, None)
     try:

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from teamkf import CommGraph, LinearGaussianSystem, TeamCost, design_centralized, design_mtmse, run_online
-from teamkf.estimators.consensus import KCFDesign, KCFMessage, design_kcf
+from teamkf.estimators.kcf import KCFDesign, KCFMessage, design_kcf
 from teamkf.exceptions import GraphError, InformationStructureError, ShapeError, TeamkfError
 from teamkf.simulation.runtime import graph_agents, run_graph
 from teamkf.simulation.sampling import sample_paths

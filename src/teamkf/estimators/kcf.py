@@ -1,0 +1,525 @@
+r"""Kalman-consensus filter (KCF) baseline (Olfati-Saber, CDC 2007; ``design/baselines.md``).
+
+The team-MMSE paper (Afshari & Mahajan 2021, Section IV-A, its reference [17])
+compares MTMSE filtering with a "consensus Kalman filter" whose team cost it
+evaluates by Monte Carlo over 1000 sample paths: the KCF has no closed-form
+team cost, so :class:`KCFDesign` carries ``stage_costs = None`` and
+:meth:`KCFDesign.errors` / :meth:`KCFDesign.costs` give the per-run errors.
+
+Notation (steps 0-based, ``k = t - 1``)
+---------------------------------------
+=================  ==========================================================
+symbol             meaning
+=================  ==========================================================
+x̄_i(k), P_i(k)     agent i's prior and its (nominal) covariance; x̄_i(0) = 0,
+                   P_i(0) = Sigma_x
+u_j(s), U_j(s)     C_j(s)' R_j(s)^-1 y_j(s),  C_j(s)' R_j(s)^-1 C_j(s)
+J_i(k)             {i} ∪ the in-neighbours whose message is used at step k
+N_i(k)             J_i(k) \ {i}
+s_j                the step of j's message used by i at step k (``sources``)
+S_i(k)             U_i(k) + Σ_{j∈N_i(k)} U_j(s_j)           (``S_fused``)
+M_i(k)             (P_i^-1 + S_i)^-1                          (``M``)
+γ_i(k)             ε / (1 + ||M_i||_F)                        (``gamma``)
+x̂_i(k)             x̄_i + M_i (s_i - S_i x̄_i) + γ_i M_i Σ_{j∈N_i} (x̄_j(s_j) - x̄_i)
+P_i(k+1)           A(k) M_i(k) A(k)' + Q(k)
+x̄_i(k+1)           A(k) x̂_i(k)
+ẑ_i(k)             L_i(k) x̂_i(k)
+=================  ==========================================================
+
+with s_i = u_i(k) + Σ_{j∈N_i(k)} u_j(s_j).
+
+Two variants (``variant=``)
+---------------------------
+``"honest"`` (default)
+    Realizable on the delay graph. At step k agent i uses its own current
+    u_i(k) and, from each in-neighbour j, the message (u_j, U_j, x̄_j) that j
+    sent at step s_j = k - tau_ji — exactly what
+    :func:`teamkf.simulation.runtime.run_graph` delivers. Before the first
+    message has arrived (k < tau_ji) j is in neither J_i(k) nor the consensus
+    sum. The stale u_j(k - tau_ji) is fused as if it measured x(k) (that is
+    how the KCF treats the newest message; nothing corrects for the delay),
+    so on an unstable process the honest KCF's error genuinely grows like
+    (Φ(k, k - tau) - I) x.
+``"ideal"``
+    The original paper's idealization: every in-neighbour's *current*
+    (u_j(k), U_j(k), x̄_j(k)) is exchanged within the step (s_j = k for every
+    in-neighbour, delays ignored). It cannot run on a delay graph, so
+    :meth:`KCFDesign.graph_agents` raises for it; use
+    :meth:`KCFDesign.simulate`.
+
+The covariance recursion does not depend on data, so M_i(k), γ_i(k), P_i(k)
+and S_i(k) are deterministic schedules computed at design time. P_i is the
+*nominal* covariance of the KCF: it ignores the consensus term and (honest
+variant) the staleness of the fused measurements, so it is not the true error
+covariance — hence the Monte Carlo evaluation.
+
+Choice of ε
+-----------
+The default ``epsilon = 0.1`` is our choice (baselines.md leaves it open; the
+KCF needs "a small consensus step"). Since γ_i ||M_i||_F < ε, the consensus
+term of agent i is a correction of gain below ε · |N_i|; with ε = 0.1 that is
+below 1 for in-degrees up to 9, e.g. the complete graph of the ten-UAV
+formation, so the consensus correction alone never overshoots. Larger graphs
+may want a smaller ε.
+
+Computing M_i without inverting P_i
+-----------------------------------
+P_i can be singular (e.g. a singular Sigma_x or Q). With C̃ = rows(C_j(s_j),
+j ∈ J_i) and R̃ = diag(R_j(s_j)), S_i = C̃' R̃^-1 C̃ and (when P_i is
+invertible) (P_i^-1 + S_i)^-1 is exactly the Kalman update of P_i with
+(C̃, R̃); we compute it in Joseph form (:func:`teamkf.estimators.kalman.kalman_step`),
+which needs only a Cholesky of the positive definite C̃ P_i C̃' + R̃, is
+defined for singular P_i (it equals P_i (I + S_i P_i)^-1 there) and is
+symmetric positive semi-definite by construction.
+
+References
+----------
+.. [1] R. Olfati-Saber, "Distributed Kalman filtering for sensor networks",
+   Proc. 46th IEEE CDC, 2007 (the Kalman-consensus filter).
+.. [2] M. Afshari and A. Mahajan, team-MMSE filtering (2021), Section IV-A
+   (the KCF as a baseline, Monte Carlo over 1000 sample paths).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Literal, NamedTuple, Sequence
+
+import numpy as np
+import scipy.linalg as sla
+
+from .. import _validation as V
+from .._validation import FloatArray
+from ..exceptions import GraphError, InformationStructureError, ShapeError
+from ..models import LinearGaussianSystem, TeamCost
+from ..network.graph import CommGraph
+from .base import Design, check_measurements
+from .kalman import kalman_step
+
+__all__ = ["KCFDesign", "KCFAgent", "KCFMessage", "design_kcf", "VARIANTS"]
+
+Variant = Literal["honest", "ideal"]
+
+#: variant name -> one-line description (also stored in ``design.info``)
+VARIANTS: dict[str, str] = {
+    "honest": "messages (u_j, U_j, xbar_j) travel with the edge delay; agent i uses the one j sent at k - tau_ji (realizable, runs in run_graph)",
+    "ideal": "neighbours' current (u_j(k), U_j(k), xbar_j(k)) exchanged within the step, delays ignored (Olfati-Saber's idealization; not realizable on a delay graph)",
+}
+
+
+class KCFMessage(NamedTuple):
+    """What a KCF agent sends at step k: its u_i(k), the step k (indexing the deterministic U_i(k)) and its prior x̄_i(k)."""
+
+    u: FloatArray
+    step: int
+    xbar: FloatArray
+
+
+def _update(xbar: FloatArray, s: FloatArray, S: FloatArray, M: FloatArray, gamma: float, neighbour_priors: Sequence[FloatArray]) -> FloatArray:
+    """x̂ = x̄ + M (s - S x̄) + γ M Σ_j (x̄_j - x̄), batched over runs (the one kernel of both online paths)."""
+    r = s - xbar @ S.T
+    if neighbour_priors:
+        cons = neighbour_priors[0] - xbar
+        for xj in neighbour_priors[1:]:
+            cons = cons + (xj - xbar)
+        r = r + gamma * cons
+    return xbar + r @ M.T  # type: ignore[no-any-return]
+
+
+@dataclass(frozen=True, eq=False)
+class KCFDesign(Design):
+    """A Kalman-consensus filter over a horizon of T steps (see the module docstring for the equations).
+
+    Attributes
+    ----------
+    system, cost, graph
+    variant : "honest" or "ideal"
+        "honest": neighbours' messages arrive with the edge delay (realizable,
+        :meth:`graph_agents`); "ideal": neighbours' current messages within the
+        step (the original idealization, :meth:`simulate` only).
+    epsilon : float
+        Consensus step ε of γ_i = ε / (1 + ||M_i||_F).
+    P : (n, T, d_x, d_x)
+        Priors' nominal covariances P_i(k).
+    M : (n, T, d_x, d_x)
+        M_i(k) = (P_i(k)^-1 + S_i(k))^-1.
+    gamma : (n, T)
+        γ_i(k).
+    S_fused : (n, T, d_x, d_x)
+        S_i(k) = Σ_{j∈J_i(k)} U_j(s_j), the information fused at step k.
+    sources : tuple over agents of tuples over steps of ((j, s_j), ...)
+        The in-neighbours whose message agent i uses at step k and the step it
+        was sent (own measurement not listed).
+
+    ``stage_costs`` and ``average_cost`` are None: the KCF's team cost has no
+    closed form; evaluate it with :meth:`costs` over sampled paths.
+    """
+
+    system: Any = None
+    cost: Any = None
+    graph: Any = None
+    variant: str = "honest"
+    epsilon: float = 0.1
+    P: Any = None
+    M: Any = None
+    gamma: Any = None
+    S_fused: Any = None
+    sources: tuple = ()
+    G: tuple = ()
+    U: tuple = ()
+
+    # --- deterministic schedules ----------------------------------------------
+    @property
+    def n_agents(self) -> int:
+        return int(self.system.n_agents)
+
+    def G_at(self, j: int, s: int) -> FloatArray:
+        """C_j(s)' R_j(s)^-1, shape (d_x, d_y^j): u_j(s) = G_j(s) y_j(s)."""
+        g = self.G[j]
+        return g[0] if g.shape[0] == 1 else g[s]  # type: ignore[no-any-return]
+
+    def U_at(self, j: int, s: int) -> FloatArray:
+        """U_j(s) = C_j(s)' R_j(s)^-1 C_j(s)."""
+        u = self.U[j]
+        return u[0] if u.shape[0] == 1 else u[s]  # type: ignore[no-any-return]
+
+    # --- online: graph agents -------------------------------------------------
+    def graph_agents(self) -> list["KCFAgent"]:
+        """One message-passing agent per node for :func:`teamkf.simulation.runtime.run_graph` (honest variant only)."""
+        if self.variant != "honest":
+            raise InformationStructureError(
+                f"variant: graph_agents() needs the 'honest' variant, found {self.variant!r}; the ideal KCF exchanges "
+                "neighbours' current estimates within the step, which no delay graph can deliver; use design.simulate(y) "
+                "or design_kcf(..., variant='honest')"
+            )
+        return [KCFAgent(self, i) for i in range(self.n_agents)]
+
+    def agents(self) -> list[Any]:
+        raise NotImplementedError(
+            "KCF agents exchange estimates, not measurement packets: run them with "
+            "run_graph(design.graph_agents(), graph, y), or use design.simulate(y) / design.errors(paths)"
+        )
+
+    # --- helpers --------------------------------------------------------------
+    def _check_y(self, y: Any) -> tuple[list[FloatArray], int, int]:
+        return check_measurements(y, self.system, self.horizon)
+
+    # --- vectorized simulation ----------------------------------------------
+    def simulate(self, y: Any) -> FloatArray:
+        """Every agent's estimate straight from the measurements (both variants).
+
+        Parameters
+        ----------
+        y : list over agents of (n_runs, T', d_y^i) arrays (T' <= horizon), or a ``Paths``
+
+        Returns
+        -------
+        z : (n_runs, T', n d_z), agent-major. For the honest variant it equals
+            ``run_graph(design.graph_agents(), graph, y)``.
+        """
+        ys, n_runs, T = self._check_y(y)
+        n, dx, sys, cost = self.n_agents, self.system.dx, self.system, self.cost
+        keep = 1 + max((d for (_, _, d) in self.graph.edges), default=0)
+        u: dict[tuple[int, int], FloatArray] = {}
+        xbar: dict[tuple[int, int], FloatArray] = {(i, 0): np.zeros((n_runs, dx)) for i in range(n)}
+        out = np.empty((n_runs, T, n * cost.dz))
+        for k in range(T):
+            for j in range(n):
+                u[(j, k)] = ys[j][:, k] @ self.G_at(j, k).T
+            for i in range(n):
+                src = self.sources[i][k]
+                s_i = u[(i, k)]
+                for j, sj in src:
+                    s_i = s_i + u[(j, sj)]
+                xh = _update(xbar[(i, k)], s_i, self.S_fused[i, k], self.M[i, k], float(self.gamma[i, k]), [xbar[(j, sj)] for (j, sj) in src])
+                out[:, k, i * cost.dz : (i + 1) * cost.dz] = xh @ cost.L_block(i, k).T
+                if k + 1 < T:
+                    xbar[(i, k + 1)] = xh @ sys.A_at(k).T
+            for j in range(n):
+                u.pop((j, k - keep), None)
+                xbar.pop((j, k - keep), None)
+        return out
+
+    # --- cancellation-free errors --------------------------------------------
+    def errors(self, paths: Any) -> FloatArray:
+        r"""Team errors e(k) = L x(k) - ẑ(k), (n_runs, T', n d_z), from the primitive noises.
+
+        Forming x - x̂ from simulated states cancels catastrophically when x is
+        large (an unstable process: |x(99)| ~ 1e19 for the ten-UAV formation,
+        so x - x̂ keeps no digit). Instead each agent's prior error
+        ẽ_i(k) = x(k) - x̄_i(k) is propagated by a recursion in the noises.
+
+        Derivation. Write y_j(s) = C_j(s) x(s) + v_j(s), G_j(s) = C_j(s)' R_j(s)^-1,
+        U_j(s) = G_j(s) C_j(s), and δ_j(k) = x(k) - x(s_j) (zero for j = i and
+        for the ideal variant, where s_j = k). Then
+
+            s_i - S_i x̄_i = Σ_{j∈J_i} G_j (y_j(s_j) - C_j x̄_i(k))
+                          = Σ_{j∈J_i} [U_j (ẽ_i(k) - δ_j(k)) + G_j v_j(s_j)]
+                          = S_i ẽ_i + Σ_{j∈J_i} G_j v_j(s_j) - Σ_{j∈N_i} U_j δ_j,
+            x̄_j(s_j) - x̄_i(k) = (x(s_j) - ẽ_j(s_j)) - (x(k) - ẽ_i(k))
+                              = ẽ_i(k) - ẽ_j(s_j) - δ_j(k),
+
+        so with e_i⁺ = x(k) - x̂_i(k),
+
+            e_i⁺ = ẽ_i - M_i [S_i ẽ_i + Σ_{j∈J_i} G_j v_j(s_j) - Σ_{j∈N_i} U_j δ_j]
+                       - γ_i M_i Σ_{j∈N_i} (ẽ_i - ẽ_j(s_j) - δ_j),
+            ẽ_i(k+1) = A(k) e_i⁺ + w(k),   ẽ_i(0) = x(0)   (x̄_i(0) = 0),
+
+        and e_i(k) = L_i(k) e_i⁺. For the ideal variant every δ_j = 0: a
+        recursion in x(0), w and v only. For the honest variant δ_j(k) is a
+        genuine error term (a delayed measurement of x(s_j) fused as one of
+        x(k)); it is of the order of x on an unstable process, and so is the
+        honest KCF's error: nothing cancels there. We form it without the
+        difference x(k) - x(s_j) of two large numbers, by telescoping
+        x(s+1) - x(s) = (A(s) - I) x(s) + w(s):
+
+            δ_j(k) = Σ_{s=s_j}^{k-1} [(A(s) - I) x(s) + w(s)],
+
+        accurate to round-off relative to |A - I| |x| + |w| (better than
+        relative to |x| when A is close to I).
+
+        Parameters
+        ----------
+        paths : ``teamkf.simulation.sampling.Paths`` (x, y, w, v), T' <= horizon steps
+        """
+        n, dx, sys, cost = self.n_agents, self.system.dx, self.system, self.cost
+        x = V.as_float_array(paths.x, "paths.x")
+        if x.ndim != 3 or x.shape[2] != dx:
+            raise ShapeError(f"paths.x: expected shape (n_runs, n_steps, {dx}), found {x.shape}")
+        n_runs, T = x.shape[:2]
+        if T > self.horizon:  # type: ignore[operator]
+            raise ShapeError(f"paths: expected at most horizon = {self.horizon} steps, found {T}")
+        w = np.asarray(paths.w, dtype=float)
+        v = [np.asarray(vi, dtype=float) for vi in paths.v]
+        if w.shape != (n_runs, max(T - 1, 0), dx) or len(v) != n or any(vi.shape != (n_runs, T, sys.dy[i]) for i, vi in enumerate(v)):
+            raise ShapeError(
+                f"paths: expected w of shape {(n_runs, max(T - 1, 0), dx)} and {n} noise arrays v[i] of shape "
+                f"(n_runs, {T}, d_y^i), found w {w.shape} and {[vi.shape for vi in v]}"
+            )
+        keep = 1 + max((d for (_, _, d) in self.graph.edges), default=0)
+        eye = np.eye(dx)
+        incr: dict[int, FloatArray] = {}  # x(s+1) - x(s)
+        delta: dict[tuple[int, int], FloatArray] = {}  # (k, tau) -> x(k) - x(k - tau)
+        Gv: dict[tuple[int, int], FloatArray] = {}
+        et: dict[tuple[int, int], FloatArray] = {(i, 0): x[:, 0].copy() for i in range(n)}
+        out = np.empty((n_runs, T, n * cost.dz))
+
+        def delta_at(k: int, tau: int) -> FloatArray:
+            if (k, tau) not in delta:
+                acc = incr[k - tau]
+                for s in range(k - tau + 1, k):
+                    acc = acc + incr[s]
+                delta[(k, tau)] = acc
+            return delta[(k, tau)]
+
+        for k in range(T):
+            if k + 1 < T:
+                incr[k] = x[:, k] @ (sys.A_at(k) - eye).T + w[:, k]
+            for j in range(n):
+                Gv[(j, k)] = v[j][:, k] @ self.G_at(j, k).T
+            for i in range(n):
+                src = self.sources[i][k]
+                ei = et[(i, k)]
+                r = ei @ self.S_fused[i, k].T + Gv[(i, k)]
+                cons = np.zeros_like(ei)
+                for j, sj in src:
+                    r = r + Gv[(j, sj)]
+                    c = ei - et[(j, sj)]
+                    if sj != k:
+                        d = delta_at(k, k - sj)
+                        r = r - d @ self.U_at(j, sj).T
+                        c = c - d
+                    cons = cons + c
+                ep = ei - (r + float(self.gamma[i, k]) * cons) @ self.M[i, k].T
+                out[:, k, i * cost.dz : (i + 1) * cost.dz] = ep @ cost.L_block(i, k).T
+                if k + 1 < T:
+                    et[(i, k + 1)] = ep @ sys.A_at(k).T + w[:, k]
+            for j in range(n):
+                et.pop((j, k - keep), None)
+                Gv.pop((j, k - keep), None)
+            incr.pop(k - keep, None)
+            for key in [key for key in delta if key[0] < k]:
+                del delta[key]
+        return out
+
+    def costs(self, paths: Any) -> FloatArray:
+        """Team cost c(x(k), ẑ(k)) = e' S e per run and step, (n_runs, T'), from :meth:`errors`.
+
+        The Monte Carlo team cost J_T is ``costs(paths).sum(axis=1).mean()``.
+        """
+        e = self.errors(paths)
+        return np.stack([np.einsum("ra,ab,rb->r", e[:, k], self.cost.S_at(k), e[:, k]) for k in range(e.shape[1])], axis=1)
+
+
+class KCFAgent:
+    """Agent i of the honest KCF on the message-passing runtime.
+
+    Its state holds only its own prior x̄_i (n_runs, d_x). At step k it
+    receives y_i(k) and the messages :class:`KCFMessage` (u_j, s, x̄_j) its
+    in-neighbours sent at s = k - tau_ji, returns ẑ_i(k) = L_i x̂_i(k) and sends
+    (u_i(k), k, x̄_i(k)) — U_i(k) is the deterministic schedule entry of step k.
+    """
+
+    def __init__(self, design: KCFDesign, index: int):
+        self.design = design
+        self.index = index
+        self.system: LinearGaussianSystem = design.system
+        self.cost: TeamCost = design.cost
+
+    def init_state(self, n_runs: int) -> dict[str, FloatArray]:
+        return {"xbar": np.zeros((n_runs, self.system.dx))}
+
+    def step(
+        self, state: dict[str, FloatArray], k: int, own: FloatArray, inbox: Sequence[Any]
+    ) -> tuple[dict[str, FloatArray], FloatArray, KCFMessage]:
+        d, i = self.design, self.index
+        if k >= d.horizon:  # type: ignore[operator]
+            raise ShapeError(f"k: the KCF was designed for horizon = {d.horizon} steps, found step {k}; design a longer horizon")
+        src = d.sources[i][k]
+        got = {(j, s): p for (j, s, p) in inbox}
+        if sorted(got) != sorted(src):
+            raise InformationStructureError(
+                f"KCF agent {i} at step {k}: expected messages {sorted(src)} (sender, sent step) as designed on the graph, "
+                f"found {sorted(got)}; run it on the graph it was designed for"
+            )
+        xbar = state["xbar"]
+        u_i = np.asarray(own, dtype=float) @ d.G_at(i, k).T
+        s_i = u_i
+        for key in src:
+            s_i = s_i + got[key].u
+        xh = _update(xbar, s_i, d.S_fused[i, k], d.M[i, k], float(d.gamma[i, k]), [got[key].xbar for key in src])
+        z = xh @ self.cost.L_block(i, k).T
+        nxt = xh @ self.system.A_at(k).T if k + 1 < d.horizon else xh  # type: ignore[operator]
+        return {"xbar": nxt}, z, KCFMessage(u_i, k, xbar)
+
+
+def _epsilon(epsilon: Any) -> float:
+    if isinstance(epsilon, (bool, np.bool_)):
+        raise ShapeError(f"epsilon: expected a finite consensus step > 0 (e.g. 0.1), found {epsilon!r}")
+    try:
+        eps = float(epsilon)
+    except (TypeError, ValueError):
+        raise ShapeError(f"epsilon: expected a finite consensus step > 0 (e.g. 0.1), found {epsilon!r}") from None
+    if not np.isfinite(eps) or eps <= 0:
+        raise ShapeError(f"epsilon: expected a finite consensus step > 0 (e.g. 0.1), found {eps}")
+    return eps
+
+
+def design_kcf(
+    system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, horizon: int | None, *, epsilon: float = 0.1, variant: Variant = "honest"
+) -> KCFDesign:
+    """Design the Kalman-consensus filter: the deterministic schedules M_i(k), γ_i(k), P_i(k), S_i(k).
+
+    Parameters
+    ----------
+    system, cost
+    graph : CommGraph
+        Who talks to whom and with which delay (strong connectivity is not
+        required; its size must match the system's).
+    horizon : int
+        Number of steps T. A steady-state KCF is not provided (None raises).
+    epsilon : float > 0
+        Consensus step ε, γ_i = ε / (1 + ||M_i||_F). The default 0.1 is our
+        choice: it keeps ε · in-degree < 1 up to in-degree 9 (module docstring).
+    variant : "honest" or "ideal"
+        "honest": neighbours' messages arrive with the edge delay (realizable;
+        ``graph_agents()`` + ``run_graph``). "ideal": neighbours' current
+        messages within the step (the original idealization; ``simulate`` only).
+
+    Examples
+    --------
+    >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph
+    >>> from teamkf.estimators.kcf import design_kcf
+    >>> d = design_kcf(LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 10.0), CommGraph.line(4), 20)
+    >>> d.estimator, d.horizon, d.info["variant"], d.stage_costs is None
+    ('kcf', 20, 'honest', True)
+    """
+    if not isinstance(system, LinearGaussianSystem):
+        raise ShapeError(f"system: expected a LinearGaussianSystem, found {type(system).__name__}")
+    if not isinstance(cost, TeamCost):
+        raise ShapeError(f"cost: expected a TeamCost, found {type(cost).__name__}")
+    cost.check_system(system.dx, system.n_agents)
+    if not isinstance(graph, CommGraph):
+        raise GraphError(f"graph: expected a CommGraph, found {type(graph).__name__}; build one with CommGraph.complete/line/from_edges")
+    n = system.n_agents
+    if graph.n_agents != n:
+        raise GraphError(f"graph: expected a graph of {n} agents (as the system), found one of {graph.n_agents}")
+    if variant not in VARIANTS:
+        raise ShapeError(f"variant: expected 'honest' or 'ideal', found {variant!r}")
+    eps = _epsilon(epsilon)
+    if horizon is None:
+        raise ShapeError(
+            "horizon: the KCF has no steady-state (infinite-horizon) design here, found horizon=None; "
+            "give a finite number of steps T (its cost is evaluated by Monte Carlo over T steps)"
+        )
+    T = V.positive_int(horizon, "horizon")
+    system.require_horizon(T)
+    cost.require_horizon(T)
+    dx = system.dx
+
+    # per-agent local information maps G_j(s) = C_j' R_j^-1 and U_j(s) = G_j C_j
+    G, U = [], []
+    for j in range(n):
+        constant = system.C[j].shape[0] == 1 and system.R[j].shape[0] == 1
+        Gj, Uj = [], []
+        for s in range(1 if constant else T):
+            C, R = system.C_at(j, s), system.R_at(j, s)
+            g = sla.cho_solve(sla.cho_factor(R, lower=True), C).T
+            Gj.append(g)
+            Uj.append(0.5 * (g @ C + (g @ C).T))
+        G.append(V.frozen(np.stack(Gj)))
+        U.append(V.frozen(np.stack(Uj)))
+
+    ins = [[(j, graph.delay(j, i)) for j in graph.in_neighbors(i)] for i in range(n)]
+    if variant == "honest":
+        sources = tuple(tuple(tuple((j, k - d) for (j, d) in ins[i] if k - d >= 0) for k in range(T)) for i in range(n))
+    else:
+        sources = tuple(tuple(tuple((j, k) for (j, _) in ins[i]) for k in range(T)) for i in range(n))
+
+    P = np.empty((n, T, dx, dx))
+    M = np.empty((n, T, dx, dx))
+    S_f = np.empty((n, T, dx, dx))
+    gam = np.empty((n, T))
+    for i in range(n):
+        P[i, 0] = system.Sigma_x
+        for k in range(T):
+            fused = [(i, k), *sources[i][k]]
+            Ct = np.vstack([system.C_at(j, s) for (j, s) in fused])
+            Rt = sla.block_diag(*[system.R_at(j, s) for (j, s) in fused])
+            _, Mk = kalman_step(P[i, k], Ct, Rt)  # (P^-1 + S)^-1 in Joseph form, P may be singular
+            M[i, k] = Mk
+            Sk = np.zeros((dx, dx))
+            for j, s in fused:
+                Sk = Sk + (U[j][0] if U[j].shape[0] == 1 else U[j][s])
+            S_f[i, k] = Sk
+            gam[i, k] = eps / (1.0 + np.linalg.norm(Mk, "fro"))
+            if k + 1 < T:
+                A = system.A_at(k)
+                Pn = A @ Mk @ A.T + system.Q_at(k)
+                P[i, k + 1] = 0.5 * (Pn + Pn.T)
+    info = {
+        "variant": variant,
+        "epsilon": eps,
+        "variant_description": VARIANTS[variant],
+        "realizable": variant == "honest",
+        "cost_method": "monte-carlo",
+    }
+    return KCFDesign(
+        "kcf",
+        T,
+        None,
+        None,
+        info,
+        system,
+        cost,
+        graph,
+        variant,
+        eps,
+        V.frozen(P),
+        V.frozen(M),
+        V.frozen(gam),
+        V.frozen(S_f),
+        sources,
+        tuple(G),
+        tuple(U),
+    )

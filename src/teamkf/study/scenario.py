@@ -1,0 +1,760 @@
+"""Scenario files: a model, a graph, a cost and the estimators to compare, without Python.
+
+A scenario is a TOML file (or a JSON file with the same keys, recognised by the
+``.json`` extension). The keys are a contract (``design/scenario-and-cli.md``):
+
+=================  ============================================================
+key                meaning
+=================  ============================================================
+name               scenario name (default: the file's stem)
+horizon            T; omit it for the infinite-horizon (steady-state) design
+description        free text (optional)
+[system]           ``A``, ``Q``, ``Sigma_x`` (required)
+[[agents]]         one table per agent, in agent order: ``C``, ``R``
+[graph]            ``edges = [[from, to, delay], ...]`` or
+                   ``kind = "complete" | "line" | "ring" | "star"`` with
+                   ``delay`` (default 1); ``directed`` (ring), ``center`` (star)
+[cost]             ``kind = "average" | "platoon" | "ring" | "mse"`` with
+                   ``lambda`` (not for "mse"), or explicit ``S`` and ``L``
+[information]      optional reduced structure: ``common_lag`` and ``local``
+estimators         names to compare: "mtmse", "mmse", "centralized"
+=================  ============================================================
+
+Matrices are nested lists (rows); a covariance written as a number q means
+q·I of the right size (also ``S`` when ``L`` fixes the size). Agents are
+numbered from 0. Every matrix may be time-varying: a list of matrices indexed
+by the step.
+
+Every problem is reported as a :class:`~teamkf.exceptions.ScenarioError`
+whose message starts with the key path, e.g.
+``agents[2].R: expected a 4x4 symmetric positive definite matrix, found 3x3``.
+
+Examples
+--------
+>>> from teamkf.study.scenario import load_packaged, set_dotted
+>>> sc = load_packaged("platoon-4")
+>>> sc.name, sc.horizon, sc.estimators
+('platoon-4', 100, ('mtmse', 'mmse', 'centralized'))
+>>> sc2 = sc.updated({"cost.lambda": 10.0, "horizon": 20})
+>>> round(sc2.design("mtmse").total_cost, 2) <= round(sc2.design("mmse").total_cost, 2)
+True
+"""
+
+from __future__ import annotations
+
+import copy
+import difflib
+import json
+import re
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from .. import _validation as V
+from ..exceptions import ScenarioError, TeamkfError
+from ..models import LinearGaussianSystem, TeamCost
+from ..network import CommGraph, InformationStructure
+
+__all__ = [
+    "Scenario",
+    "load_scenario",
+    "scenario_from_dict",
+    "set_dotted",
+    "packaged_scenarios",
+    "load_packaged",
+    "AVAILABLE_ESTIMATORS",
+    "RESERVED_ESTIMATORS",
+]
+
+#: estimators this version of teamkf can design from a scenario
+AVAILABLE_ESTIMATORS: tuple[str, ...] = ("mtmse", "mmse", "centralized", "kcf", "cikf")
+#: names kept for estimators of later versions (Kalman-consensus, Consensus+Innovations KF)
+RESERVED_ESTIMATORS: tuple[str, ...] = ()
+
+_TOP_KEYS = ("name", "horizon", "description", "system", "agents", "graph", "cost", "information", "estimators", "kcf", "control")
+_SYSTEM_KEYS = ("A", "Q", "Sigma_x")
+_AGENT_KEYS = ("C", "R")
+_GRAPH_KINDS = ("complete", "line", "ring", "star")
+_COST_KINDS = ("average", "platoon", "ring", "mse")
+_INFO_KEYS = ("common_lag", "local")
+
+
+def _version() -> str:
+    from .. import __version__
+
+    return str(__version__)
+
+
+def _fail(key: str, message: str) -> ScenarioError:
+    err = ScenarioError(f"{key}: {message}")
+    err.key = key  # type: ignore[attr-defined]
+    return err
+
+
+# ---------------------------------------------------------------------------
+# the scenario
+# ---------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class Scenario:
+    """A validated scenario: everything needed to design and compare estimators.
+
+    Attributes
+    ----------
+    name : str
+    horizon : int or None
+        T, or None for the infinite-horizon (steady-state) design.
+    system : LinearGaussianSystem
+    cost : TeamCost
+    graph : CommGraph
+    information : InformationStructure
+        From ``[information]`` (checked against the graph) or the graph's full structure.
+    estimators : tuple of str
+    raw : dict
+        The scenario as read (plain data); :meth:`updated` starts from it.
+    source : str
+        Where it came from (a path, or ``"<dict>"``).
+    """
+
+    name: str
+    horizon: int | None
+    system: LinearGaussianSystem
+    cost: TeamCost
+    graph: CommGraph
+    information: InformationStructure
+    estimators: tuple[str, ...]
+    raw: dict[str, Any] = field(repr=False, default_factory=dict)
+    source: str = "<dict>"
+
+    @property
+    def n_agents(self) -> int:
+        return self.system.n_agents
+
+    @property
+    def has_reduced_information(self) -> bool:
+        """True when the scenario gives its own ``[information]`` structure."""
+        return "information" in self.raw
+
+    def design(self, estimator: str, horizon: Any = "scenario") -> Any:
+        """Design one estimator (default horizon: the scenario's; None for the steady state)."""
+        T = self.horizon if horizon == "scenario" else horizon
+        _check_estimator(estimator, "estimator")
+        return _DESIGNERS[estimator](self, T)
+
+    def designs(self, estimators: Sequence[str] | None = None, horizon: Any = "scenario") -> dict[str, Any]:
+        """Design every estimator of the scenario (or of ``estimators``), in order: name -> design."""
+        names = self.estimators if estimators is None else tuple(estimators)
+        return {name: self.design(name, horizon) for name in names}
+
+    @property
+    def control(self) -> Any:
+        """The decentralized LQG problem of a ``[control]`` table (B, Q_x, R_u), or None."""
+        return _control(self.raw["control"], self.system, self.horizon) if "control" in self.raw else None
+
+    def updated(self, values: Mapping[str, Any]) -> "Scenario":
+        """A new scenario with dotted keys replaced, e.g. ``{"cost.lambda": 10.0, "graph.delay": 2}``."""
+        d = self.raw
+        for key, value in values.items():
+            d = set_dotted(d, key, value)
+        return scenario_from_dict(d, source=self.source)
+
+
+def _design_mtmse(sc: Scenario, T: int | None) -> Any:
+    from ..estimators import design_mtmse
+
+    return design_mtmse(sc.system, sc.cost, sc.information, T)
+
+
+def _design_mmse(sc: Scenario, T: int | None) -> Any:
+    from ..estimators import design_mmse
+
+    return design_mmse(sc.system, sc.cost, sc.information, T)
+
+
+def _design_centralized(sc: Scenario, T: int | None) -> Any:
+    from ..estimators import design_centralized
+
+    return design_centralized(sc.system, sc.cost, T)
+
+
+def _kcf_options(raw: Mapping[str, Any]) -> dict[str, Any]:
+    """``[kcf]``: epsilon (> 0, default 0.1) and variant ("honest" | "ideal", default "honest")."""
+    t = raw.get("kcf", {})
+    if not isinstance(t, Mapping):
+        raise _fail("kcf", f'expected a table (epsilon = 0.1, variant = "honest"), found {_describe(t)}')
+    _check_keys(t, ("epsilon", "variant"), "kcf.")
+    eps = t.get("epsilon", 0.1)
+    if isinstance(eps, bool) or not isinstance(eps, (int, float)) or not eps > 0 or eps != eps or eps == float("inf"):
+        raise _fail("kcf.epsilon", f"expected a positive number (the consensus step), found {eps!r}")
+    variant = t.get("variant", "honest")
+    if variant not in ("honest", "ideal"):
+        raise _fail(
+            "kcf.variant", f'expected "honest" (messages over the graph, with delays) or "ideal" (exchange within the step), found {variant!r}'
+        )
+    return {"epsilon": float(eps), "variant": variant}
+
+
+def _design_kcf(sc: Scenario, T: int | None) -> Any:
+    from ..estimators.kcf import design_kcf
+
+    if T is None:
+        raise _fail("horizon", "the Kalman-consensus filter (kcf) is evaluated by Monte Carlo over a finite horizon; give horizon = T")
+    return design_kcf(sc.system, sc.cost, sc.graph, T, **_kcf_options(sc.raw))
+
+
+def _design_cikf(sc: Scenario, T: int | None) -> Any:
+    from ..estimators.cikf import design_cikf
+
+    if T is None:
+        raise _fail("horizon", "the consensus+innovations KF (cikf) is designed over a finite horizon; give horizon = T")
+    return design_cikf(sc.system, sc.graph, T, cost=sc.cost)
+
+
+_DESIGNERS: dict[str, Callable[[Scenario, int | None], Any]] = {
+    "mtmse": _design_mtmse,
+    "mmse": _design_mmse,
+    "centralized": _design_centralized,
+    "kcf": _design_kcf,
+    "cikf": _design_cikf,
+}
+
+
+# ---------------------------------------------------------------------------
+# loading
+# ---------------------------------------------------------------------------
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate a scenario file (TOML, or JSON when the name ends in ``.json``).
+
+    Raises
+    ------
+    FileNotFoundError
+        If there is no such file.
+    ScenarioError
+        On a syntax error (with the file name, line and column) or an invalid
+        scenario (the message starts with the key path).
+    """
+    p = Path(path)
+    data = read_data_file(p)
+    if "name" not in data:
+        data = {"name": p.stem, **data}
+    return scenario_from_dict(data, source=str(p))
+
+
+def read_data_file(p: Path) -> dict[str, Any]:
+    """The table in a TOML file (or a JSON file, by its suffix); one clear ScenarioError otherwise."""
+    try:
+        text = p.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(f"{p}: expected a UTF-8 text file (TOML or JSON), found undecodable bytes at position {exc.start}") from None
+    if p.suffix.lower() == ".json":
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise ScenarioError(f"{p}: invalid JSON: {exc.msg} (at line {exc.lineno}, column {exc.colno})") from None
+    else:
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise ScenarioError(f"{p}: invalid TOML: {exc}") from None
+    if not isinstance(data, dict):
+        raise ScenarioError(f"{p}: expected a table (JSON object) at the top level, found {type(data).__name__}")
+    return data
+
+
+def scenario_from_dict(d: Mapping[str, Any], source: str = "<dict>") -> Scenario:
+    """Validate plain data (as read from TOML or JSON) into a :class:`Scenario`."""
+    if not isinstance(d, Mapping):
+        raise ScenarioError(f"scenario: expected a table of keys, found {type(d).__name__}")
+    raw = copy.deepcopy(dict(d))
+    if "population" in raw:  # an interference-coupled population (the bulk-filter paper)
+        from .population import population_from_dict
+
+        return population_from_dict(raw)  # type: ignore[return-value]
+    _hoist_estimators(raw)
+    _check_keys(raw, _TOP_KEYS, "")
+    for key in ("system", "agents", "graph", "cost", "estimators"):
+        if key not in raw:
+            raise _fail(key, f"missing required key; {_HINTS[key]}")
+
+    name = raw.get("name", Path(source).stem if source != "<dict>" else "scenario")
+    if not isinstance(name, str) or not name.strip():
+        raise _fail("name", f"expected a non-empty string, found {name!r}")
+    horizon = _horizon(raw.get("horizon"))
+    system = _system(raw["system"], raw["agents"])
+    n = system.n_agents
+    graph = _graph(raw["graph"], n)
+    cost = _cost(raw["cost"], system)
+    if "information" in raw:
+        information = _information(raw["information"], n, graph)
+    else:
+        information = InformationStructure.from_graph(graph)
+    _check_horizon(system, cost, horizon)
+    estimators = _estimators(raw["estimators"])
+    if "kcf" in raw:
+        _kcf_options(raw)
+    if "control" in raw:
+        _control(raw["control"], system, horizon)
+    if "kcf" in estimators and horizon is None:
+        raise _fail("estimators", "kcf needs a finite horizon (it is evaluated by Monte Carlo); give horizon = T or remove kcf")
+    return Scenario(name, horizon, system, cost, graph, information, estimators, raw, source)
+
+
+def _hoist_estimators(raw: dict[str, Any]) -> None:
+    """Accept ``estimators = [...]`` written after the last table header.
+
+    In TOML a key written after ``[cost]`` (or ``[information]``) belongs to
+    that table; the contract's example is written that way, so a top-level
+    ``estimators`` missing from the top but present in exactly one table is
+    moved to the top (in ``raw`` too).
+    """
+    if "estimators" in raw:
+        return
+    holders = [k for k in ("system", "graph", "cost", "information") if isinstance(raw.get(k), Mapping) and "estimators" in raw[k]]
+    if len(holders) == 1:
+        table = dict(raw[holders[0]])
+        raw["estimators"] = table.pop("estimators")
+        raw[holders[0]] = table
+
+
+_HINTS = {
+    "system": "add a [system] table with A, Q and Sigma_x",
+    "agents": "add one [[agents]] table (C, R) per agent",
+    "graph": 'add a [graph] table with edges = [[from, to, delay], ...] or kind = "complete" | "line" | "ring" | "star"',
+    "cost": 'add a [cost] table with kind = "average" | "platoon" | "ring" | "mse" (and lambda), or S and L',
+    "estimators": 'add estimators = ["mtmse", "mmse", "centralized"]',
+    "system.A": "the state transition matrix, as nested lists (rows)",
+    "system.Q": "the process-noise covariance (a number q means q*I)",
+    "system.Sigma_x": "the covariance of the initial state (a number q means q*I)",
+}
+
+
+# ---------------------------------------------------------------------------
+# pieces
+# ---------------------------------------------------------------------------
+def _check_keys(table: Mapping[str, Any], allowed: Sequence[str], prefix: str) -> None:
+    for k in table:
+        if k not in allowed:
+            key = f"{prefix}{k}"
+            close = difflib.get_close_matches(str(k), list(allowed), n=1, cutoff=0.6)
+            hint = f"did you mean {close[0]!r}? " if close else ""
+            raise _fail(key, f"unknown key; {hint}expected one of: {', '.join(allowed)}")
+
+
+def _table(x: Any, key: str, example: str) -> dict[str, Any]:
+    if not isinstance(x, Mapping):
+        raise _fail(key, f"expected a table ({example}), found {_describe(x)}")
+    return dict(x)
+
+
+from .._validation import describe as _describe  # noqa: E402
+
+
+def _numeric(x: Any, key: str, *, scalar_ok: bool = True) -> Any:
+    """Check that ``x`` is a number or a (possibly 3-D) rectangular nested list of numbers."""
+
+    def walk(v: Any, where: str) -> tuple[int, ...]:
+        if isinstance(v, bool) or not isinstance(v, (int, float, list)):
+            raise _fail(key, f"expected a number or nested lists of numbers, found {_describe(v)}{' at ' + where if where else ''}")
+        if not isinstance(v, list):
+            return ()
+        if not v:
+            raise _fail(key, f"expected a non-empty list{' at ' + where if where else ''}; write matrices as nested lists (rows)")
+        shapes = [walk(e, f"{where}[{i}]") for i, e in enumerate(v)]
+        for i, s in enumerate(shapes):
+            if s != shapes[0]:
+
+                def size(sh: tuple[int, ...]) -> str:
+                    return "a number" if not sh else (f"{sh[0]} entries" if len(sh) == 1 else f"shape {V.shape_str(sh)}")
+
+                raise _fail(
+                    key,
+                    f"expected rows of equal length, found {where}[0] with {size(shapes[0])} and {where}[{i}] with {size(s)}"
+                    if where
+                    else f"expected rows of equal length, found row 0 with {size(shapes[0])} and row {i} with {size(s)}",
+                )
+        return (len(v), *shapes[0])
+
+    walk(x, "")
+    if not scalar_ok and not isinstance(x, list):
+        raise _fail(key, f"expected a matrix (nested lists of rows), found {_describe(x)}")
+    return x
+
+
+# messages of the model constructors start with the argument name as the model calls it;
+# these rules turn it into the scenario's key path (the rest of the message is kept)
+_SYSTEM_RULES = [
+    (re.compile(r"^R\[(\d+)\]"), r"agents[\1].R"),
+    (re.compile(r"^C\[(\d+)\]"), r"agents[\1].C"),
+    (re.compile(r"^[RC]$"), "agents"),
+    (re.compile(r"^(A|Q|Sigma_x)(?=$|\[)"), r"system.\1"),
+    (re.compile(r"^system\b"), r"\g<0>"),
+]
+_COST_RULES = [
+    (re.compile(r"^(S|L)(?=$|\[)"), r"cost.\1"),
+    (re.compile(r"^lambda$"), "cost.lambda"),
+    (re.compile(r"^n_agents$"), "cost"),
+    (re.compile(r"^cost\b"), r"\g<0>"),
+]
+_GRAPH_RULES = [
+    (re.compile(r"^edges\b"), r"graph.\g<0>"),
+    (re.compile(r"^(delay|center|directed|n)$"), r"graph.\1"),
+    (re.compile(r"^graph\b"), r"\g<0>"),
+]
+_INFO_RULES = [
+    (re.compile(r"^(local|common_lag)\b"), r"information.\g<0>"),
+    (re.compile(r"^graph\b"), r"\g<0>"),
+]
+
+
+def _rekey(exc: TeamkfError, section: str, rules: Sequence[tuple[re.Pattern[str], str]]) -> ScenarioError:
+    msg = str(exc)
+    head, sep, rest = msg.partition(": ")
+    if sep:
+        for pat, repl in rules:
+            if pat.search(head):
+                new_head = pat.sub(repl, head, count=1)
+                err = ScenarioError(f"{new_head}: {rest}")
+                err.key = new_head.split(" ")[0]  # type: ignore[attr-defined]
+                return err
+    return _fail(section, msg)
+
+
+def _control(c_tab: Any, system: LinearGaussianSystem, horizon: int | None) -> Any:
+    """``[control]``: B (d_x x n d_u), Q_x (state weight), R_u (control weight) -> an LQGProblem (Appendix D)."""
+    from ..control.lqg import LQGProblem
+
+    c = _table(c_tab, "control", "B, Q_x and R_u")
+    _check_keys(c, ("B", "Q_x", "R_u"), "control.")
+    for k in ("B", "Q_x", "R_u"):
+        if k not in c:
+            raise _fail(f"control.{k}", "missing required key; [control] needs B (d_x x n d_u), Q_x and R_u (a number q means q*I)")
+    if horizon is None or horizon < 2:
+        raise _fail("horizon", "a [control] scenario needs a finite horizon T >= 2 (decentralized LQG over T steps)")
+    B = _numeric(c["B"], "control.B", scalar_ok=False)
+    try:
+        return LQGProblem(system, B=B, Q_x=_numeric(c["Q_x"], "control.Q_x"), R_u=_numeric(c["R_u"], "control.R_u"))
+    except TeamkfError as exc:
+        raise _rekey(exc, "control", [(re.compile(r"^(B|Q_x|R_u)$"), r"control.\1"), (re.compile(r"^system\b"), "system")]) from exc
+
+
+def _horizon(h: Any) -> int | None:
+    if h is None:
+        return None
+    if isinstance(h, bool) or not isinstance(h, (int, float)) or (isinstance(h, float) and not h.is_integer()) or h < 1:
+        raise _fail("horizon", f"expected an integer number of steps >= 1, found {_describe(h)}; omit horizon for the steady-state design")
+    return int(h)
+
+
+def _system(sys_tab: Any, agents: Any) -> LinearGaussianSystem:
+    s = _table(sys_tab, "system", "[system] with A, Q, Sigma_x")
+    _check_keys(s, _SYSTEM_KEYS, "system.")
+    for k in _SYSTEM_KEYS:
+        if k not in s:
+            raise _fail(f"system.{k}", f"missing required key; {_HINTS['system.' + k]}")
+    A = _numeric(s["A"], "system.A", scalar_ok=False)
+    Q = _numeric(s["Q"], "system.Q")
+    Sx = _numeric(s["Sigma_x"], "system.Sigma_x")
+    if not isinstance(agents, list) or not agents:
+        raise _fail("agents", f"expected a non-empty list of agent tables ([[agents]] with C and R), found {_describe(agents)}")
+    C, R = [], []
+    for i, a in enumerate(agents):
+        at = _table(a, f"agents[{i}]", "[[agents]] with C and R")
+        _check_keys(at, _AGENT_KEYS, f"agents[{i}].")
+        for k in _AGENT_KEYS:
+            if k not in at:
+                what = "the measurement matrix C_i (rows x d_x)" if k == "C" else "the measurement-noise covariance R_i (a number r means r*I)"
+                raise _fail(f"agents[{i}].{k}", f"missing required key; {what}")
+        C.append(_numeric(at["C"], f"agents[{i}].C", scalar_ok=False))
+        R.append(_numeric(at["R"], f"agents[{i}].R"))
+    try:
+        return LinearGaussianSystem(A=A, Q=Q, Sigma_x=Sx, C=C, R=R)
+    except TeamkfError as exc:
+        err = _rekey(exc, "system", _SYSTEM_RULES)
+        if re.match(r"agents\[\d+\]\.C: expected a kx\d+ matrix", str(err)):
+            err = ScenarioError(f"{err} (every C_i needs d_x columns; d_x is the size of system.A)")
+            err.key = str(err).split(":")[0]  # type: ignore[attr-defined]
+        raise err from exc
+
+
+def _graph(g_tab: Any, n: int) -> CommGraph:
+    g = _table(g_tab, "graph", 'edges = [[from, to, delay], ...] or kind = "line"')
+    if "edges" in g and "kind" in g:
+        raise _fail("graph", "give either edges or kind (a builder), not both")
+    try:
+        if "edges" in g:
+            _check_keys(g, ("edges",), "graph.")
+            edges = g["edges"]
+            if not isinstance(edges, list):
+                raise _fail("graph.edges", f"expected a list of [from, to, delay] triples, found {_describe(edges)}")
+            graph = CommGraph(n, edges)  # type: ignore[arg-type]
+        elif "kind" in g:
+            kind = g["kind"]
+            if kind not in _GRAPH_KINDS:
+                close = difflib.get_close_matches(str(kind), _GRAPH_KINDS, n=1)
+                hint = f"did you mean {close[0]!r}? " if close else ""
+                raise _fail("graph.kind", f"unknown graph kind {kind!r}; {hint}expected one of: {', '.join(_GRAPH_KINDS)}")
+            extra = {"ring": ("directed",), "star": ("center",)}.get(kind, ())
+            for opt, owner in (("directed", "ring"), ("center", "star")):
+                if opt in g and kind != owner:
+                    raise _fail(f"graph.{opt}", f'only used with kind = "{owner}", found kind = "{kind}"; remove it')
+            _check_keys(g, ("kind", "delay", *extra), "graph.")
+            delay = g.get("delay", 1)
+            if isinstance(delay, bool) or not isinstance(delay, (int, float)):
+                raise _fail("graph.delay", f"expected an integer delay >= 1, found {_describe(delay)}")
+            if kind == "ring":
+                directed = g.get("directed", False)
+                if not isinstance(directed, bool):
+                    raise _fail("graph.directed", f"expected true or false, found {_describe(directed)}")
+                graph = CommGraph.ring(n, delay, directed=directed)  # type: ignore[arg-type]
+            elif kind == "star":
+                graph = CommGraph.star(n, delay, center=g.get("center", 0))  # type: ignore[arg-type]
+            else:
+                graph = getattr(CommGraph, kind)(n, delay)
+        else:
+            raise _fail("graph", f"expected edges = [[from, to, delay], ...] or kind = {' | '.join(map(repr, _GRAPH_KINDS))}, found neither")
+        graph.require_strongly_connected("graph")
+    except ScenarioError:
+        raise
+    except TeamkfError as exc:
+        raise _rekey(exc, "graph", _GRAPH_RULES) from exc
+    return graph
+
+
+def _cost(c_tab: Any, system: LinearGaussianSystem) -> TeamCost:
+    c = _table(c_tab, "cost", 'kind = "platoon" with lambda, or S and L')
+    n, dx = system.n_agents, system.dx
+    if "kind" in c and ("S" in c or "L" in c):
+        raise _fail("cost", "give either kind (a builder, with lambda) or explicit S and L, not both")
+    try:
+        if "kind" in c:
+            kind = c["kind"]
+            if kind not in _COST_KINDS:
+                close = difflib.get_close_matches(str(kind), _COST_KINDS, n=1)
+                hint = f"did you mean {close[0]!r}? " if close else ""
+                raise _fail("cost.kind", f"unknown cost kind {kind!r}; {hint}expected one of: {', '.join(_COST_KINDS)}")
+            if kind == "mse":
+                if "lambda" in c:
+                    raise _fail("cost.lambda", "the 'mse' cost (S = I, every agent estimates the whole state) has no lambda; remove it")
+                _check_keys(c, ("kind",), "cost.")
+                cost = TeamCost.mse(n, dx)
+            else:
+                _check_keys(c, ("kind", "lambda"), "cost.")
+                if "lambda" not in c:
+                    raise _fail("cost.lambda", f"missing required key; cost kind {kind!r} needs a coupling weight lambda >= 0")
+                lam = c["lambda"]
+                if isinstance(lam, bool) or not isinstance(lam, (int, float)):
+                    raise _fail("cost.lambda", f"expected a non-negative number, found {_describe(lam)}")
+                builder = {"average": TeamCost.average_tracking, "platoon": TeamCost.platoon, "ring": TeamCost.ring}[kind]
+                if dx % n:
+                    raise _fail(
+                        "cost.kind",
+                        f"cost kind {kind!r} needs d_x to be a multiple of the number of agents (agent i estimates its own "
+                        f"block of d_x/n states), found d_x = {dx} for {n} agents; give explicit S and L instead",
+                    )
+                cost = builder(n, lam, dx // n)
+        elif "S" in c or "L" in c:
+            _check_keys(c, ("S", "L"), "cost.")
+            for k in ("S", "L"):
+                if k not in c:
+                    raise _fail(f"cost.{k}", "missing required key; explicit costs need both S (n*dz x n*dz) and L (n*dz x d_x)")
+            L = _numeric(c["L"], "cost.L", scalar_ok=False)
+            S = _numeric(c["S"], "cost.S")
+            if not isinstance(S, list):
+                rows = np.asarray(L, dtype=float).shape[-2]
+                S = float(S) * np.eye(rows)
+            cost = TeamCost(S=S, L=L, n_agents=n)
+        else:
+            raise _fail("cost", f"expected kind = {' | '.join(map(repr, _COST_KINDS))} or explicit S and L, found neither")
+        cost.check_system(dx, n)
+    except ScenarioError:
+        raise
+    except TeamkfError as exc:
+        raise _rekey(exc, "cost", _COST_RULES) from exc
+    return cost
+
+
+def _information(i_tab: Any, n: int, graph: CommGraph) -> InformationStructure:
+    t = _table(i_tab, "information", "common_lag and local")
+    _check_keys(t, _INFO_KEYS, "information.")
+    for k in _INFO_KEYS:
+        if k not in t:
+            what = "the common part is y(1 : t - common_lag)" if k == "common_lag" else "local[i] = [[j, newest, oldest], ...] for each agent i"
+            raise _fail(f"information.{k}", f"missing required key; {what}")
+    local = t["local"]
+    if not isinstance(local, list):
+        raise _fail("information.local", f"expected one list of [source, newest, oldest] windows per agent, found {_describe(local)}")
+    if len(local) != n:
+        raise _fail("information.local", f"expected one list of windows per agent ({n}), found {len(local)}")
+    for i, wins in enumerate(local):
+        if not isinstance(wins, list):
+            raise _fail(f"information.local[{i}]", f"expected a list of [source, newest, oldest] windows, found {_describe(wins)}")
+        for w, win in enumerate(wins):
+            if not isinstance(win, list):
+                raise _fail(f"information.local[{i}][{w}]", f"expected a [source, newest, oldest] triple, found {_describe(win)}")
+    try:
+        st = InformationStructure(n, t["common_lag"], local)
+        st.validate_on(graph)
+    except TeamkfError as exc:
+        raise _rekey(exc, "information", _INFO_RULES) from exc
+    return st
+
+
+def _check_horizon(system: LinearGaussianSystem, cost: TeamCost, horizon: int | None) -> None:
+    try:
+        if horizon is None:
+            system.require_time_invariant()
+            cost.require_time_invariant()
+        else:
+            system.require_horizon(horizon)
+            cost.require_horizon(horizon)
+    except TeamkfError as exc:
+        raise _rekey(exc, "horizon", _SYSTEM_RULES + _COST_RULES) from exc
+
+
+def _check_estimator(name: Any, key: str) -> str:
+    avail = ", ".join(AVAILABLE_ESTIMATORS)
+    if not isinstance(name, str):
+        raise _fail(key, f"expected an estimator name (a string), found {_describe(name)}; available: {avail}")
+    if name in AVAILABLE_ESTIMATORS:
+        return name
+    if name in RESERVED_ESTIMATORS:
+        raise _fail(key, f"estimator {name!r} is not available in this version of teamkf ({_version()}); available: {avail}")
+    close = difflib.get_close_matches(name, AVAILABLE_ESTIMATORS + RESERVED_ESTIMATORS, n=1)
+    hint = f"did you mean {close[0]!r}? " if close else ""
+    raise _fail(key, f"unknown estimator {name!r}; {hint}available: {avail}")
+
+
+def _estimators(x: Any) -> tuple[str, ...]:
+    if not isinstance(x, list) or not x:
+        raise _fail("estimators", f'expected a non-empty list of names such as ["mtmse", "mmse", "centralized"], found {_describe(x)}')
+    names = tuple(_check_estimator(e, f"estimators[{k}]") for k, e in enumerate(x))
+    for k, e in enumerate(names):
+        if e in names[:k]:
+            raise _fail(f"estimators[{k}]", f"{e!r} is listed twice; list each estimator once")
+    return names
+
+
+# ---------------------------------------------------------------------------
+# dotted keys (sweeps)
+# ---------------------------------------------------------------------------
+_PART = re.compile(r"([^.\[\]]+)|\[(\d+)\]")
+
+
+def _parse_path(key: str) -> list[str | int]:
+    if not isinstance(key, str) or not key:
+        raise ScenarioError(f"{key!r}: expected a dotted key such as 'cost.lambda'")
+    parts: list[str | int] = []
+    for seg in key.split("."):
+        if not seg:
+            raise ScenarioError(f"{key}: empty part in dotted key; write keys like 'cost.lambda' or 'agents[2].R'")
+        got = "".join(m.group(0) for m in _PART.finditer(seg))
+        if got != seg:
+            raise ScenarioError(f"{key}: cannot parse the part {seg!r}; write keys like 'cost.lambda' or 'agents[2].R'")
+        for m in _PART.finditer(seg):
+            if m.group(1) is not None:
+                parts.append(int(m.group(1)) if m.group(1).isdigit() else m.group(1))
+            else:
+                parts.append(int(m.group(2)))
+    return parts
+
+
+def set_dotted(d: Mapping[str, Any], key: str, value: Any) -> dict[str, Any]:
+    """A deep copy of the scenario data ``d`` with the dotted ``key`` set to ``value``.
+
+    ``key`` is a path of table keys separated by dots; list items are written
+    ``agents[2].R`` (or ``agents.2.R``). Missing tables are created. The
+    original is not modified, and the result is not validated (pass it to
+    :func:`scenario_from_dict`).
+
+    ``"graph.delay"`` on a graph given by explicit ``edges`` sets the delay of
+    every edge (a builder graph just gets its ``delay`` key).
+
+    Examples
+    --------
+    >>> d = {"graph": {"kind": "line", "delay": 1}, "cost": {"kind": "platoon", "lambda": 1.0}}
+    >>> set_dotted(d, "cost.lambda", 10.0)["cost"]
+    {'kind': 'platoon', 'lambda': 10.0}
+    >>> set_dotted({"graph": {"edges": [[0, 1, 1], [1, 0, 3]]}}, "graph.delay", 2)["graph"]
+    {'edges': [[0, 1, 2], [1, 0, 2]]}
+    """
+    if isinstance(d, Scenario):
+        d = d.raw
+    if not isinstance(d, Mapping):
+        raise ScenarioError(f"{key}: expected scenario data (a table of keys), found {type(d).__name__}")
+    out = copy.deepcopy(dict(d))
+    parts = _parse_path(key)
+    value = copy.deepcopy(value)
+    graph = out.get("graph")
+    if parts == ["graph", "delay"] and isinstance(graph, Mapping) and "edges" in graph and "kind" not in graph:
+        edges = graph["edges"]
+        if not isinstance(edges, list):
+            raise ScenarioError(f"graph.edges: expected a list of [from, to, delay] triples, found {_describe(edges)}")
+        new_graph = dict(graph)
+        new_graph["edges"] = [[*e[:2], value] if isinstance(e, (list, tuple)) and len(e) == 3 else e for e in edges]
+        out["graph"] = new_graph
+        return out
+    node: Any = out
+    for depth, p in enumerate(parts[:-1]):
+        here = _path_str(parts[: depth + 1])
+        nxt = parts[depth + 1]
+        if isinstance(p, int):
+            if not isinstance(node, list) or not -len(node) <= p < len(node):
+                raise ScenarioError(f"{here}: no such item (found {_describe(node)})")
+            child = node[p]
+        else:
+            if not isinstance(node, dict):
+                raise ScenarioError(f"{here}: cannot set a key inside {_describe(node)}")
+            if p not in node:
+                node[p] = [] if isinstance(nxt, int) else {}
+            child = node[p]
+        if not isinstance(child, (dict, list)):
+            raise ScenarioError(f"{here}: cannot set {key!r} inside {_describe(child)}")
+        node = child
+    last = parts[-1]
+    if isinstance(last, int):
+        if not isinstance(node, list) or not -len(node) <= last < len(node):
+            raise ScenarioError(f"{key}: no such item (found {_describe(node)})")
+        node[last] = value
+    else:
+        if not isinstance(node, dict):
+            raise ScenarioError(f"{key}: cannot set a key inside {_describe(node)}")
+        node[last] = value
+    return out
+
+
+def _path_str(parts: Sequence[str | int]) -> str:
+    s = ""
+    for p in parts:
+        s += f"[{p}]" if isinstance(p, int) else (f".{p}" if s else p)
+    return s
+
+
+# ---------------------------------------------------------------------------
+# packaged scenarios
+# ---------------------------------------------------------------------------
+def packaged_scenarios() -> dict[str, Any]:
+    """The example scenarios shipped with teamkf: name -> path (a Traversable)."""
+    from importlib.resources import files
+
+    root = files("teamkf").joinpath("scenarios")
+    try:
+        entries = list(root.iterdir())
+    except (FileNotFoundError, NotADirectoryError):  # pragma: no cover - broken install
+        return {}
+    found = {e.name[: -len(".toml")]: e for e in entries if e.name.endswith(".toml")}
+    return {name: found[name] for name in sorted(found)}
+
+
+def load_packaged(name: str) -> Scenario:
+    """Load a packaged scenario by name (``"platoon-4"``, ``"uav-10"``, ...)."""
+    found = packaged_scenarios()
+    if name not in found:
+        raise ScenarioError(f"{name}: no packaged scenario of that name; available: {', '.join(found)}")
+    entry = found[name]
+    try:
+        data = tomllib.loads(entry.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:  # pragma: no cover - shipped files are tested
+        raise ScenarioError(f"{entry.name}: invalid TOML: {exc}") from None
+    return scenario_from_dict(data, source=f"teamkf/scenarios/{entry.name}")

@@ -1,0 +1,996 @@
+"""Parameter sweeps: serial or on Dask, written point by point, resumable.
+
+A sweep file (TOML, or JSON by its ``.json`` extension) names a base scenario,
+a grid of dotted keys, the estimators, the Monte Carlo runs and a seed; the
+keys are a contract (``design/scenario-and-cli.md``):
+
+=============  ================================================================
+key            meaning
+=============  ================================================================
+scenario       base scenario: a path relative to the sweep file's folder, or
+               the name of a packaged scenario (``"platoon-4"``) (required)
+runs           Monte Carlo runs per point: 0 (analytic costs only, the
+               default) or at least 2 (needs a finite horizon)
+seed           integer >= 0 (default 0); every point gets its own seed from it
+estimators     optional list of names; default: the scenario's ``estimators``
+[grid]         dotted key -> non-empty list of values (required, at least one
+               key); every combination is one point, in the order of the
+               file (the last key varies fastest)
+name           optional name of the sweep (default: the file's stem)
+description    optional free text
+=============  ================================================================
+
+Grid keys are dotted paths into the scenario (``"cost.lambda"``,
+``"graph.delay"``, ``"horizon"``, ``"agents[2].R"``; see
+:func:`teamkf.study.scenario.set_dotted`). Quote them in TOML (``"cost.lambda" =
+[...]``); unquoted dotted keys (``cost.lambda = [...]``) make nested tables,
+which are read as the same dotted keys. One special key:
+
+``system.A_scale``
+    multiplies the scenario's ``A`` (every matrix of a time-varying ``A``) by
+    the value, e.g. ``"system.A_scale" = [0.9, 1.0, 1.1]``; applied after the
+    other keys of the point.
+
+The values of one key must be of one type (numbers, which may mix integers
+and floats and are then all stored as floats; strings; booleans; or lists /
+tables, which are stored as JSON text). Everything is checked before anything
+is computed or written: unknown sweep keys, an empty grid or value list,
+values that are not lists, wrong types of ``runs`` / ``seed`` /
+``estimators``, and every grid point is applied to the base scenario
+(:meth:`~teamkf.study.scenario.Scenario.updated`), so an unknown dotted key or a
+bad value is a :class:`~teamkf.exceptions.ScenarioError` naming the key.
+
+Points and seeds
+----------------
+Point ``k`` of the Cartesian product (in grid order) has
+
+- ``point_id``: the first 12 hex digits of the SHA-256 of the canonical JSON
+  (sorted keys, no spaces) of its parameters ``{key: value}``; stable across
+  runs, machines and grid orders;
+- ``seed``: ``SeedSequence(seed).spawn(n_points)[k].generate_state(1,
+  uint64)[0] >> 1`` (a 63-bit integer, so that it fits a signed Parquet
+  column), passed to :func:`~teamkf.study.evaluate.evaluate_point`. A
+  point's numbers therefore depend only on the sweep file and ``k``, never on
+  the worker that ran it or on the order in which points finish: serial and
+  Dask runs give identical numbers. ``teamkf evaluate`` on the point's
+  scenario with ``--monte-carlo RUNS --seed <point seed>`` reproduces them.
+
+Results folder
+--------------
+:func:`run_sweep` writes the results into a folder ``OUT`` (e.g.
+``results.parquet``) that Parquet readers treat as one dataset
+(``pandas.read_parquet(OUT)``, ``pyarrow.parquet.read_table(OUT)``,
+:meth:`SweepResult.load(OUT) <teamkf.study.results.SweepResult.load>`):
+
+- ``part-<point_id>.parquet``: the rows of one point (one per estimator),
+  written by the driver as soon as the point finishes, under a temporary
+  name that is then renamed (``os.replace``), so a crash never leaves a
+  half-written part;
+- ``_sweep.json``: the sweep that wrote the folder (ignored by Parquet
+  readers). ``resume`` checks it, so results of another sweep are never mixed
+  in, and skips the points whose part exists.
+
+Columns: one per grid key, then ``point_id``, ``point_index``, ``estimator``,
+``method``, ``total_cost`` (finite horizon) or ``average_cost`` (steady
+state), ``ci95_low``, ``ci95_high`` (null for analytic values), with Monte
+Carlo runs ``mc_cost``, ``mc_ci95_low``, ``mc_ci95_high`` (the simulated cost
+of the analytic estimators), then ``runs``, ``seed`` (the point's seed),
+``sweep_seed`` (the sweep file's) and ``teamkf_version``.
+
+Schedulers
+----------
+``"local"`` (default)
+    an embedded ``dask.distributed.LocalCluster`` with one single-threaded
+    worker process per available core (``n_workers``), made by
+    :func:`local_cluster`: the workers get ``OMP_NUM_THREADS =
+    OPENBLAS_NUM_THREADS = MKL_NUM_THREADS = 1`` so that they do not compete
+    for cores (the points are the parallelism), and not Dask's
+    ``MALLOC_TRIM_THRESHOLD_`` (about 40 % slower points).
+an address (``"tcp://host:8786"``), a ``Client`` or a cluster object
+    an existing Dask cluster; its workers need teamkf installed.
+``"serial"``
+    in-process, no Dask.
+
+On Dask every point is one task (``client.submit(evaluate_point, scenario,
+estimators, runs, seed, pure=False, retries=3)``), collected with
+``as_completed``: if a worker dies, the scheduler runs its tasks again
+elsewhere, and the driver, not the workers, writes the results.
+
+Examples
+--------
+>>> from teamkf.study.sweep import sweep_from_dict
+>>> spec = sweep_from_dict({"scenario": "platoon-4", "seed": 1,
+...                         "grid": {"cost.lambda": [1, 10.5], "graph.delay": [1, 2]}})
+>>> spec.n_points, spec.grid["cost.lambda"]
+(4, (1.0, 10.5))
+>>> [(p.index, p.params) for p in spec.points[:2]]
+[(0, {'cost.lambda': 1.0, 'graph.delay': 1}), (1, {'cost.lambda': 1.0, 'graph.delay': 2})]
+>>> spec.scenario_for(spec.points[1]).graph.edges[0]
+(0, 1, 2)
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import difflib
+import errno
+import hashlib
+import itertools
+import json
+import logging
+import os
+import sys
+import time
+import uuid
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from .. import _validation as V
+from ..exceptions import ScenarioError, TeamkfError
+from .evaluate import ANALYTIC, evaluate_point  # noqa: F401  (looked up by _module_evaluate)
+from .results import MANIFEST_NAME, SweepError, SweepResult, load_results
+from .scenario import Scenario, _describe, _estimators, load_packaged, load_scenario, packaged_scenarios, read_data_file
+
+__all__ = [
+    "SweepSpec",
+    "SweepPoint",
+    "SweepError",
+    "load_sweep",
+    "sweep_from_dict",
+    "apply_point",
+    "run_sweep",
+    "run_point",
+    "point_id",
+    "local_cluster",
+    "A_SCALE",
+    "WORKER_ENV",
+]
+
+#: the special grid key that multiplies the scenario's A by its value
+A_SCALE = "system.A_scale"
+
+#: environment of the worker processes of the embedded LocalCluster (one BLAS thread each)
+WORKER_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+_SWEEP_KEYS = ("scenario", "runs", "seed", "estimators", "grid", "name", "description")
+_FORMAT = "teamkf-sweep-results/1"
+# columns of a row besides the grid keys, in order (cost and mc columns only where they apply)
+_ROW_COLUMNS = (
+    "point_id",
+    "point_index",
+    "estimator",
+    "method",
+    "total_cost",
+    "average_cost",
+    "ci95_low",
+    "ci95_high",
+    "mc_cost",
+    "mc_ci95_low",
+    "mc_ci95_high",
+    "runs",
+    "seed",
+    "sweep_seed",
+    "teamkf_version",
+)
+_MAX_SEED = 2**63 - 1
+
+
+def _version() -> str:
+    from .. import __version__
+
+    return str(__version__)
+
+
+def _fail(key: str, message: str) -> ScenarioError:
+    err = ScenarioError(f"{key}: {message}")
+    err.key = key  # type: ignore[attr-defined]
+    return err
+
+
+def _gkey(key: str) -> str:
+    return f"grid[{json.dumps(key)}]"
+
+
+# ---------------------------------------------------------------------------
+# the sweep
+# ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SweepPoint:
+    """One grid point: its position in grid order, stable id, parameters and seed."""
+
+    index: int
+    point_id: str
+    params: dict[str, Any]
+    seed: int
+
+    def describe(self) -> str:
+        return ", ".join(f"{k} = {json.dumps(v)}" for k, v in self.params.items())
+
+
+@dataclass(frozen=True, eq=False)
+class SweepSpec:
+    """A validated sweep (see the module docstring for the file format).
+
+    Attributes
+    ----------
+    scenario : str
+        The base scenario: the resolved path of its file, or a packaged name.
+    runs : int
+        Monte Carlo runs per point (0: analytic costs only).
+    seed : int
+        The sweep's seed; point ``k`` gets its own seed from it (see :attr:`points`).
+    estimators : tuple of str
+    grid : dict
+        Dotted key -> tuple of values, in the order of the file (values normalised:
+        integers among floats become floats). Treat it as read-only.
+    base : Scenario
+        The base scenario, loaded.
+    name : str
+    description : str
+    source : str
+        The sweep file (or ``"<dict>"``).
+    """
+
+    scenario: str
+    runs: int
+    seed: int
+    estimators: tuple[str, ...]
+    grid: dict[str, tuple[Any, ...]]
+    base: Scenario = field(repr=False)
+    name: str = "sweep"
+    description: str = ""
+    source: str = "<dict>"
+    kinds: dict[str, str] = field(repr=False, default_factory=dict)
+    cost_keys: tuple[str, ...] = field(repr=False, default=("total_cost",))
+
+    @property
+    def n_points(self) -> int:
+        return int(np.prod([len(v) for v in self.grid.values()]))
+
+    @property
+    def grid_keys(self) -> tuple[str, ...]:
+        return tuple(self.grid)
+
+    @cached_property
+    def points(self) -> tuple[SweepPoint, ...]:
+        """Every grid point, in grid order (the last key varies fastest), with its id and seed."""
+        keys = list(self.grid)
+        combos = list(itertools.product(*(self.grid[k] for k in keys)))
+        children = np.random.SeedSequence(self.seed).spawn(len(combos))
+        out = []
+        for k, (values, child) in enumerate(zip(combos, children)):
+            params = dict(zip(keys, values))
+            out.append(SweepPoint(k, point_id(params), params, int(child.generate_state(1, dtype=np.uint64)[0] >> np.uint64(1))))
+        return tuple(out)
+
+    def scenario_for(self, point: SweepPoint | Mapping[str, Any]) -> Scenario:
+        """The base scenario with one point's parameters applied."""
+        params = point.params if isinstance(point, SweepPoint) else point
+        return apply_point(self.base, params)
+
+    def fingerprint(self) -> dict[str, Any]:
+        """What identifies the sweep's numbers (compared by ``resume``)."""
+        return {
+            "format": _FORMAT,
+            "scenario_sha256": _sha256(_canonical(self.base.raw)),
+            "runs": self.runs,
+            "seed": self.seed,
+            "estimators": list(self.estimators),
+            "grid": {k: list(v) for k, v in self.grid.items()},
+        }
+
+
+def point_id(params: Mapping[str, Any]) -> str:
+    """Stable id of a grid point: 12 hex digits of the SHA-256 of its canonical JSON.
+
+    >>> point_id({"cost.lambda": 10.0, "graph.delay": 2}) == point_id({"graph.delay": 2, "cost.lambda": 10.0})
+    True
+    """
+    return _sha256(_canonical(dict(params)))[:12]
+
+
+def _canonical(x: Any) -> str:
+    return json.dumps(x, sort_keys=True, separators=(",", ":"), allow_nan=True)
+
+
+def _sha256(text: str) -> str:
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def apply_point(base: Scenario, params: Mapping[str, Any]) -> Scenario:
+    """``base`` with the dotted keys of ``params`` set (and ``system.A_scale`` applied last)."""
+    values = {k: v for k, v in params.items() if k != A_SCALE}
+    raw = base.raw
+    from .scenario import scenario_from_dict, set_dotted
+
+    for k, v in values.items():
+        raw = set_dotted(raw, k, v)
+    if A_SCALE in params:
+        raw = _scale_A(raw, params[A_SCALE])
+    return scenario_from_dict(raw, source=base.source)
+
+
+def _scale_A(raw: Mapping[str, Any], s: Any) -> dict[str, Any]:
+    if isinstance(s, bool) or not isinstance(s, (int, float)):
+        raise _fail(A_SCALE, f"expected a number (A is multiplied by it), found {_describe(s)}")
+    out = copy.deepcopy(dict(raw))
+    system = out.get("system")
+    if not isinstance(system, Mapping) or "A" not in system:
+        raise _fail(A_SCALE, "the base scenario has no system.A to scale")
+    try:
+        A = np.asarray(system["A"], dtype=float)
+    except (TypeError, ValueError):
+        raise _fail("system.A", f"expected a matrix (nested lists of numbers) to scale by {A_SCALE}") from None
+    system = dict(system)
+    system["A"] = (float(s) * A).tolist()
+    out["system"] = system
+    return out
+
+
+# ---------------------------------------------------------------------------
+# loading and validation
+# ---------------------------------------------------------------------------
+def load_sweep(path: str | Path) -> SweepSpec:
+    """Read and validate a sweep file (TOML, or JSON by its ``.json`` extension).
+
+    The base scenario is resolved relative to the sweep file's folder, and
+    every grid point is applied to it, before this returns.
+
+    Raises
+    ------
+    FileNotFoundError
+        If there is no such sweep file.
+    ScenarioError
+        On any problem with the sweep file or a grid point; the message starts
+        with the key (``runs``, ``grid["cost.lambda"]``, ``cost.lamda``, ...).
+    """
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(errno.ENOENT, "no such sweep file", str(p))
+    if p.is_dir():
+        raise ScenarioError(f"{p}: is a directory; expected a sweep file (.toml or .json)")
+    data = read_data_file(p)
+    data.setdefault("name", p.stem)
+    return sweep_from_dict(data, base_dir=p.parent, source=str(p))
+
+
+def sweep_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", source: str = "<dict>") -> SweepSpec:
+    """Validate plain data (as read from a sweep file) into a :class:`SweepSpec`.
+
+    ``scenario`` paths are resolved relative to ``base_dir``.
+    """
+    if not isinstance(data, Mapping):
+        raise ScenarioError(f"sweep: expected a table of keys, found {type(data).__name__}")
+    for k in data:
+        if k not in _SWEEP_KEYS:
+            close = difflib.get_close_matches(str(k), _SWEEP_KEYS, n=1, cutoff=0.6)
+            hint = f"did you mean {close[0]!r}? " if close else ""
+            raise _fail(str(k), f"unknown key in the sweep file; {hint}expected one of: {', '.join(_SWEEP_KEYS)}")
+    for k in ("scenario", "grid"):
+        if k not in data:
+            what = (
+                'the base scenario, e.g. scenario = "../scenarios/platoon-4.toml" (relative to the sweep file)'
+                if k == "scenario"
+                else 'a [grid] table of dotted keys and value lists, e.g. "cost.lambda" = [1.0, 10.0]'
+            )
+            raise _fail(k, f"missing required key; add {what}")
+
+    name = data.get("name", "sweep")
+    if not isinstance(name, str) or not name.strip():
+        raise _fail("name", f"expected a non-empty string, found {_describe(name)}")
+    description = data.get("description", "")
+    if not isinstance(description, str):
+        raise _fail("description", f"expected a string, found {_describe(description)}")
+    runs = _int(data.get("runs", 0), "runs", 0)
+    if runs == 1:
+        raise _fail("runs", "expected 0 (analytic costs only) or at least 2 Monte Carlo runs (for a confidence interval), found 1")
+    seed = _int(data.get("seed", 0), "seed", 0)
+    if seed > _MAX_SEED:
+        raise _fail("seed", f"expected an integer seed between 0 and 2**63 - 1, found {seed}")
+
+    scenario, base = _base_scenario(data["scenario"], Path(base_dir))
+    if "estimators" in data:
+        estimators = _estimators(data["estimators"])
+    else:
+        estimators = tuple(base.estimators)
+    if runs == 0:
+        for idx, e in enumerate(estimators):
+            if e not in ANALYTIC:
+                raise _fail(f"estimators[{idx}]", f"{e!r} has no analytic cost; set runs >= 2 to evaluate it by Monte Carlo")
+
+    grid, kinds = _grid(data["grid"])
+    spec = SweepSpec(scenario, runs, seed, estimators, grid, base, name=name, description=description, source=source, kinds=kinds)
+    cost_keys = _check_points(spec)
+    object.__setattr__(spec, "cost_keys", cost_keys)
+    return spec
+
+
+def _int(x: Any, key: str, minimum: int) -> int:
+    if isinstance(x, bool) or not isinstance(x, int):
+        raise _fail(key, f"expected an integer >= {minimum}, found {_describe(x)}")
+    if x < minimum:
+        raise _fail(key, f"expected an integer >= {minimum}, found {x}")
+    return int(x)
+
+
+def _base_scenario(s: Any, base_dir: Path) -> tuple[str, Scenario]:
+    if not isinstance(s, str) or not s.strip():
+        raise _fail(
+            "scenario", f"expected the path of a scenario file (relative to the sweep file) or a packaged scenario name, found {_describe(s)}"
+        )
+    p = Path(os.path.normpath(base_dir / s))
+    if p.is_file():
+        try:
+            return str(p), load_scenario(p)
+        except ScenarioError as exc:
+            msg = str(exc)
+            err = ScenarioError(msg if msg.startswith(str(p)) else f"scenario {p}: {msg}")
+            raise err from None
+    packaged = packaged_scenarios()
+    if s in packaged:
+        return s, load_packaged(s)
+    where = "is a directory" if p.is_dir() else "no such file"
+    raise _fail("scenario", f"{p}: {where} (paths are relative to the sweep file's folder); packaged scenarios: {', '.join(packaged)}")
+
+
+def _flatten(table: Mapping[str, Any], prefix: str, out: dict[str, Any]) -> None:
+    for k, v in table.items():
+        key = f"{prefix}.{k}" if prefix else str(k)
+        if isinstance(v, Mapping):
+            if not v:
+                raise _fail(_gkey(key), "expected a list of values, found an empty table")
+            _flatten(v, key, out)
+        else:
+            out[key] = v
+
+
+def _kind(v: Any) -> str:
+    if isinstance(v, bool):
+        return "bool"
+    if isinstance(v, int):
+        return "int"
+    if isinstance(v, float):
+        return "float"
+    if isinstance(v, str):
+        return "string"
+    if isinstance(v, (list, Mapping)):
+        return "json"
+    return type(v).__name__
+
+
+def _grid(g: Any) -> tuple[dict[str, tuple[Any, ...]], dict[str, str]]:
+    if not isinstance(g, Mapping):
+        raise _fail("grid", f'expected a table of dotted keys and value lists ([grid] with "cost.lambda" = [1.0, 10.0]), found {_describe(g)}')
+    flat: dict[str, Any] = {}
+    _flatten(g, "", flat)
+    if not flat:
+        raise _fail("grid", 'expected at least one dotted key with a list of values (e.g. "cost.lambda" = [1.0, 10.0]), found an empty table')
+    grid: dict[str, tuple[Any, ...]] = {}
+    kinds: dict[str, str] = {}
+    for key, values in flat.items():
+        gk = _gkey(key)
+        if key in _ROW_COLUMNS or key in ("estimator", "estimators", "name"):
+            hint = (
+                "set the estimators with the sweep file's estimators key" if key in ("estimator", "estimators") else "it is a column of the results"
+            )
+            raise _fail(gk, f"cannot be swept ({hint})")
+        if not isinstance(values, list):
+            raise _fail(
+                gk,
+                f"expected a non-empty list of values (one point each), found {_describe(values)}; write [{json.dumps(values) if isinstance(values, (int, float, str)) else '...'}] for a single value",
+            )
+        if not values:
+            raise _fail(gk, "expected a non-empty list of values (one point each), found an empty list")
+        found = [_kind(v) for v in values]
+        for k, f in enumerate(found):
+            if f not in ("bool", "int", "float", "string", "json"):
+                raise _fail(gk, f"value {k} has an unsupported type {f}")
+        kset = set(found)
+        if kset <= {"int", "float"}:
+            kind = "int" if kset == {"int"} else "float"
+            if kind == "float":
+                values = [float(v) for v in values]
+        elif len(kset) == 1:
+            kind = found[0]
+        else:
+            a = next(k for k, f in enumerate(found) if f != found[0])
+            raise _fail(gk, f"expected values of one type, found {_describe(values[0])} (value 0) and {_describe(values[a])} (value {a})")
+        if key == A_SCALE and kind not in ("int", "float"):
+            raise _fail(gk, f"expected numbers (system.A is multiplied by each), found {_describe(values[0])}")
+        canon = [_canonical(v) for v in values]
+        for k, c in enumerate(canon):
+            if c in canon[:k]:
+                raise _fail(gk, f"value {values[k]!r} is listed twice (values {canon.index(c)} and {k}); list each value once")
+        grid[key] = tuple(values)
+        kinds[key] = kind
+    return grid, kinds
+
+
+def _check_points(spec: SweepSpec) -> tuple[str, ...]:
+    """Apply every key alone, then every point, to the base scenario; return the cost columns used."""
+    for key, values in spec.grid.items():
+        for v in values:
+            try:
+                apply_point(spec.base, {key: v})
+            except ScenarioError as exc:
+                raise _wrap(key, v, exc) from None
+    horizons = set()
+    for p in spec.points:
+        try:
+            sc = spec.scenario_for(p)
+        except ScenarioError as exc:
+            raise ScenarioError(f"{exc} (at grid point {p.index}: {p.describe()})") from None
+        horizons.add(sc.horizon is None)
+        if spec.runs and sc.horizon is None:
+            raise _fail(
+                "runs",
+                f"Monte Carlo runs need a finite horizon, but grid point {p.index} ({p.describe()}) has none "
+                "(steady state); set runs = 0 or give the scenario a horizon",
+            )
+    seen: dict[str, int] = {}
+    for p in spec.points:
+        if p.point_id in seen:  # pragma: no cover - 48-bit hash collision
+            raise SweepError(f"grid points {seen[p.point_id]} and {p.index} have the same id {p.point_id}; change a value slightly")
+        seen[p.point_id] = p.index
+    return tuple(k for k, steady in (("total_cost", False), ("average_cost", True)) if steady in horizons)
+
+
+def _wrap(key: str, value: Any, exc: ScenarioError) -> ScenarioError:
+    """The scenario's error for one grid value, with the grid key and value in front."""
+    msg = str(exc)
+    err = ScenarioError(f"{_gkey(key)} = {json.dumps(value)}: {msg}")
+    err.key = key  # type: ignore[attr-defined]
+    return err
+
+
+# ---------------------------------------------------------------------------
+# running
+# ---------------------------------------------------------------------------
+#: the unit of work of a point: (scenario, estimators, runs, seed) -> rows
+PointFunction = Callable[[Scenario, Sequence[str], int, int], list[dict[str, Any]]]
+
+
+def run_sweep(
+    spec: SweepSpec | str | Path,
+    out: str | Path,
+    scheduler: Any = "local",
+    *,
+    resume: bool = False,
+    progress: bool = True,
+    n_workers: int | None = None,
+    retries: int = 3,
+    evaluate: PointFunction | None = None,
+    on_point_done: Callable[[SweepPoint, list[dict[str, Any]]], None] | None = None,
+) -> SweepResult:
+    """Evaluate every grid point and write each point's rows into ``out`` as soon as it finishes.
+
+    Parameters
+    ----------
+    spec : SweepSpec, or the path of a sweep file
+    out : results folder (see the module docstring); must not exist (or be
+        empty) unless ``resume``
+    scheduler : ``"local"`` (an embedded Dask LocalCluster, the default),
+        ``"serial"`` (in-process), a Dask scheduler address, a
+        ``distributed.Client`` or a cluster object
+    resume : keep the points already in ``out`` (written by the same sweep)
+        and compute only the missing ones
+    progress : show a progress bar on stderr (tqdm when installed, else a
+        text line): points done, rate and time left
+    n_workers : worker processes of the embedded LocalCluster (default: one
+        per available core)
+    retries : Dask retries of a point whose function raised (a point lost
+        with a dead worker is rerun by the scheduler in any case)
+    evaluate : the point function (default
+        :func:`~teamkf.study.evaluate.evaluate_point`); on Dask it must
+        be importable on the workers
+    on_point_done : called as ``on_point_done(point, rows)`` in the driver
+        after each point's part is written
+
+    Returns
+    -------
+    SweepResult
+        Every row in ``out`` (including resumed points), in grid order.
+
+    Raises
+    ------
+    SweepError
+        If ``out`` holds results and ``resume`` is False, holds results of
+        another sweep, or a point fails (the finished points are kept).
+    OptionalDependencyError
+        Without pyarrow (and dask.distributed, except for ``"serial"``).
+    """
+    if not isinstance(spec, SweepSpec):
+        spec = load_sweep(spec)
+    out = Path(out)
+    fn: PointFunction = evaluate if evaluate is not None else _module_evaluate()
+    serial = isinstance(scheduler, str) and scheduler == "serial"
+    pa = V.require("pyarrow", "dask")
+    V.require("pyarrow.parquet", "dask")
+    if not serial:
+        V.require("dask.distributed", "dask")
+    if n_workers is not None:
+        n_workers = V.positive_int(n_workers, "n_workers")
+
+    done = _check_out(spec, out, resume)
+    points = spec.points
+    todo = [p for p in points if p.point_id not in done]
+    writer = _Writer(spec, out, pa)
+    bar = _Progress(len(points), len(points) - len(todo), False, f"sweep {spec.name}")
+    n_ok = 0
+
+    def start() -> None:
+        nonlocal bar
+        writer.create()
+        bar = _Progress(len(points), len(points) - len(todo), progress, f"sweep {spec.name}")
+
+    def finish(p: SweepPoint, rows: list[dict[str, Any]]) -> None:
+        nonlocal n_ok
+        writer.write(p, rows)
+        n_ok += 1
+        bar.update()
+        if on_point_done is not None:
+            on_point_done(p, rows)
+
+    def failed(p: SweepPoint, exc: BaseException) -> SweepError:
+        what = str(exc) if isinstance(exc, TeamkfError) else f"{type(exc).__name__}: {exc}"
+        n_kept = len(points) - len(todo) + n_ok
+        return SweepError(
+            f"grid point {p.index} ({p.describe()}) failed: {what}; the {n_kept} finished points are kept in "
+            f"{out}; fix the problem and run again with --resume (resume=True)"
+        )
+
+    try:
+        if todo and serial:
+            start()
+            for p in todo:
+                sc = spec.scenario_for(p)
+                try:
+                    rows = run_point(fn, sc, spec.estimators, spec.runs, p.seed)
+                except Exception as exc:
+                    raise failed(p, exc) from exc
+                finish(p, rows)
+        elif todo:
+            client, owned = _open_client(scheduler, n_workers)
+            futures: list[Any] = []
+            try:
+                from distributed import as_completed
+
+                start()
+                token = uuid.uuid4().hex[:8]
+                by_key: dict[Any, SweepPoint] = {}
+                for p in todo:
+                    f = client.submit(
+                        run_point,
+                        fn,
+                        spec.scenario_for(p),
+                        spec.estimators,
+                        spec.runs,
+                        p.seed,
+                        pure=False,
+                        retries=retries,
+                        key=f"teamkf-sweep-{p.point_id}-{token}",
+                    )
+                    futures.append(f)
+                    by_key[f.key] = p
+                for f in as_completed(futures):
+                    p = by_key[f.key]
+                    try:
+                        rows = f.result()
+                    except Exception as exc:
+                        raise failed(p, exc) from exc
+                    finish(p, rows)
+            finally:
+                pending = [f for f in futures if not f.done()]
+                if pending:
+                    try:
+                        client.cancel(pending)
+                    except Exception:  # pragma: no cover - cluster already gone
+                        pass
+                for obj in owned:
+                    try:
+                        obj.close()
+                    except Exception:  # pragma: no cover - best effort on shutdown
+                        pass
+    finally:
+        bar.close()
+
+    res = load_results(out) if out.exists() else SweepResult((), spec.grid_keys, path=out)
+    return SweepResult(res.rows, res.grid_keys, path=out, n_computed=n_ok, n_resumed=len(points) - len(todo), info=res.info)
+
+
+def run_point(fn: PointFunction, scenario: Scenario, estimators: Sequence[str], runs: int, seed: int) -> list[dict[str, Any]]:
+    """``fn(scenario, estimators, runs, seed)`` with BLAS and OpenMP limited to one thread.
+
+    This is the task of a point, serial or on a Dask worker. OpenBLAS and MKL
+    sum in a different order with a different number of threads (differences
+    of about 1e-12 relative), so every point runs single-threaded, wherever it
+    runs: serial and Dask runs then give identical numbers. Uses threadpoolctl
+    (in the ``dask`` extra); without it the threads are left as they are.
+    """
+    with _single_thread():
+        return fn(scenario, estimators, runs, seed)
+
+
+def _single_thread() -> Any:
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - threadpoolctl is in the dask extra
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=1)
+
+
+def _module_evaluate() -> PointFunction:
+    # looked up at call time, so that a replaced ``sweep.evaluate_point`` is used
+    return globals()["evaluate_point"]  # type: ignore[no-any-return]
+
+
+def _cpu_count() -> int:
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def local_cluster(n_workers: int | None = None, **kwargs: Any) -> Any:
+    """The embedded Dask cluster of ``scheduler="local"``: a ``LocalCluster`` tuned for sweep points.
+
+    ``n_workers`` single-threaded worker processes (default: one per available
+    core), no dashboard, quiet logs; ``kwargs`` go to ``LocalCluster``. The
+    workers start with :data:`WORKER_ENV` (one BLAS / OpenMP thread each: the
+    points are the parallelism) and *without* ``MALLOC_TRIM_THRESHOLD_``,
+    which Dask sets to 65536 by default: a fixed glibc malloc threshold turns
+    off glibc's adaptive mmap threshold, and the many mid-sized numpy arrays
+    of designs and Monte Carlo runs then cost about 40 % more time per point.
+    (Workers restarted by their nanny get the same environment.) Close it
+    with ``.close()``.
+
+    Side effect: ``MALLOC_TRIM_THRESHOLD_`` is removed from this process's
+    environment (where an earlier Dask cluster may have put it), as a worker
+    restarted later inherits it from here.
+    """
+    distributed = V.require("distributed", "dask")
+    import dask
+
+    environ = {k: v for k, v in (dask.config.get("distributed.nanny.pre-spawn-environ", default={}) or {}).items() if k != "MALLOC_TRIM_THRESHOLD_"}
+    environ.update(WORKER_ENV)
+    # A nanny copies pre-spawn-environ into this process's environment before it spawns (or restarts) a
+    # worker, which inherits it; so a MALLOC_TRIM_THRESHOLD_ left here by an earlier Dask cluster would
+    # reach our workers: it is removed for good. The other variables are put back as they were.
+    saved = {k: os.environ.get(k) for k in environ}
+    os.environ.pop("MALLOC_TRIM_THRESHOLD_", None)
+    options = {
+        "threads_per_worker": 1,
+        "processes": True,
+        "dashboard_address": None,
+        "silence_logs": logging.ERROR,
+        "env": dict(WORKER_ENV),
+        **kwargs,
+    }
+    try:
+        with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
+            return distributed.LocalCluster(n_workers=n_workers or _cpu_count(), **options)
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def _open_client(scheduler: Any, n_workers: int | None) -> tuple[Any, list[Any]]:
+    """A Dask client for ``scheduler`` and the objects this run owns (closed at the end)."""
+    distributed = V.require("distributed", "dask")
+    if isinstance(scheduler, distributed.Client):
+        return scheduler, []
+    if not isinstance(scheduler, str):
+        if hasattr(scheduler, "scheduler_address"):
+            client = distributed.Client(scheduler)
+            return client, [client]
+        raise SweepError(f"scheduler: expected 'local', 'serial', a Dask scheduler address, a Client or a cluster, found {type(scheduler).__name__}")
+    if scheduler == "local":
+        cluster = local_cluster(n_workers)
+        try:
+            client = distributed.Client(cluster)
+        except BaseException:
+            cluster.close()
+            raise
+        return client, [client, cluster]
+    try:
+        client = distributed.Client(scheduler, timeout="10s")
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise SweepError(
+            f"scheduler: cannot connect to a Dask scheduler at {scheduler!r} ({' '.join(str(exc).split())}); "
+            "give the address of a running scheduler (tcp://host:8786), or 'local' / 'serial'"
+        ) from None
+    return client, [client]
+
+
+def _check_out(spec: SweepSpec, out: Path, resume: bool) -> set[str]:
+    """The ids of the points already in ``out``; refuses to mix results. Writes nothing."""
+    if not out.exists():
+        return set()
+    if not out.is_dir():
+        raise SweepError(f"{out}: exists and is a file; sweep results are a folder of Parquet parts, choose another --out")
+    entries = list(out.iterdir())
+    if not entries:
+        return set()
+    manifest = out / MANIFEST_NAME
+    if not manifest.is_file():
+        raise SweepError(f"{out}: exists and is not a teamkf sweep results folder (no {MANIFEST_NAME}); choose another --out")
+    if not resume:
+        raise SweepError(f"{out}: results already exist; pass --resume (resume=True) to continue this sweep, or choose another --out")
+    try:
+        info = json.loads(manifest.read_text(encoding="utf-8"))
+        theirs = info["fingerprint"]
+    except (ValueError, KeyError, TypeError):
+        raise SweepError(f"{manifest}: unreadable sweep description; choose another --out") from None
+    mine = spec.fingerprint()
+    if _canonical(theirs) != _canonical(mine):
+        diff = [k for k in mine if _canonical(theirs.get(k) if isinstance(theirs, dict) else None) != _canonical(mine[k])]
+        raise SweepError(
+            f"{out}: holds results of a different sweep ({', '.join(diff) or 'format'} differ); "
+            "choose another --out, or delete that folder to start again"
+        )
+    ids = {p.point_id for p in spec.points}
+    return {e.name[len("part-") : -len(".parquet")] for e in entries if e.name.startswith("part-") and e.name.endswith(".parquet")} & ids
+
+
+class _Writer:
+    """Writes one Parquet part per point, atomically (temporary name, then ``os.replace``)."""
+
+    def __init__(self, spec: SweepSpec, out: Path, pa: Any) -> None:
+        self.spec, self.out, self.pa = spec, out, pa
+        self.version = _version()
+        types = {"int": pa.int64(), "float": pa.float64(), "string": pa.string(), "bool": pa.bool_(), "json": pa.string()}
+        fields = [pa.field(k, types[spec.kinds.get(k, "json")]) for k in spec.grid]
+        fields += [
+            pa.field("point_id", pa.string()),
+            pa.field("point_index", pa.int64()),
+            pa.field("estimator", pa.string()),
+            pa.field("method", pa.string()),
+        ]
+        fields += [pa.field(k, pa.float64()) for k in spec.cost_keys]
+        fields += [pa.field("ci95_low", pa.float64()), pa.field("ci95_high", pa.float64())]
+        if spec.runs and any(e in ANALYTIC for e in spec.estimators):
+            fields += [pa.field(k, pa.float64()) for k in ("mc_cost", "mc_ci95_low", "mc_ci95_high")]
+        fields += [
+            pa.field("runs", pa.int64()),
+            pa.field("seed", pa.int64()),
+            pa.field("sweep_seed", pa.int64()),
+            pa.field("teamkf_version", pa.string()),
+        ]
+        meta = {"teamkf.grid_keys": json.dumps(list(spec.grid)), "teamkf.sweep": spec.name}
+        self.schema = pa.schema(fields, metadata=meta)
+
+    def create(self) -> None:
+        """Create the folder and its ``_sweep.json`` (kept as is when resuming)."""
+        self.out.mkdir(parents=True, exist_ok=True)
+        for stale in self.out.glob(".part-*.tmp-*"):
+            stale.unlink(missing_ok=True)
+        manifest = self.out / MANIFEST_NAME
+        if manifest.exists():
+            return
+        spec = self.spec
+        info = {
+            "format": _FORMAT,
+            "name": spec.name,
+            "description": spec.description,
+            "sweep_file": spec.source,
+            "scenario": spec.scenario,
+            "grid_keys": list(spec.grid),
+            "grid_kinds": dict(spec.kinds),
+            "estimators": list(spec.estimators),
+            "cost_keys": list(spec.cost_keys),
+            "n_points": spec.n_points,
+            "teamkf_version": self.version,
+            "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+            "fingerprint": spec.fingerprint(),
+        }
+        tmp = self.out / f".{MANIFEST_NAME}.tmp-{os.getpid()}"
+        tmp.write_text(json.dumps(info, indent=2, allow_nan=True) + "\n", encoding="utf-8")
+        os.replace(tmp, manifest)
+
+    def records(self, p: SweepPoint, rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+        spec = self.spec
+        base: dict[str, Any] = {}
+        for k in spec.grid:
+            v = p.params[k]
+            base[k] = _canonical(v) if spec.kinds.get(k) == "json" else v
+        recs = []
+        for r in rows:
+            rec = dict(base)
+            rec.update({"point_id": p.point_id, "point_index": p.index})
+            for name in self.schema.names:
+                if name in r and name not in base and name not in ("point_id", "point_index"):
+                    rec[name] = r[name]
+            rec.setdefault("runs", spec.runs)
+            rec.setdefault("seed", p.seed)
+            rec["sweep_seed"] = spec.seed
+            rec["teamkf_version"] = self.version
+            recs.append(rec)
+        return recs
+
+    def write(self, p: SweepPoint, rows: Sequence[Mapping[str, Any]]) -> Path:
+        import pyarrow.parquet as pq
+
+        table = self.pa.Table.from_pylist(self.records(p, rows), schema=self.schema)
+        final = self.out / f"part-{p.point_id}.parquet"
+        tmp = self.out / f".part-{p.point_id}.parquet.tmp-{os.getpid()}"
+        pq.write_table(table, tmp)
+        os.replace(tmp, final)
+        return final
+
+
+class _Progress:
+    """Points done / total, rate and time left on stderr: tqdm when installed, else a text line."""
+
+    def __init__(self, total: int, initial: int, enabled: bool, desc: str, stream: Any = None) -> None:
+        self.total, self.n, self.n0, self.desc = total, initial, initial, desc
+        self.enabled = enabled
+        self.stream = stream if stream is not None else sys.stderr
+        self.t0 = time.perf_counter()
+        self.last = -1e9
+        self.bar: Any = None
+        if not enabled:
+            return
+        try:
+            from tqdm import tqdm
+        except ImportError:
+            tqdm = None
+        if tqdm is not None:
+            self.bar = tqdm(total=total, initial=initial, desc=desc, unit="point", file=self.stream, smoothing=0.1)
+        else:
+            self._text(force=True)
+
+    def _tty(self) -> bool:
+        try:
+            return bool(self.stream.isatty())
+        except (AttributeError, ValueError):
+            return False
+
+    def _text(self, force: bool = False) -> None:
+        now = time.perf_counter()
+        tty = self._tty()
+        if not force and self.n < self.total and now - self.last < (0.2 if tty else 10.0):
+            return
+        self.last = now
+        elapsed, done = now - self.t0, self.n - self.n0
+        line = f"{self.desc}: {self.n}/{self.total} points ({100.0 * self.n / max(self.total, 1):.0f} %)"
+        if done > 0 and elapsed > 0:
+            rate = done / elapsed
+            line += f", {rate:.3g} points/s, {_duration((self.total - self.n) / rate)} left"
+        self.stream.write(f"\r{line}\x1b[K" if tty else f"{line}\n")
+        self.stream.flush()
+
+    def update(self) -> None:
+        self.n += 1
+        if not self.enabled:
+            return
+        if self.bar is not None:
+            self.bar.update(1)
+        else:
+            self._text()
+
+    def close(self) -> None:
+        if not self.enabled:
+            return
+        if self.bar is not None:
+            self.bar.close()
+        elif self._tty():
+            self.stream.write("\n")
+            self.stream.flush()
+        self.enabled = False
+
+
+def _duration(s: float) -> str:
+    s = max(0.0, s)
+    if s < 60:
+        return f"{s:.0f} s"
+    if s < 3600:
+        return f"{int(s // 60)} min {int(s % 60):02d} s"
+    return f"{int(s // 3600)} h {int(s % 3600 // 60):02d} min"
