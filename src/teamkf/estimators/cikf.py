@@ -141,6 +141,7 @@ import scipy.linalg as sla
 from scipy.linalg.lapack import dpstrf
 
 from .. import _validation as V
+from .._blas import blas_threads
 from .._validation import FloatArray
 from ..exceptions import ArgumentError, DetectabilityError, GraphError, InformationStructureError, ShapeError
 from ..models import LinearGaussianSystem, TeamCost
@@ -334,72 +335,6 @@ def _psd_solve(S_xy: FloatArray, S_yy: FloatArray, rcond: float, how: str = "cho
     keep = w > rcond * max(top, np.finfo(float).tiny)
     Qk = Q[:, keep]
     return ((S_xy @ Qk) / w[keep]) @ Qk.T  # type: ignore[no-any-return]
-
-
-_SETTERS = ("openblas_set_num_threads", "openblas_set_num_threads64_", "scipy_openblas_set_num_threads64_", "scipy_openblas_set_num_threads")
-
-
-def _openblas_handles() -> list[tuple[Any, Any]]:
-    """(setter, getter) pairs of every OpenBLAS loaded in this process (Linux /proc/self/maps; else none)."""
-    import ctypes
-    import re
-
-    try:
-        with open("/proc/self/maps") as fh:
-            paths = sorted(set(re.findall(r"(/\S*openblas\S*\.so\S*)", fh.read())))
-    except OSError:
-        return []
-    out = []
-    for path in paths:
-        try:
-            lib = ctypes.CDLL(path)
-        except OSError:
-            continue
-        for name in _SETTERS:
-            getter = name.replace("set_num_threads", "get_num_threads")
-            if hasattr(lib, name) and hasattr(lib, getter):
-                out.append((getattr(lib, name), getattr(lib, getter)))
-                break
-    return out
-
-
-class _blas_threads:
-    """Limit BLAS to ``n`` threads inside the block (threadpoolctl if installed, else OpenBLAS through ctypes).
-
-    The CIKF design is many medium-sized GEMMs; on a shared, oversubscribed machine OpenBLAS's
-    spinning worker threads can make it ten times slower than one thread (measured on the 2-core
-    development machine). ``n = None`` leaves BLAS alone.
-    """
-
-    def __init__(self, n: int | None):
-        self.n = n
-        self._restore: list[tuple[Any, int]] = []
-        self._ctl: Any = None
-
-    def __enter__(self) -> "_blas_threads":
-        if self.n is None:
-            return self
-        try:
-            from threadpoolctl import threadpool_limits
-
-            self._ctl = threadpool_limits(self.n, user_api="blas")
-            return self
-        except Exception:  # not installed, or it failed: fall back to OpenBLAS's own setter
-            self._ctl = None
-        try:
-            for setter, getter in _openblas_handles():
-                old = int(getter())
-                setter(int(self.n))
-                self._restore.append((setter, old))
-        except Exception:  # pragma: no cover - best effort only
-            pass
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        if self._ctl is not None:
-            self._ctl.restore_original_limits()
-        for setter, old in self._restore:
-            setter(old)
 
 
 def _sym(X: FloatArray) -> FloatArray:
@@ -636,7 +571,7 @@ class CIKFDesign(Design):
         return ys, n_runs, T
 
     def _recursion(self, ys: Sequence[FloatArray] | None, x0: FloatArray | None, w: FloatArray | None, n_runs: int, T: int, form: str) -> FloatArray:
-        with _blas_threads(self.info.get("threads", 1)):
+        with blas_threads(self.info.get("threads", 1)):
             return self._recursion_impl(ys, x0, w, n_runs, T, form)
 
     def _recursion_impl(
@@ -1156,7 +1091,7 @@ def design_cikf(
         raise ShapeError(f"pinv: expected 'cholesky' or 'eigh', found {pinv!r}")
     if threads is not None:
         threads = V.positive_int(threads, "threads")
-    with _blas_threads(threads):
+    with blas_threads(threads):
         res = _iterate(system, model, nbrs, cost, T, rcond, form, ops, gains, equations, pinv)
     info = {
         "rank_G": r,
