@@ -31,6 +31,7 @@ _SCHEDULER: contextvars.ContextVar[Any] = contextvars.ContextVar("teamkf_schedul
 
 
 def current_scheduler() -> Any:
+    """The scheduler :func:`map_points` uses now (set by :func:`use_scheduler`; default "serial")."""
     return _SCHEDULER.get()
 
 

@@ -134,7 +134,7 @@ from ..exceptions import ScenarioError, TeamkfError
 from ..simulation.parallel import WORKER_ENV, _cpu_count, _open_client, local_cluster  # noqa: F401  (public here since 0.1)
 from .evaluate import evaluate_point, is_analytic  # noqa: F401  (evaluate_point is looked up by _module_evaluate)
 from .results import MANIFEST_NAME, SweepError, SweepResult, load_results
-from .scenario import Scenario, _describe, _estimators, load_packaged, load_scenario, packaged_scenarios, read_data_file
+from .scenario import Scenario, _describe, _estimators, _families, load_packaged, load_scenario, packaged_scenarios, read_data_file
 
 __all__ = [
     "SweepSpec",
@@ -393,7 +393,7 @@ def sweep_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", source:
 
     scenario, base = _base_scenario(data["scenario"], Path(base_dir))
     if "estimators" in data:
-        estimators = _estimators(data["estimators"])
+        estimators = _estimators(data["estimators"], {**_families(), **base.families})
     else:
         estimators = tuple(base.estimators)
     if runs == 0:
