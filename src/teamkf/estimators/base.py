@@ -150,6 +150,15 @@ class Design(abc.ABC):
         return int(self.system.n_agents)
 
     @property
+    def realizable(self) -> bool:
+        """True when every agent uses only what the graph delivers (not omniscient, not an 'ideal' variant).
+
+        No realizable design can beat MTMSE on the same graph: MTMSE is optimal
+        among all estimators that use that information (a property test checks it).
+        """
+        return not self.omniscient and bool(self.info.get("realizable", True))
+
+    @property
     def label(self) -> str:
         """The estimator name, with its variant when it has one (``"kcf [honest]"``)."""
         v = self.info.get("variant")
