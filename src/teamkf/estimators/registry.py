@@ -122,6 +122,11 @@ class Family:
             if not isinstance(o, Option):
                 raise ArgumentError(f"options: expected Option records, found {type(o).__name__}", argument="options")
 
+    def __repr__(self) -> str:
+        cost = "analytic" if self.analytic_cost else "monte-carlo"
+        opts = ", ".join(self.option_names)
+        return f"Family({self.name!r}, uses={self.uses!r}, horizons={sorted(self.horizons)}, cost={cost!r}, options=[{opts}])"
+
     # --- checks ---------------------------------------------------------------------
     @property
     def option_names(self) -> tuple[str, ...]:
