@@ -143,7 +143,7 @@ from scipy.linalg.lapack import dpstrf
 from .. import _validation as V
 from .._blas import blas_threads
 from .._validation import FloatArray
-from ..exceptions import ArgumentError, DetectabilityError, GraphError, InformationStructureError, ShapeError
+from ..exceptions import ArgumentError, DetectabilityError, DivergenceError, GraphError, InformationStructureError, ShapeError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
 from .base import Design, check_measurements
@@ -317,7 +317,7 @@ def _psd_solve(S_xy: FloatArray, S_yy: FloatArray, rcond: float, how: str = "cho
         d = np.diag(S)
         top = float(d.max()) if d.size else 0.0
         if not np.isfinite(top):
-            raise FloatingPointError("CIKF gain design: a covariance overflowed (the error dynamics diverge; see tracking_capacity)")
+            raise DivergenceError("CIKF gain design: a covariance overflowed (the error dynamics diverge; see tracking_capacity)")
         out = np.zeros_like(S_xy)
         if top <= 0.0:
             return out
@@ -331,7 +331,7 @@ def _psd_solve(S_xy: FloatArray, S_yy: FloatArray, rcond: float, how: str = "cho
     w, Q = sla.eigh(S, driver="evd", check_finite=False)
     top = float(w[-1]) if w.size else 0.0
     if not np.isfinite(top):
-        raise FloatingPointError("CIKF gain design: a covariance overflowed (the error dynamics diverge; see tracking_capacity)")
+        raise DivergenceError("CIKF gain design: a covariance overflowed (the error dynamics diverge; see tracking_capacity)")
     keep = w > rcond * max(top, np.finfo(float).tiny)
     Qk = Q[:, keep]
     return ((S_xy @ Qk) / w[keep]) @ Qk.T  # type: ignore[no-any-return]
@@ -948,7 +948,7 @@ def _iterate(
         Sig = ops.bd_right(ops.bd_left(A, Sf), A)  # symmetric to round-off (Σ_f is symmetrized)
         Sig += VV
         if not (np.isfinite(P[0, 0]) and np.isfinite(Sig[0, 0])):
-            raise FloatingPointError(
+            raise DivergenceError(
                 f"CIKF gain design: the error covariances overflowed at step {k + 1}; the error dynamics diverge (see tracking_capacity)"
             )
     return {

@@ -383,8 +383,8 @@ def _numeric(x: Any, key: str, *, scalar_ok: bool = True) -> Any:
     return x
 
 
-# messages of the model constructors start with the argument name as the model calls it;
-# these rules turn it into the scenario's key path (the rest of the message is kept)
+# the model constructors name the offending argument (TeamkfError.argument) as they call it;
+# these rules map that name to the scenario's key path (the error's detail is kept as it is)
 _SYSTEM_RULES = [
     (re.compile(r"^R\[(\d+)\]"), r"agents[\1].R"),
     (re.compile(r"^C\[(\d+)\]"), r"agents[\1].C"),
@@ -410,16 +410,13 @@ _INFO_RULES = [
 
 
 def _rekey(exc: TeamkfError, section: str, rules: Sequence[tuple[re.Pattern[str], str]]) -> ScenarioError:
-    msg = str(exc)
-    head, sep, rest = msg.partition(": ")
-    if sep:
+    """The error as a ScenarioError whose key path comes from the error's ``argument`` field."""
+    arg = exc.argument
+    if arg:
         for pat, repl in rules:
-            if pat.search(head):
-                new_head = pat.sub(repl, head, count=1)
-                err = ScenarioError(f"{new_head}: {rest}")
-                err.key = new_head.split(" ")[0]  # type: ignore[attr-defined]
-                return err
-    return _fail(section, msg)
+            if pat.search(arg):
+                return _fail(pat.sub(repl, arg, count=1), exc.detail)
+    return _fail(section, str(exc))
 
 
 def _control(c_tab: Any, system: LinearGaussianSystem, horizon: int | None) -> Any:
