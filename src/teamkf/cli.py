@@ -100,14 +100,18 @@ def dumps_json(obj: Any) -> str:
             items = [f"{inner}{json.dumps(str(k))}: {enc(v, level + 1)}" for k, v in x.items()]
             return "{\n" + ",\n".join(items) + "\n" + pad + "}"
         if isinstance(x, (list, tuple)):
-            if all(not isinstance(v, (dict, list, tuple)) for v in x):
+            if all(not isinstance(v, (dict, list, tuple, np.ndarray)) for v in x):
                 return "[" + ", ".join(enc(v, level + 1) for v in x) + "]"
             return "[\n" + ",\n".join(inner + enc(v, level + 1) for v in x) + "\n" + pad + "]"
-        if isinstance(x, (float, np.floating)) and not np.isfinite(x):
-            return "null"  # strict JSON (RFC 8259) has no NaN or Infinity
+        if isinstance(x, np.ndarray):
+            return enc(x.tolist(), level)
         if isinstance(x, np.generic):
             x = x.item()
-        return json.dumps(x, allow_nan=False)
+        if isinstance(x, float) and not np.isfinite(x):
+            return "null"  # strict JSON (RFC 8259) has no NaN or Infinity
+        if x is None or isinstance(x, (str, bool, int, float)):
+            return json.dumps(x, allow_nan=False)
+        return enc(str(x), level)  # anything else (a path, ...) as its text
 
     return enc(obj, 0)
 
@@ -375,7 +379,7 @@ def _cmd_design(args: argparse.Namespace) -> int:
         arrays: dict[str, np.ndarray] = {"scenario": np.asarray(sc.name), "horizon": np.asarray(-1 if sc.horizon is None else sc.horizon)}
         for name, d in designs.items():
             arrays.update({f"{name}/{k}": v for k, v in d.arrays().items()})
-        _write_atomic(out_path, lambda fh: np.savez(fh, **arrays))  # a file handle: np.savez adds no suffix
+        _write_atomic(out_path, lambda fh: np.savez(fh, **arrays))  # type: ignore[arg-type]  # a file handle: no suffix added
         notes.append(f"gains written to {out_path} ({len(arrays)} arrays; keys like '{next(iter(designs))}/...'; horizon -1 means steady state)")
     if args.json:
         out = {
@@ -513,7 +517,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     with use_scheduler(args.scheduler):
         res = experiments.run(args.name, args.out, quick=args.quick)
     if args.json:
-        print(json.dumps(res.to_json(), indent=2, default=float))
+        print(dumps_json(res.to_json()))
         return 0
     print(res.title)
     print(res.format_table())

@@ -187,6 +187,13 @@ class Design(abc.ABC):
             return None if self.average_cost is None else float(self.average_cost)
         return self.total_cost
 
+    def require_cost(self) -> float:
+        """:attr:`cost_value` as a float; :class:`~teamkf.exceptions.UnsupportedOperationError` without an analytic cost."""
+        v = self.cost_value
+        if v is None:
+            raise self._unsupported("an analytic team cost", "evaluate it by Monte Carlo (teamkf.monte_carlo or teamkf evaluate)")
+        return v
+
     @property
     def cost_key(self) -> str:
         """``"total_cost"`` (finite horizon) or ``"average_cost"`` (steady state)."""

@@ -586,7 +586,7 @@ class CIKFDesign(Design):
         A = sys.A_at(0)
         errors = x0 is not None
         if errors:
-            yh = np.repeat((x0 @ m.G_r.T)[None], N, axis=0)  # type: ignore[index]  # e^n_{0|-1} = G_r (x0 - x̄0)
+            yh = np.repeat((x0 @ m.G_r.T)[None], N, axis=0)  # type: ignore[index,operator]  # e^n_{0|-1} = G_r (x0 - x̄0)
             xh = np.repeat(x0[None], N, axis=0)  # type: ignore[index]  # ε^n_{0|-1}
         else:
             yh = np.zeros((N, n_runs, r))  # ŷ^n_{0|-1} = G_r x̄_0 = 0
@@ -1040,8 +1040,8 @@ def design_cikf(
         if horizon is not None:
             raise ArgumentError("horizon: given twice (old and new argument order mixed)", argument="horizon")
         cost, graph, horizon = None, cost, graph  # type: ignore[assignment]
-    if graph is None:
-        raise GraphError("graph: expected a CommGraph with unit delays, found None", argument="graph")
+    if not isinstance(graph, CommGraph):
+        raise GraphError(f"graph: expected a CommGraph with unit delays, found {type(graph).__name__}", argument="graph")
     t0 = time.perf_counter()
     if not isinstance(system, LinearGaussianSystem):
         raise ArgumentError(f"system: expected a LinearGaussianSystem, found {type(system).__name__}", argument="system")

@@ -308,7 +308,7 @@ class TeamDesign(Design):
             return self.steady_gains  # type: ignore[return-value]
         cache = self.info.setdefault("_warmup_gains", {})
         if k not in cache:
-            cache[k] = self.warmup(k)
+            cache[k] = self.warmup(k)  # type: ignore[misc]  # set for every steady-state design
         return cache[k]  # type: ignore[no-any-return]
 
     def K_at(self, m: int) -> FloatArray:
