@@ -14,6 +14,7 @@ import numpy as np
 
 from .. import _validation as V
 from .._validation import FloatArray
+from ..exceptions import ArgumentError
 from ..models import LinearGaussianSystem
 
 __all__ = ["Paths", "sample", "sample_paths", "run_streams", "psd_sqrt"]
@@ -30,10 +31,12 @@ def run_streams(seed: int | np.random.SeedSequence | np.random.Generator | None,
     if isinstance(seed, np.random.Generator):
         seq = seed.bit_generator.seed_seq
         if not isinstance(seq, np.random.SeedSequence):
-            raise ValueError("rng: expected a seed or a Generator created from a seed")
+            raise ArgumentError("rng: expected a seed or a Generator created from a seed", argument="rng")
     elif isinstance(seed, np.random.SeedSequence):
         seq = seed
     else:
+        if seed is not None:  # SeedSequence's own messages do not name the argument
+            seed = V.integer(seed, "rng", minimum=0, what="an integer seed (or a SeedSequence, a Generator, None)")
         seq = np.random.SeedSequence(seed)
     return seq.spawn(n_runs)
 
