@@ -22,12 +22,12 @@ SECTIONS = (
     (
         "fig3",
         "1. UAV formation (Section IV-A: complete graph, delay 2, cost (5), T = 100)",
-        ["n", "lambda/n^2", "J* (MTMSE)", "J mmse", "J KCF honest (MC)", "J KCF ideal (MC)", "J centralized", "Delta mmse %"],
+        ["n", "lambda/n^2", "J* (MTMSE)", "J mmse", "J KCF stale (MC)", "J KCF ideal (MC)", "J centralized", "Delta mmse %"],
     ),
     (
         "fig5",
         "2. Vehicular platoon (Section IV-B: line graph, unit delays, cost (6), T = 100)",
-        ["lambda", "J* (MTMSE)", "J mmse", "J KCF honest (MC)", "J KCF ideal (MC)", "J centralized", "Delta mmse %"],
+        ["lambda", "J* (MTMSE)", "J mmse", "J KCF stale (MC)", "J KCF ideal (MC)", "J centralized", "Delta mmse %"],
     ),
     (
         "table1",
@@ -53,7 +53,7 @@ def run_demo(out_dir: str | Path = "results", quick: bool = False, *, echo: bool
     say(
         "teamkf demo — minimum team mean-squared error (MTMSE) filtering vs its baselines\n"
         "J = expected team cost summed over the horizon; Delta mmse = (J mmse - J*) / J*.\n"
-        "KCF: Kalman-consensus filter by Monte Carlo; 'honest' sends messages over the graph with its delays,\n"
+        "KCF: Kalman-consensus filter by Monte Carlo; 'stale' sends messages over the graph with its delays,\n"
         "'ideal' exchanges current data within the step (not realizable on a delayed graph).\n"
     )
     for name, heading, cols in SECTIONS:

@@ -4,13 +4,13 @@ import numpy as np
 import pytest
 
 from teamkf import CommGraph, LinearGaussianSystem, TeamCost, design_centralized, design_mtmse, run_online
-from teamkf.estimators.kcf import KCFDesign, KCFMessage, design_kcf
+from teamkf.estimators.kcf import KCFDesign, KCFMessage, kcf_schedules
 from teamkf.exceptions import ArgumentError, GraphError, InformationStructureError, ShapeError, TeamkfError, UnsupportedOperationError
 from teamkf.simulation.runtime import graph_agents, run_graph
 from teamkf.simulation.sampling import sample_paths
 from tests.helpers import random_cost, random_system
 
-VARIANTS = ("honest", "ideal")
+VARIANTS = ("stale", "ideal")
 
 
 def _random_instance(seed, n=4, dx=3, T=12, stable=True, delays=(1, 3), p=0.4):
@@ -34,7 +34,7 @@ def _first_change(z0, z1, i, dz):
 # ---------------------------------------------------------------------------
 def test_design_fields_and_schedules():
     sys_, cost, g, T = _random_instance(0)
-    d = design_kcf(sys_, cost, g, T, epsilon=0.2, variant="ideal")
+    d = kcf_schedules(sys_, cost, g, T, epsilon=0.2, variant="ideal")
     assert isinstance(d, KCFDesign)
     assert (d.estimator, d.horizon, d.stage_costs, d.average_cost) == ("kcf", T, None, None)
     assert d.info["variant"] == "ideal" and d.info["epsilon"] == 0.2 and d.info["realizable"] is False
@@ -66,7 +66,7 @@ def test_design_fields_and_schedules():
 
 def test_honest_sources_follow_edge_delays():
     sys_, cost, g, T = _random_instance(1)
-    d = design_kcf(sys_, cost, g, T)
+    d = kcf_schedules(sys_, cost, g, T)
     for i in range(g.n_agents):
         for k in range(T):
             want = [(j, k - g.delay(j, i)) for j in g.in_neighbors(i) if k - g.delay(j, i) >= 0]
@@ -83,7 +83,7 @@ def test_honest_sources_follow_edge_delays():
 @pytest.mark.parametrize("seed", range(3))
 def test_honest_run_graph_equals_simulate(seed):
     sys_, cost, g, T = _random_instance(seed, n=5, T=15)
-    d = design_kcf(sys_, cost, g, T)
+    d = kcf_schedules(sys_, cost, g, T)
     p = sample_paths(sys_, T, 7, rng=seed)
     z_rt = run_graph(graph_agents(d), g, p.y)
     z_sim = d.simulate(p.y)
@@ -111,7 +111,7 @@ def test_information_discipline_through_run_graph(seed):
     assert len({dl for (_, _, dl) in g.edges}) > 1  # unequal delays
     sys_ = random_system(rng, n, 3, [1, 2, 1, 2, 1], stable=True)
     cost = random_cost(rng, n, 3, 1)
-    d = design_kcf(sys_, cost, g, T)
+    d = kcf_schedules(sys_, cost, g, T)
     p = sample_paths(sys_, T, 3, rng=seed)
     ell = g.geodesic_delays()
     slow = CommGraph(n, [(a, b, dl + 1) for (a, b, dl) in g.edges]).geodesic_delays() - 1
@@ -137,12 +137,12 @@ def test_single_agent_is_the_centralized_kalman_filter(variant):
     sys_ = random_system(rng, 1, 3, [2], stable=False)
     cost = random_cost(rng, 1, 3, 2)
     T = 15
-    d = design_kcf(sys_, cost, CommGraph(1), T, variant=variant)
+    d = kcf_schedules(sys_, cost, CommGraph(1), T, variant=variant)
     p = sample_paths(sys_, T, 20, rng=3)
     z_kf = run_online(design_centralized(sys_, cost, horizon=T).agents(), p.y)
     z = d.simulate(p.y)
     np.testing.assert_allclose(z, z_kf, rtol=0, atol=1e-10 * max(1.0, np.abs(z_kf).max()))
-    if variant == "honest":
+    if variant == "stale":
         np.testing.assert_allclose(run_graph(d.graph_agents(), CommGraph(1), p.y), z_kf, atol=1e-10 * max(1.0, np.abs(z_kf).max()))
 
 
@@ -170,11 +170,11 @@ def _local_kf(sys_, i, g, T, y, honest):
 def test_vanishing_epsilon_gives_local_kalman_filters(variant):
     sys_, _, g, T = _random_instance(7, n=4, dx=3, T=12)
     n, dx = sys_.n_agents, sys_.dx
-    d = design_kcf(sys_, TeamCost.mse(n, dx), g, T, epsilon=1e-13, variant=variant)
+    d = kcf_schedules(sys_, TeamCost.mse(n, dx), g, T, epsilon=1e-13, variant=variant)
     p = sample_paths(sys_, T, 10, rng=8)
     z = d.simulate(p.y)
     for i in range(n):
-        ref = _local_kf(sys_, i, g, T, p.y, honest=variant == "honest")
+        ref = _local_kf(sys_, i, g, T, p.y, honest=variant == "stale")
         np.testing.assert_allclose(z[:, :, i * dx : (i + 1) * dx], ref, atol=1e-9 * max(1.0, np.abs(ref).max()))
 
 
@@ -182,7 +182,7 @@ def test_ideal_on_complete_graph_is_the_centralized_filter():
     """Every agent fuses everything and all priors coincide: the consensus term vanishes."""
     sys_, cost, _, T = _random_instance(9, n=3, T=10)
     g = CommGraph.complete(3, 2)
-    d = design_kcf(sys_, cost, g, T, variant="ideal", epsilon=0.5)
+    d = kcf_schedules(sys_, cost, g, T, variant="ideal", epsilon=0.5)
     p = sample_paths(sys_, T, 10, rng=1)
     z_kf = run_online(design_centralized(sys_, cost, horizon=T).agents(), p.y)
     np.testing.assert_allclose(d.simulate(p.y), z_kf, atol=1e-10 * max(1.0, np.abs(z_kf).max()))
@@ -195,7 +195,7 @@ def test_ideal_on_complete_graph_is_the_centralized_filter():
 @pytest.mark.parametrize("seed", range(3))
 def test_errors_equal_direct_on_stable_systems(variant, seed):
     sys_, cost, g, T = _random_instance(20 + seed, n=4, T=14)
-    d = design_kcf(sys_, cost, g, T, variant=variant)
+    d = kcf_schedules(sys_, cost, g, T, variant=variant)
     p = sample_paths(sys_, T, 25, rng=seed)
     e = d.errors(p)
     direct = p.x @ cost.L_at(0).T - d.simulate(p.y)
@@ -212,12 +212,12 @@ def test_errors_time_varying_system():
     sys_ = random_system(rng, n, 2, [1, 2, 1], time_varying=True, n_steps=T)
     cost = random_cost(rng, n, 2, 1, time_varying=True, n_steps=T)
     for variant in VARIANTS:
-        d = design_kcf(sys_, cost, g, T, variant=variant)
+        d = kcf_schedules(sys_, cost, g, T, variant=variant)
         p = sample_paths(sys_, T, 10, rng=2)
         z = d.simulate(p.y)
         direct = np.stack([p.x[:, k] @ cost.L_at(k).T - z[:, k] for k in range(T)], axis=1)
         assert np.abs(d.errors(p) - direct).max() <= 1e-9 * np.abs(direct).max()
-        if variant == "honest":
+        if variant == "stale":
             np.testing.assert_allclose(run_graph(d.graph_agents(), g, p.y), z, atol=1e-12 * np.abs(z).max())
 
 
@@ -227,7 +227,7 @@ def test_errors_unstable_uav_formation_ideal():
     sys_ = LinearGaussianSystem.uav_formation(n)
     cost = TeamCost.average_tracking(n, 1000.0)
     g = CommGraph.complete(n, 2)
-    d = design_kcf(sys_, cost, g, T, variant="ideal")
+    d = kcf_schedules(sys_, cost, g, T, variant="ideal")
     p = sample_paths(sys_, T, 100, rng=11)
     e = d.errors(p)
     direct = p.x @ cost.L_at(0).T - d.simulate(p.y)
@@ -249,7 +249,7 @@ def test_errors_unstable_honest_grow_with_the_state():
     n, T = 10, 60
     sys_ = LinearGaussianSystem.uav_formation(n)
     cost = TeamCost.average_tracking(n, 1000.0)
-    d = design_kcf(sys_, cost, CommGraph.complete(n, 2), T)
+    d = kcf_schedules(sys_, cost, CommGraph.complete(n, 2), T)
     p = sample_paths(sys_, T, 20, rng=4)
     e = d.errors(p)
     direct = p.x @ cost.L_at(0).T - d.simulate(p.y)
@@ -266,8 +266,8 @@ def test_monte_carlo_platoon_not_below_bounds():
     p = sample_paths(sys_, T, 2000, rng=2024)
     J_mtmse = design_mtmse(sys_, cost, g, T).total_cost
     J_cent = design_centralized(sys_, cost, horizon=T).total_cost
-    for variant, bound in (("honest", J_mtmse), ("ideal", J_cent)):
-        tot = design_kcf(sys_, cost, g, T, variant=variant).costs(p).sum(axis=1)
+    for variant, bound in (("stale", J_mtmse), ("ideal", J_cent)):
+        tot = kcf_schedules(sys_, cost, g, T, variant=variant).costs(p).sum(axis=1)
         sem = tot.std(ddof=1) / np.sqrt(tot.size)
         assert tot.mean() >= bound - 4 * sem, (variant, tot.mean(), sem, bound)
 
@@ -279,25 +279,25 @@ def test_bad_input():
     sys_, cost, g = LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 10.0), CommGraph.line(4)
     for eps in (0, -0.1, float("nan"), float("inf"), "a", True):
         with pytest.raises(ArgumentError, match="epsilon"):
-            design_kcf(sys_, cost, g, 5, epsilon=eps)
+            kcf_schedules(sys_, cost, g, 5, epsilon=eps)
     with pytest.raises(ArgumentError, match="horizon.*steady-state"):
-        design_kcf(sys_, cost, g, None)
+        kcf_schedules(sys_, cost, g, None)
     with pytest.raises(ArgumentError, match="horizon"):
-        design_kcf(sys_, cost, g, 0)
+        kcf_schedules(sys_, cost, g, 0)
     with pytest.raises(GraphError, match="graph"):
-        design_kcf(sys_, cost, CommGraph.line(3), 5)
+        kcf_schedules(sys_, cost, CommGraph.line(3), 5)
     with pytest.raises(GraphError, match="graph"):
-        design_kcf(sys_, cost, "line", 5)
+        kcf_schedules(sys_, cost, "line", 5)
     with pytest.raises(ArgumentError, match="variant.*'honset'"):
-        design_kcf(sys_, cost, g, 5, variant="honset")
+        kcf_schedules(sys_, cost, g, 5, variant="honset")
     with pytest.raises(ShapeError, match="cost"):
-        design_kcf(sys_, TeamCost.platoon(3, 1.0), g, 5)
-    ideal = design_kcf(sys_, cost, g, 5, variant="ideal")
+        kcf_schedules(sys_, TeamCost.platoon(3, 1.0), g, 5)
+    ideal = kcf_schedules(sys_, cost, g, 5, variant="ideal")
     with pytest.raises(UnsupportedOperationError, match="kcf.*ideal"):
         ideal.graph_agents()
     with pytest.raises(TeamkfError):
         graph_agents(ideal)
-    honest = design_kcf(sys_, cost, g, 5)
+    honest = kcf_schedules(sys_, cost, g, 5)
     p = sample_paths(sys_, 6, 2, rng=0)
     with pytest.raises(ShapeError, match="horizon"):
         honest.simulate(p.y)

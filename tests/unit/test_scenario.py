@@ -431,7 +431,7 @@ def test_kcf_in_scenarios():
     d["kcf"] = {"epsilon": 0.05, "variant": "ideal"}
     sc = scenario_from_dict(d)
     k = sc.design("kcf")
-    assert k.info["variant"] == "ideal" and k.epsilon == 0.05
+    assert k.info["variant"] == "ideal" and k.info["epsilon"] == 0.05
     for bad, prefix in [
         ({"epsilon": -1.0}, "kcf.epsilon: expected a consensus step > 0"),
         ({"variant": "fast"}, "kcf.variant: expected"),

@@ -2,9 +2,10 @@ r"""Kalman-consensus filter (KCF) baseline (Olfati-Saber, CDC 2007; ``design/bas
 
 The team-MMSE paper (Afshari & Mahajan 2021, Section IV-A, its reference [17])
 compares MTMSE filtering with a "consensus Kalman filter" whose team cost it
-evaluates by Monte Carlo over 1000 sample paths: the KCF has no closed-form
-team cost, so :class:`KCFDesign` carries ``stage_costs = None`` and
-:meth:`KCFDesign.errors` / :meth:`KCFDesign.costs` give the per-run errors.
+evaluates by Monte Carlo over 1000 sample paths. The KCF's gains do not depend
+on the data, so its honest (delay-compensated) and ideal variants carry the
+exact analytic team cost (:mod:`teamkf.estimators.linear_team`); the stale
+variant (:class:`KCFDesign`) is evaluated by Monte Carlo.
 
 Notation (steps 0-based, ``k = t - 1``)
 ---------------------------------------
@@ -28,30 +29,31 @@ x̄_i(k+1)           A(k) x̂_i(k)
 
 with s_i = u_i(k) + Σ_{j∈N_i(k)} u_j(s_j).
 
-Two variants (``variant=``)
----------------------------
+Three variants (``variant=``)
+-----------------------------
 ``"honest"`` (default)
-    Realizable on the delay graph. At step k agent i uses its own current
-    u_i(k) and, from each in-neighbour j, the message (u_j, U_j, x̄_j) that j
-    sent at step s_j = k - tau_ji — exactly what
-    :func:`teamkf.simulation.runtime.run_graph` delivers. Before the first
-    message has arrived (k < tau_ji) j is in neither J_i(k) nor the consensus
-    sum. The stale u_j(k - tau_ji) is fused as if it measured x(k) (that is
-    how the KCF treats the newest message; nothing corrects for the delay),
-    so on an unstable process the honest KCF's error genuinely grows like
-    (Φ(k, k - tau) - I) x.
+    Realizable on the delay graph, **delay-compensated** (``design/baselines.md``):
+    agent j sends (y_j(s), x̄_j(s)) at step s; agent i uses it at k = s + τ_ji,
+    y_j(s) through the prediction with process noise (its information pair about
+    x(k): C̃ = C_j Φ(k,s)⁻¹, R̃ = R_j + C̃ Q(k,s) C̃ᵀ) and Φ(k, s) x̄_j(s) in the
+    consensus term. Linear with data-independent gains: exact analytic cost
+    (:class:`KCFAlgorithm` on :mod:`teamkf.estimators.linear_team`).
 ``"ideal"``
     The original paper's idealization: every in-neighbour's *current*
-    (u_j(k), U_j(k), x̄_j(k)) is exchanged within the step (s_j = k for every
-    in-neighbour, delays ignored). It cannot run on a delay graph, so
-    :meth:`KCFDesign.graph_agents` raises for it; use
-    :meth:`KCFDesign.simulate`.
+    (u_j(k), U_j(k), x̄_j(k)) is exchanged within the step (delays ignored).
+    Not realizable on a delay graph (``graph_agents`` raises); exact analytic cost.
+``"stale"``
+    The behaviour of teamkf <= 0.2's "honest" KCF (:class:`KCFDesign`): at step
+    k agent i uses the message (u_j, U_j, x̄_j) that j sent at s_j = k - τ_ji
+    and fuses the stale u_j(s_j) as if it measured x(k) (no compensation), so on
+    an unstable process its error grows like (Φ(k, k - τ) - I) x. Monte Carlo
+    cost only (:meth:`KCFDesign.errors`). :func:`kcf_schedules` also builds the
+    ideal variant this way (an independent implementation used as a test oracle).
 
-The covariance recursion does not depend on data, so M_i(k), γ_i(k), P_i(k)
-and S_i(k) are deterministic schedules computed at design time. P_i is the
-*nominal* covariance of the KCF: it ignores the consensus term and (honest
-variant) the staleness of the fused measurements, so it is not the true error
-covariance — hence the Monte Carlo evaluation.
+For :class:`KCFDesign` the covariance recursion does not depend on data, so
+M_i(k), γ_i(k), P_i(k) and S_i(k) are deterministic schedules computed at
+design time. P_i is the *nominal* covariance of the KCF: it ignores the
+consensus term and (stale variant) the staleness of the fused measurements.
 
 Choice of ε
 -----------
@@ -96,16 +98,21 @@ from ..network.graph import CommGraph
 from .base import Design, check_measurements
 from .checks import check_graph, check_model
 from .kalman import kalman_step
+from .linear_team import Algorithm, finish_design
 from .registry import Family, Option, _register_builtin
 
-__all__ = ["KCFDesign", "KCFAgent", "KCFMessage", "design_kcf", "VARIANTS"]
+__all__ = ["KCFDesign", "KCFAgent", "KCFMessage", "KCFAlgorithm", "design_kcf", "kcf_schedules", "VARIANTS"]
 
-Variant = Literal["honest", "ideal"]
+Variant = Literal["stale", "ideal"]
 
 #: variant name -> one-line description (also stored in ``design.info``)
 VARIANTS: dict[str, str] = {
-    "honest": "messages (u_j, U_j, xbar_j) travel with the edge delay; agent i uses the one j sent at k - tau_ji (realizable, runs in run_graph)",
-    "ideal": "neighbours' current (u_j(k), U_j(k), xbar_j(k)) exchanged within the step, delays ignored (Olfati-Saber's idealization; not realizable on a delay graph)",
+    "honest": "one exchange per step over the graph's edges and delays; received (y_j(s), xbar_j(s)) delay-compensated to step k "
+    "(information pair through the prediction with process noise, Phi(k, s) xbar_j(s)); realizable, exact analytic cost",
+    "ideal": "neighbours' current (u_j(k), U_j(k), xbar_j(k)) exchanged within the step, delays ignored (Olfati-Saber's idealization; "
+    "not realizable on a delay graph); exact analytic cost",
+    "stale": "the previous 'honest': messages travel with the edge delay and the stale u_j(k - tau_ji), xbar_j(k - tau_ji) are fused as if "
+    "current (no delay compensation; diverges on unstable processes); Monte Carlo cost only",
 }
 
 
@@ -158,7 +165,7 @@ class KCFDesign(Design):
     """
 
     graph: CommGraph
-    variant: Variant = "honest"
+    variant: Variant = "stale"
     epsilon: float = 0.1
     P: FloatArray
     M: FloatArray
@@ -186,7 +193,7 @@ class KCFDesign(Design):
     # --- online: graph agents -------------------------------------------------
     def graph_agents(self) -> list["KCFAgent"]:
         """One message-passing agent per node for :func:`teamkf.simulation.runtime.run_graph` (honest variant only)."""
-        if self.variant != "honest":
+        if self.variant != "stale":
             raise self._unsupported(
                 "graph_agents() for the 'ideal' variant",
                 "the ideal KCF exchanges neighbours' current estimates within the step, which no delay graph can deliver; "
@@ -207,7 +214,7 @@ class KCFDesign(Design):
     def details(self) -> dict[str, Any]:
         return {
             "epsilon": self.epsilon,
-            "realizable": self.variant == "honest",
+            "realizable": self.variant == "stale",
             "local_dims": None,
             "gain_shapes": {"M_i": [self.system.dx, self.system.dx]},
         }
@@ -420,10 +427,14 @@ def _epsilon(epsilon: Any, name: str = "epsilon") -> float:
     return V.positive_float(epsilon, name, what="a consensus step")
 
 
-def design_kcf(
-    system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, horizon: int | None = None, *, epsilon: float = 0.1, variant: Variant = "honest"
+def kcf_schedules(
+    system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, horizon: int | None, *, epsilon: float = 0.1, variant: Variant = "stale"
 ) -> KCFDesign:
-    """Design the Kalman-consensus filter: the deterministic schedules M_i(k), γ_i(k), P_i(k), S_i(k).
+    """The nominal KCF of the original implementation, without delay compensation (variants "stale" and "ideal").
+
+    ``design_kcf(..., variant="stale")`` returns it; its "ideal" variant is an
+    independent implementation of the ideal KCF (a test oracle of the
+    exact-cost one). Deterministic schedules M_i(k), γ_i(k), P_i(k), S_i(k).
 
     Parameters
     ----------
@@ -444,15 +455,15 @@ def design_kcf(
     Examples
     --------
     >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph
-    >>> from teamkf.estimators.kcf import design_kcf
-    >>> d = design_kcf(LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 10.0), CommGraph.line(4), 20)
+    >>> from teamkf.estimators.kcf import kcf_schedules
+    >>> d = kcf_schedules(LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 10.0), CommGraph.line(4), 20)
     >>> d.estimator, d.horizon, d.info["variant"], d.stage_costs is None
-    ('kcf', 20, 'honest', True)
+    ('kcf', 20, 'stale', True)
     """
     check_model(system, cost)
     n = system.n_agents
     check_graph(graph, n)
-    V.choice(variant, "variant", tuple(VARIANTS))
+    V.choice(variant, "variant", ("stale", "ideal"))
     eps = _epsilon(epsilon)
     if horizon is None:
         raise ArgumentError(
@@ -479,7 +490,7 @@ def design_kcf(
         U.append(V.frozen(np.stack(Uj)))
 
     ins = [[(j, graph.delay(j, i)) for j in graph.in_neighbors(i)] for i in range(n)]
-    if variant == "honest":
+    if variant == "stale":
         sources = tuple(tuple(tuple((j, k - d) for (j, d) in ins[i] if k - d >= 0) for k in range(T)) for i in range(n))
     else:
         sources = tuple(tuple(tuple((j, k) for (j, _) in ins[i]) for k in range(T)) for i in range(n))
@@ -509,7 +520,7 @@ def design_kcf(
         "variant": variant,
         "epsilon": eps,
         "variant_description": VARIANTS[variant],
-        "realizable": variant == "honest",
+        "realizable": variant == "stale",
         "cost_method": "monte-carlo",
     }
     return KCFDesign(
@@ -531,6 +542,127 @@ def design_kcf(
     )
 
 
+class KCFAlgorithm(Algorithm):
+    r"""The KCF on columns, delay-compensated (honest) or within the step (ideal); exact cost by :mod:`.linear_team`.
+
+    Agent i at step k, with J_i = {i} ∪ sources (l, s) (s = k - τ_li once arrived; s = k ideal):
+    (G̃, Y) of y_l(s) as a measurement of x(k) (:func:`.linear_team.compensated_measurement`),
+    S_i = Σ Y, M_i = (P_i⁻¹ + S_i)⁻¹, γ_i = ε / (1 + ‖M_i‖_F),
+
+    .. math:: \hat x_i = \bar x_i + M_i\Big(\sum_{J_i} \tilde G\, y_l(s) - S_i \bar x_i\Big)
+              + \gamma_i M_i \sum_{(l,s)} (\Phi(k,s)\, \bar x_l(s) - \bar x_i),
+
+    P_i ← A M_i Aᵀ + Q, x̄_i ← A x̂_i. It sends (y_i(k), x̄_i(k)).
+    """
+
+    state_kinds = {"xhat": "x"}
+    payload_kinds = {"y": "y", "xbar": "x"}
+
+    def __init__(self, system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, horizon: int, epsilon: float, honest: bool):
+        from .diffusion import information_sources
+
+        super().__init__(system, cost, graph, horizon)
+        self.honest, self.epsilon = honest, epsilon
+        n, dx, T = system.n_agents, system.dx, horizon
+        self.src = information_sources(graph, T, honest)
+        self.gain: dict[tuple[int, int, int, int], tuple[FloatArray, FloatArray]] = {}
+        self.M = np.empty((n, T, dx, dx))
+        self.S = np.empty((n, T, dx, dx))
+        self.P = np.empty((n, T, dx, dx))
+        self.gamma = np.empty((n, T))
+        for i in range(n):
+            P = system.Sigma_x
+            for k in range(T):
+                self.P[i, k] = P
+                Cs, Rs, S = [], [], np.zeros((dx, dx))
+                for lnode, s in [(i, k), *self.src[i][k]]:
+                    Ct, Rt, G, Y = self.compensated(lnode, s, k)
+                    self.gain[(i, k, lnode, s)] = (G, Y)
+                    Cs.append(Ct)
+                    Rs.append(Rt)
+                    S = S + Y
+                _, M = kalman_step(P, np.vstack(Cs), sla.block_diag(*Rs))  # (P^-1 + S)^-1 in Joseph form
+                self.M[i, k], self.S[i, k] = M, S
+                self.gamma[i, k] = epsilon / (1.0 + np.linalg.norm(M, "fro"))
+                if k + 1 < T:
+                    A = system.A_at(k)
+                    P = A @ M @ A.T + system.Q_at(k)
+                    P = 0.5 * (P + P.T)
+        self.schedules = {"P": self.P, "M": self.M, "gamma": self.gamma, "S_fused": self.S}
+
+    def _prior(self, i: int, k: int, prev: dict | None, zero: Any) -> Any:
+        return zero(self.system.dx) if prev is None else self.system.A_at(k - 1) @ prev["xhat"]
+
+    def update(self, i: int, k: int, xbar: Any, ys: dict, xbars: dict) -> Any:
+        r = None
+        for lnode, s in [(i, k), *self.src[i][k]]:
+            G, Y = self.gain[(i, k, lnode, s)]
+            term = G @ ys[(lnode, s)] - Y @ xbar
+            r = term if r is None else r + term
+        for lnode, s in self.src[i][k]:
+            r = r + self.gamma[i, k] * (self.Phi(k, s) @ xbars[(lnode, s)] - xbar)
+        return xbar + self.M[i, k] @ r
+
+    def agent_step(self, i: int, k: int, prev: dict | None, y_i: Any, inbox: Any, zero: Any) -> tuple[dict, dict]:
+        xbar = self._prior(i, k, prev, zero)
+        got = {(lnode, s): p for (lnode, s, p) in inbox}
+        ys = {(i, k): y_i, **{key: p["y"] for key, p in got.items()}}
+        xh = self.update(i, k, xbar, ys, {key: p["xbar"] for key, p in got.items()})
+        return {"xhat": xh}, {"y": y_i, "xbar": xbar}
+
+    def team_step(self, k: int, prev: list[dict | None], ys: list[Any], zero: Any) -> list[dict]:
+        n = self.system.n_agents
+        yd = {(j, k): ys[j] for j in range(n)}
+        xb = {(j, k): self._prior(j, k, prev[j], zero) for j in range(n)}
+        return [{"xhat": self.update(i, k, xb[(i, k)], yd, xb)} for i in range(n)]
+
+
+def design_kcf(
+    system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, horizon: int | None = None, *, epsilon: float = 0.1, variant: str = "honest"
+) -> Any:
+    """Design the Kalman-consensus filter (Olfati-Saber 2007) on a delay graph.
+
+    Parameters
+    ----------
+    system, cost, graph
+    horizon : int
+        Number of steps T (finite horizon only).
+    epsilon : float > 0
+        Consensus step ε, γ_i = ε / (1 + ||M_i||_F). The default 0.1 is our
+        choice: it keeps ε · in-degree < 1 up to in-degree 9 (module docstring).
+    variant : "honest" (default), "ideal" or "stale"
+        "honest": one exchange per step, delay-compensated, exact analytic cost
+        (:class:`KCFAlgorithm` on :mod:`.linear_team`); "ideal": neighbours'
+        current data within the step, exact analytic cost; "stale": the
+        previous honest variant (delayed data fused as current), a
+        :class:`KCFDesign` with Monte Carlo cost only.
+
+    Examples
+    --------
+    >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph
+    >>> from teamkf.estimators.kcf import design_kcf
+    >>> d = design_kcf(LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 10.0), CommGraph.line(4), 20)
+    >>> d.label, d.stage_costs.shape
+    ('kcf [honest]', (20,))
+    """
+    check_model(system, cost)
+    check_graph(graph, system.n_agents)
+    variant = V.choice(variant, "variant", tuple(VARIANTS))
+    eps = _epsilon(epsilon)
+    if variant == "stale":
+        return kcf_schedules(system, cost, graph, horizon, epsilon=eps, variant="stale")
+    if horizon is None:
+        raise ArgumentError(
+            "horizon: the KCF has no steady-state (infinite-horizon) design here, found horizon=None; give a finite number of steps T",
+            argument="horizon",
+        )
+    T = V.positive_int(horizon, "horizon")
+    system.require_horizon(T)
+    cost.require_horizon(T)
+    alg = KCFAlgorithm(system, cost, graph, T, eps, honest=(variant == "honest"))
+    return finish_design("kcf", alg, variant, {"epsilon": eps, "variant_description": VARIANTS[variant], "realizable": variant == "honest"})
+
+
 FAMILY = _register_builtin(
     Family(
         name="kcf",
@@ -538,7 +670,7 @@ FAMILY = _register_builtin(
         title="Kalman-consensus filter (Olfati-Saber 2007): local information fusion plus a consensus step on the priors",
         uses="graph",
         horizons=frozenset({"finite"}),
-        analytic_cost=False,
+        analytic_cost=True,
         options=(
             Option(name="epsilon", default=0.1, check=_epsilon, doc="consensus step: gamma_i = epsilon / (1 + ||M_i||_F)"),
             Option(

@@ -29,7 +29,7 @@ def delta_rows(
     for lam in lams:
         system, cost, graph = build(lam)
         t, m, c = design_mtmse(system, cost, graph, T), design_mmse(system, cost, graph, T), design_centralized(system, cost, horizon=T)
-        kcf = {v: design_kcf(system, cost, graph, T, epsilon=EPSILON, variant=v) for v in ("honest", "ideal")}
+        kcf = {v: design_kcf(system, cost, graph, T, epsilon=EPSILON, variant=v) for v in ("stale", "ideal")}
         mc = monte_carlo({f"kcf-{v}": d for v, d in kcf.items()}, T, runs, rng=seed)
         J = t.require_cost()
         row = {
@@ -39,10 +39,10 @@ def delta_rows(
             "J* (MTMSE)": J,
             "J mmse": m.require_cost(),
             "J centralized": c.require_cost(),
-            "J KCF honest (MC)": mc["kcf-honest"].total_mean,
+            "J KCF stale (MC)": mc["kcf-stale"].total_mean,
             "J KCF ideal (MC)": mc["kcf-ideal"].total_mean,
             "Delta mmse %": 100 * (m.require_cost() - J) / J,
-            "Delta KCF honest %": 100 * (mc["kcf-honest"].total_mean - J) / J,
+            "Delta KCF stale %": 100 * (mc["kcf-stale"].total_mean - J) / J,
             "Delta KCF ideal %": 100 * (mc["kcf-ideal"].total_mean - J) / J,
             "KCF ideal 95% CI half-width %": 100 * 1.96 * mc["kcf-ideal"].total_sem / J,
         }
@@ -63,7 +63,7 @@ def plot_deltas(rows: list[dict[str, Any]], group: str, x_name: str, title: str,
         xs = [r[x_name] for r in rs]
         suffix = f" ({group} = {gval})" if group else ""
         axes[0].plot(xs, [r["Delta mmse %"] for r in rs], "o-", label="MMSE" + suffix)
-        axes[1].plot(xs, [max(r["Delta KCF honest %"], 1e-3) for r in rs], "o-", label="KCF honest" + suffix)
+        axes[1].plot(xs, [max(r["Delta KCF stale %"], 1e-3) for r in rs], "o-", label="KCF stale" + suffix)
         axes[1].plot(xs, [r["Delta KCF ideal %"] for r in rs], "s--", label="KCF ideal" + suffix)
     axes[0].set_title("(a) Delta^mmse")
     axes[1].set_title("(b) Delta^KCF")

@@ -3,7 +3,7 @@
 The paper's A, C_i = I, Q = I, R = 0.1 I, Sigma_x = I (our choice), T = 100,
 line graph with unit delays, cost (6). KCF as in Fig. 3 (both variants,
 epsilon = 0.1, 1000 Monte Carlo paths). The platoon's A is strongly
-non-normal (var x_4 grows to ~1e5), so the honest KCF, which treats a
+non-normal (var x_4 grows to ~1e5), so the stale KCF (variant "stale"), which treats a
 neighbour's one-step-old measurement as current, is far worse than MTMSE,
 while the ideal KCF (current data exchanged within the step, not realizable
 with unit delays) is close to the centralized filter.
@@ -31,10 +31,10 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
         "J* (MTMSE)",
         "J mmse",
         "J centralized",
-        "J KCF honest (MC)",
+        "J KCF stale (MC)",
         "J KCF ideal (MC)",
         "Delta mmse %",
-        "Delta KCF honest %",
+        "Delta KCF stale %",
         "Delta KCF ideal %",
         "KCF ideal 95% CI half-width %",
     ]

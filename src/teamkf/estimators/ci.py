@@ -1,0 +1,150 @@
+r"""Local Kalman filters fused by covariance intersection (Julier & Uhlmann, ACC 1997).
+
+Every agent i runs the Kalman filter of its own measurements (x̂_i^loc, P_i,
+:mod:`teamkf.estimators.local`) and reports the covariance-intersection fusion
+of its own and its in-neighbours' local estimates:
+
+.. math::
+
+    P_f^{-1} = \sum_{j\in J_i} \omega_j \tilde P_j^{-1}, \qquad
+    \hat x_i = P_f \sum_{j\in J_i} \omega_j \tilde P_j^{-1} \tilde x_j, \qquad
+    \omega = \arg\min_{\omega\ge 0,\ \sum\omega = 1} \operatorname{tr} P_f,
+
+ẑ_i = L_i x̂_i. The local filters are not changed by the fusion (no feedback).
+The weights depend on covariances only, so they are computed at design time
+(the filter stays linear with data-independent gains: exact analytic cost).
+
+Variants: ``ideal`` fuses the neighbours' current x̂_j^loc(k), P_j(k|k);
+``honest`` (default) fuses what the graph delivered, x̂_j^loc(s) sent at
+s = k - τ_ji, delay-compensated: x̃_j = Φ(k,s) x̂_j^loc(s) and
+P̃_j = Φ(k,s) P_j(s|s) Φ(k,s)ᵀ + Q(k,s).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import scipy.optimize as sopt
+
+from .._validation import FloatArray
+from ..models import LinearGaussianSystem, TeamCost
+from ..network.graph import CommGraph
+from .checks import check_graph, check_model
+from .diffusion import VARIANTS, DiffusionAlgorithm, _horizon, check_variant
+from .linear_team import LinearTeamDesign, finish_design, process_noise
+from .registry import Family, Option, _register_builtin
+
+__all__ = ["design_ci", "ci_weights"]
+
+
+def ci_weights(infos: list[FloatArray]) -> FloatArray:
+    """ω on the simplex minimizing tr((Σ ω_j Y_j)⁻¹) for information matrices Y_j (SLSQP, exact gradient)."""
+    m = len(infos)
+    if m == 1:
+        return np.ones(1)
+
+    def f(w: FloatArray) -> tuple[float, FloatArray]:
+        Pf = np.linalg.inv(sum(wj * Y for wj, Y in zip(w, infos)))
+        P2 = Pf @ Pf
+        return float(np.trace(Pf)), np.array([-float(np.sum(P2 * Y)) for Y in infos])
+
+    traces = np.array([np.trace(np.linalg.inv(Y)) for Y in infos])
+    w0 = np.full(m, 1.0 / m)
+    res = sopt.minimize(
+        f, w0, jac=True, method="SLSQP", bounds=[(0.0, 1.0)] * m, constraints=({"type": "eq", "fun": lambda w: np.sum(w) - 1.0, "jac": lambda w: np.ones(m)},),
+        options={"ftol": 1e-12, "maxiter": 200},
+    )
+    w = np.clip(res.x, 0.0, None)
+    w = w / w.sum()
+    best = np.zeros(m)
+    best[int(np.argmin(traces))] = 1.0  # never worse than the best single estimate
+    return w if f(w)[0] <= f(best)[0] else best
+
+
+class CIAlgorithm(DiffusionAlgorithm):
+    """Local KF per agent (no combination), then CI fusion of the local estimates received."""
+
+    state_kinds = {"xloc": "x", "xhat": "x"}
+    payload_kinds = {"xloc": "x"}
+
+    @property
+    def info_graph(self) -> CommGraph | None:
+        return None  # the local filters use own measurements only
+
+    def __init__(self, system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, horizon: int, honest: bool):
+        from .diffusion import information_sources
+
+        super().__init__(system, cost, graph, horizon, np.eye(system.n_agents), honest)
+        n, T = system.n_agents, horizon
+        self.fuse_src = information_sources(graph, T, honest)
+        self.fuse: dict[tuple[int, int], list[tuple[int, int, FloatArray]]] = {}  # (i,k) -> [(l, s, gain)]
+        self.omega = np.zeros((n, T, n))
+        for i in range(n):
+            for k in range(T):
+                srcs = [(i, k), *self.fuse_src[i][k]]
+                Ys = []
+                for lnode, s in srcs:
+                    Phi = self.Phi(k, s)
+                    Pt = Phi @ self.P_filt[lnode, s] @ Phi.T + (process_noise(system, k, s) if s != k else 0.0)
+                    Ys.append(np.linalg.inv(0.5 * (Pt + Pt.T)))
+                w = ci_weights(Ys)
+                Pf = np.linalg.inv(sum(wj * Y for wj, Y in zip(w, Ys)))
+                self.fuse[(i, k)] = [(lnode, s, wj * Pf @ Y @ self.Phi(k, s)) for (lnode, s), wj, Y in zip(srcs, w, Ys) if wj > 0]
+                for (lnode, _), wj in zip(srcs, w):
+                    self.omega[i, k, lnode] = wj
+        self.schedules = {"P_local": self.P_filt, "omega": self.omega}
+
+    def _prior(self, i: int, k: int, prev: dict | None, zero: Any) -> Any:
+        return zero(self.system.dx) if prev is None else self.system.A_at(k - 1) @ prev["xloc"]
+
+    def _fused(self, i: int, k: int, xlocs: dict) -> Any:
+        out = None
+        for lnode, s, Gm in self.fuse[(i, k)]:
+            t = Gm @ xlocs[(lnode, s)]
+            out = t if out is None else out + t
+        return out
+
+    def agent_step(self, i: int, k: int, prev: dict | None, y_i: Any, inbox: Any, zero: Any) -> tuple[dict, dict]:
+        xloc = self.adapt(i, k, self._prior(i, k, prev, zero), {(i, k): y_i})
+        xlocs = {(i, k): xloc, **{(lnode, s): p["xloc"] for (lnode, s, p) in inbox}}
+        return {"xloc": xloc, "xhat": self._fused(i, k, xlocs)}, {"xloc": xloc}
+
+    def team_step(self, k: int, prev: list[dict | None], ys: list[Any], zero: Any) -> list[dict]:
+        n = self.system.n_agents
+        xl = {(i, k): self.adapt(i, k, self._prior(i, k, prev[i], zero), {(i, k): ys[i]}) for i in range(n)}
+        return [{"xloc": xl[(i, k)], "xhat": self._fused(i, k, xl)} for i in range(n)]
+
+
+def design_ci(system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, horizon: int | None = None, *, variant: str = "honest") -> LinearTeamDesign:
+    """Design local Kalman filters with covariance-intersection fusion, with the exact team cost.
+
+    Examples
+    --------
+    >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph
+    >>> d = design_ci(LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 10.0), CommGraph.line(4), 10)
+    >>> d.label
+    'ci [honest]'
+    """
+    check_model(system, cost)
+    check_graph(graph, system.n_agents)
+    variant = check_variant(variant, "variant")
+    T = _horizon(horizon, "ci")
+    system.require_horizon(T)
+    cost.require_horizon(T)
+    alg = CIAlgorithm(system, cost, graph, T, honest=(variant == "honest"))
+    return finish_design("ci", alg, variant)
+
+
+FAMILY = _register_builtin(
+    Family(
+        name="ci",
+        design=design_ci,
+        title="Local Kalman filters fused by covariance intersection, trace-minimizing weights (Julier & Uhlmann 1997)",
+        uses="graph",
+        horizons=frozenset({"finite"}),
+        analytic_cost=True,
+        options=(Option(name="variant", default="honest", check=check_variant, doc=" | ".join(f"{k!r}: {d}" for k, d in VARIANTS.items())),),
+        example="design_ci(system, cost, graph, horizon=100, variant='honest')",
+    )
+)

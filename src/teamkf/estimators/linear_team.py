@@ -1,0 +1,461 @@
+r"""One exact engine for every linear team filter with data-independent gains (the baselines).
+
+Every baseline family (``local``, ``diffusion``, ``ci``, the delay-compensated
+``kcf``) is linear in the data with gains that do not depend on the data. A
+family describes **one step** of its algorithm once, as ordinary code on
+"columns" (arrays whose first axis is the vector's dimension); this module
+
+* runs that code **symbolically** (every quantity is the coefficient matrix of
+  a linear expression over the previous step's stacked *slots* and the new
+  measurements) to obtain the step as a linear map
+
+  .. math:: \xi(k) = F(k)\, \xi(k-1) + K(k)\, y(k), \qquad z(k) = H(k)\, \xi(k),
+
+  where ξ(k) stacks every agent's state and the payloads still in flight
+  (the delayed copies an honest variant needs);
+* derives from it, exactly, the **error recursion**. Every slot has a
+  target T x(s) (an estimate of x(s): T = I; a buffered raw measurement
+  y_j(s): T = C_j(s)), so ε(k) = Π_k X - ξ(k) obeys
+
+  .. math:: \varepsilon(k) = F(k)\,\varepsilon(k-1) - K(k)\, v(k) + \sum_{r=b}^{k-1} B_r(k)\, w(r),
+
+  with x(0) counted as the noise w(-1) (covariance Σ_x). The coefficient of
+  x(b), Z = Π_k Φ - F Π_{k-1} Φ - K C(k) Φ(k, b), vanishes for an unbiased
+  filter; it is computed and checked (a family whose description is biased is
+  a bug and raises), then dropped, so nothing of the size of x ever enters
+  the errors (cancellation-free on unstable processes);
+* propagates the joint covariance of (ε(k), buffered w) exactly: the stage
+  cost is E[c] = tr(S H P_ε(k) Hᵀ) since e = L x - z = H ε;
+* applies the same (F, K, B) to sampled noises (:meth:`errors`) and to given
+  measurements (:meth:`_filter`): one description, three uses.
+
+The honest variants' message-passing agents (:meth:`graph_agents`) run the same
+per-agent step code numerically on what :func:`~teamkf.estimators.base.pass_messages`
+delivers, so the information discipline is that of the runtime.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from .._blas import single_thread_blas
+from .._validation import FloatArray
+from ..exceptions import ShapeError, TeamkfError
+from ..models import LinearGaussianSystem, TeamCost
+from .base import Design
+
+__all__ = ["Slot", "LinearStep", "LinearTeamDesign", "Algorithm", "build_steps", "transition", "process_noise"]
+
+
+def transition(system: LinearGaussianSystem, k_to: int, k_from: int) -> FloatArray:
+    """Φ(k_to, k_from) = A(k_to - 1) ... A(k_from)."""
+    return system.transition(k_to, k_from)
+
+
+def process_noise(system: LinearGaussianSystem, k_to: int, k_from: int) -> FloatArray:
+    """Q(k_to, k_from) = Σ_{r=k_from}^{k_to-1} Φ(k_to, r+1) Q(r) Φ(k_to, r+1)ᵀ (zero when equal)."""
+    dx = system.dx
+    Qm = np.zeros((dx, dx))
+    for r in range(k_from, k_to):
+        A = system.A_at(r)
+        Qm = A @ Qm @ A.T + system.Q_at(r)
+    return 0.5 * (Qm + Qm.T)
+
+
+@dataclass(frozen=True)
+class Slot:
+    """One block of the stacked filter vector ξ(k).
+
+    key : hashable name (``("state", i, "xhat")`` or ``("payload", l, s, "psi")``)
+    kind : "x" (an estimate of x(step): target I) or "y" (agent ``agent``'s raw y(step): target C_agent(step))
+    agent : owner (for "y": whose measurement)
+    step : the step s of its target T x(s)
+    dim : its dimension
+    """
+
+    key: tuple
+    kind: str
+    agent: int
+    step: int
+    dim: int
+
+
+@dataclass(frozen=True, eq=False)
+class LinearStep:
+    """Step k as a linear map: ξ(k) = F ξ(k-1) + K y(k); ε(k) = F ε(k-1) - K v(k) + Σ_r B[r] w(r); z = H ξ."""
+
+    k: int
+    slots: tuple[Slot, ...]
+    F: FloatArray
+    K: FloatArray
+    H: FloatArray
+    B: dict[int, FloatArray]
+
+
+class Algorithm:
+    """What a family writes: one step of its algorithm, on columns (symbolic or numeric).
+
+    Subclasses set ``state_kinds`` and ``payload_kinds`` (name -> "x" or "y"),
+    ``honest`` and ``output`` (the state entry that is x̂_i), and implement
+
+    * ``agent_step(i, k, prev, y_i, inbox, zero) -> (state, payload)`` for an
+      honest (message-passing) algorithm: ``prev`` is agent i's state dict after
+      step k-1 (None at k = 0), ``y_i`` a column of agent i's y_i(k), ``inbox``
+      a list of ``(l, s, payload)`` delivered by the graph at step k;
+    * ``team_step(k, prev, ys, zero) -> list of state dicts`` for an ideal one
+      (within-step exchanges; no graph agents).
+
+    Only ``M @ q``, ``q + q``, ``q - q`` and scalars times q may be used on
+    columns, so the same code runs on coefficient matrices and on data.
+    """
+
+    state_kinds: dict[str, str] = {"xhat": "x"}
+    payload_kinds: dict[str, str] = {}
+    honest: bool = True
+    output: str = "xhat"
+
+    def __init__(self, system: LinearGaussianSystem, cost: TeamCost, graph: Any, horizon: int):
+        self.system, self.cost, self.graph, self.horizon = system, cost, graph, horizon
+
+    def agent_step(
+        self, i: int, k: int, prev: dict | None, y_i: Any, inbox: Sequence[tuple[int, int, dict]], zero: Callable[[int], Any]
+    ) -> tuple[dict, dict]:
+        raise NotImplementedError
+
+    def team_step(self, k: int, prev: list[dict | None], ys: list[Any], zero: Callable[[int], Any]) -> list[dict]:
+        """Default: agents in isolation (no communication)."""
+        return [self.agent_step(i, k, prev[i], ys[i], [], zero)[0] for i in range(self.system.n_agents)]
+
+    def dim(self, kind: str, agent: int) -> int:
+        return self.system.dx if kind == "x" else self.system.dy[agent]
+
+    # --- cached model quantities (time-invariant models: keyed by the lag only) --------------
+    def _key(self, k: int, s: int) -> tuple[int, int]:
+        return (k - s, 0) if not self.system.is_time_varying else (k, s)
+
+    def Phi(self, k: int, s: int) -> FloatArray:
+        """Φ(k, s), cached."""
+        cache = self.__dict__.setdefault("_phi", {})
+        key = self._key(k, s)
+        if key not in cache:
+            cache[key] = self.system.transition(k, s)
+        return cache[key]  # type: ignore[no-any-return]
+
+    def compensated(self, j: int, s: int, k: int) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """(C̃, R̃, G̃ = C̃ᵀR̃⁻¹, Y = G̃ C̃) of y_j(s) as a measurement of x(k), cached."""
+        cache = self.__dict__.setdefault("_comp", {})
+        key = (j, *self._key(k, s))
+        if key not in cache:
+            import scipy.linalg as sla
+
+            Ct, Rt = compensated_measurement(self.system, j, s, k)
+            G = sla.cho_solve(sla.cho_factor(Rt, lower=True), Ct).T
+            cache[key] = (Ct, Rt, G, G @ Ct)
+        return cache[key]  # type: ignore[no-any-return]
+
+
+def _target(system: LinearGaussianSystem, slot: Slot) -> FloatArray:
+    return np.eye(system.dx) if slot.kind == "x" else system.C_at(slot.agent, slot.step)
+
+
+def build_steps(alg: Algorithm) -> list[LinearStep]:
+    """Run ``alg`` symbolically over its horizon: the linear description of every step (with the error terms)."""
+    sysm, cost, T = alg.system, alg.cost, alg.horizon
+    n, dx, dys = sysm.n_agents, sysm.dx, sysm.dy
+    offs = np.concatenate([[0], np.cumsum(dys)]).astype(int)
+    dyt = int(offs[-1])
+    graph = alg.graph
+    ins = (
+        [[(j, graph.delay(j, i)) for j in graph.in_neighbors(i)] for i in range(n)] if (graph is not None and alg.honest) else [[] for _ in range(n)]
+    )
+    max_out = [0] * n
+    for i in range(n):
+        for j, d in ins[i]:
+            max_out[j] = max(max_out[j], d)
+    prev_slots: tuple[Slot, ...] = ()
+    steps: list[LinearStep] = []
+    for k in range(T):
+        starts = np.concatenate([[0], np.cumsum([s.dim for s in prev_slots])]).astype(int)
+        nprev = int(starts[-1])
+        nb = nprev + dyt
+        index = {s.key: (int(starts[a]), s) for a, s in enumerate(prev_slots)}
+
+        def sel(pos: int, d: int, nb: int = nb) -> FloatArray:
+            e = np.zeros((d, nb))
+            e[:, pos : pos + d] = np.eye(d)
+            return e
+
+        def zero(d: int, nb: int = nb) -> FloatArray:
+            return np.zeros((d, nb))
+
+        def get(key: tuple) -> FloatArray:
+            pos, s = index[key]
+            return sel(pos, s.dim)
+
+        ys = [sel(nprev + int(offs[i]), dys[i]) for i in range(n)]
+        prev_states: list[dict | None] = [None if k == 0 else {name: get(("state", i, name)) for name in alg.state_kinds} for i in range(n)]
+        new_slots: list[Slot] = []
+        rows: list[FloatArray] = []
+        if alg.honest:
+            payloads = []
+            for i in range(n):
+                inbox = []
+                for j, d in ins[i]:
+                    s = k - d
+                    if s >= 0:
+                        inbox.append((j, s, {name: get(("payload", j, s, name)) for name in alg.payload_kinds}))
+                st, pl = alg.agent_step(i, k, prev_states[i], ys[i], inbox, zero)
+                for name, kind in alg.state_kinds.items():
+                    new_slots.append(Slot(("state", i, name), kind, i, k, alg.dim(kind, i)))
+                    rows.append(st[name])
+                payloads.append(pl)
+            for j in range(n):  # payloads in flight: sent at s, needed up to s + max out-delay
+                for s in range(k - max_out[j] + 1, k + 1):
+                    if s < 0:
+                        continue
+                    for name, kind in alg.payload_kinds.items():
+                        new_slots.append(Slot(("payload", j, s, name), kind, j, s, alg.dim(kind, j)))
+                        rows.append(payloads[j][name] if s == k else get(("payload", j, s, name)))
+        else:
+            states = alg.team_step(k, prev_states, ys, zero)
+            for i in range(n):
+                for name, kind in alg.state_kinds.items():
+                    new_slots.append(Slot(("state", i, name), kind, i, k, alg.dim(kind, i)))
+                    rows.append(states[i][name])
+        coef = np.vstack(rows)
+        F, K = coef[:, :nprev], coef[:, nprev:]
+        slots = tuple(new_slots)
+        nstarts = np.concatenate([[0], np.cumsum([s.dim for s in slots])]).astype(int)
+        pos_new = {s.key: int(nstarts[a]) for a, s in enumerate(slots)}
+        H = np.zeros((n * cost.dz, int(nstarts[-1])))
+        for i in range(n):
+            p = pos_new[("state", i, alg.output)]
+            H[i * cost.dz : (i + 1) * cost.dz, p : p + dx] = cost.L_block(i, k)
+        B = _noise_terms(alg, k, prev_slots, slots, F, K)
+        steps.append(LinearStep(k=k, slots=slots, F=F, K=K, H=H, B=B))
+        prev_slots = slots
+    return steps
+
+
+def _noise_terms(alg: Algorithm, k: int, prev: Sequence[Slot], new: Sequence[Slot], F: FloatArray, K: FloatArray) -> dict[int, FloatArray]:
+    """Coefficients B[r] of w(r) in ε(k) (w(-1) = x(0)), after checking that x(b) drops out."""
+    sysm = alg.system
+    dx = sysm.dx
+    b = min([s.step for s in prev] + [s.step for s in new] + [k])
+    C = sysm.C_stack(k)
+
+    def target_rows(slots: Sequence[Slot], r: int) -> FloatArray:
+        # coefficient of w(r) in the stacked targets T x(s): T Φ(s, r+1) for r <= s-1
+        out = np.zeros((sum(s.dim for s in slots), dx))
+        p = 0
+        for s in slots:
+            if r <= s.step - 1:
+                out[p : p + s.dim] = _target(sysm, s) @ alg.Phi(s.step, r + 1)
+            p += s.dim
+        return out
+
+    B: dict[int, FloatArray] = {}
+    lo = -1 if b == 0 else b
+    for r in range(lo, k):
+        Bm = target_rows(new, r) - F @ target_rows(prev, r)
+        if r <= k - 1:
+            Bm = Bm - K @ (C @ alg.Phi(k, r + 1))
+        B[r] = Bm
+    if b > 0:  # the coefficient of x(b) must vanish (an unbiased description)
+
+        def base_rows(slots: Sequence[Slot]) -> FloatArray:
+            return np.vstack([_target(sysm, s) @ alg.Phi(s.step, b) for s in slots]) if slots else np.zeros((0, dx))
+
+        Zn, Zp, Zy = base_rows(new), F @ base_rows(prev), K @ (C @ alg.Phi(k, b))
+        Z = Zn - Zp - Zy
+        scale = np.abs(Zn).max(initial=0) + np.abs(Zp).max(initial=0) + np.abs(Zy).max(initial=0) + 1e-300
+        if np.abs(Z).max(initial=0) > 1e-8 * scale:
+            raise TeamkfError(
+                f"step {k}: the linear description is biased (the coefficient of x({b}) in the error is "
+                f"{np.abs(Z).max():.3g}, relative {np.abs(Z).max() / scale:.3g}); the family's step is not an estimator of its targets"
+            )
+    return B
+
+
+@dataclass(frozen=True, eq=False, kw_only=True)
+class LinearTeamDesign(Design):
+    """A design whose every step is a linear map with data-independent gains (see the module docstring).
+
+    Attributes
+    ----------
+    graph : CommGraph or None
+    variant : str
+    steps : tuple of :class:`LinearStep`
+    algorithm : the :class:`Algorithm` that produced them (its per-agent step runs the graph agents)
+    """
+
+    graph: Any = None
+    variant: str = "honest"
+    steps: tuple[LinearStep, ...] = ()
+    algorithm: Any = None
+
+    # --- analytic cost -----------------------------------------------------------------------
+    @staticmethod
+    def analytic(system: LinearGaussianSystem, cost: TeamCost, steps: Sequence[LinearStep]) -> tuple[FloatArray, list[FloatArray]]:
+        """Exact stage costs E[c(x(k), ẑ(k))] = tr(S H P_ε Hᵀ) and the error covariances of the outputs H P_ε Hᵀ."""
+        P = np.zeros((0, 0))
+        X: dict[int, FloatArray] = {}  # Cov(ε(k), w(r)) for buffered r
+        out, covs = [], []
+        Rcache: dict[int, FloatArray] = {}
+        for st in steps:
+            F, K = st.F, st.K
+            rk = st.k if system.is_time_varying else 0
+            if rk not in Rcache:
+                Rcache[rk] = system.R_stack(st.k)
+            Pn = F @ P @ F.T + K @ Rcache[rk] @ K.T
+            Xn: dict[int, FloatArray] = {}
+            for r, Bm in st.B.items():
+                Qr = system.Sigma_x if r == -1 else system.Q_at(r)
+                FX = F @ X[r] if r in X else None
+                if FX is not None:
+                    cross = FX @ Bm.T
+                    Pn = Pn + cross + cross.T
+                BQ = Bm @ Qr
+                Pn = Pn + BQ @ Bm.T
+                Xn[r] = BQ if FX is None else FX + BQ
+            P = 0.5 * (Pn + Pn.T)
+            X = Xn
+            E = st.H @ P @ st.H.T
+            covs.append(E)
+            out.append(float(np.sum(cost.S_at(st.k) * E)))
+        return np.asarray(out), covs
+
+    # --- Monte Carlo ------------------------------------------------------------------------
+    def errors(self, paths: Any) -> FloatArray:
+        """e(k) = L x(k) - ẑ(k) = H ε(k), (n_runs, T', n d_z), from the primitive noises x(0), w, v."""
+        with single_thread_blas():
+            return self._errors(paths)
+
+    def _errors(self, paths: Any) -> FloatArray:
+        x0 = np.asarray(paths.x, dtype=float)[:, 0]
+        w = np.asarray(paths.w, dtype=float)
+        v = np.concatenate([np.asarray(vi, dtype=float) for vi in paths.v], axis=2)
+        n_runs, T = v.shape[:2]
+        if T > len(self.steps):
+            raise ShapeError(f"paths: expected at most horizon = {len(self.steps)} steps, found {T}")
+        eps = np.zeros((n_runs, 0))
+        out = np.empty((n_runs, T, self.n_agents * self.cost.dz))
+        for k in range(T):
+            st = self.steps[k]
+            e = eps @ st.F.T - v[:, k] @ st.K.T
+            for r, Bm in st.B.items():
+                e = e + (x0 if r == -1 else w[:, r]) @ Bm.T
+            eps = e
+            out[:, k] = eps @ st.H.T
+        return out
+
+    def _filter(self, ys: list[FloatArray]) -> FloatArray:
+        with single_thread_blas():
+            return self._run_filter(ys)
+
+    def _run_filter(self, ys: list[FloatArray]) -> FloatArray:
+        y = np.concatenate(ys, axis=2)
+        n_runs, T = y.shape[:2]
+        xi = np.zeros((n_runs, 0))
+        out = np.empty((n_runs, T, self.n_agents * self.cost.dz))
+        for k in range(T):
+            st = self.steps[k]
+            xi = xi @ st.F.T + y[:, k] @ st.K.T
+            out[:, k] = xi @ st.H.T
+        return out
+
+    # --- online agents ---------------------------------------------------------------------------
+    def graph_agents(self) -> list[Any]:
+        """One message-passing agent per node running the family's own step code (honest variants)."""
+        if not getattr(self.algorithm, "honest", False):
+            raise self._unsupported(
+                f"graph_agents() for the {self.variant!r} variant",
+                "it exchanges neighbours' current data within the step, which no delay graph can deliver; use design.filter(y) or variant='honest'",
+            )
+        return [LinearAgent(self, i) for i in range(self.n_agents)]
+
+    @property
+    def delivery_graph(self) -> Any:
+        return self.graph
+
+    def details(self) -> dict[str, Any]:
+        return {"variant": self.variant, "realizable": bool(getattr(self.algorithm, "honest", False)), "state_dim": int(self.steps[-1].F.shape[0])}
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {**super().arrays(), **{k: np.asarray(v) for k, v in getattr(self.algorithm, "schedules", {}).items()}}
+
+
+class LinearAgent:
+    """Agent i of an honest linear family on the message-passing runtime (the family's step code on data)."""
+
+    def __init__(self, design: LinearTeamDesign, index: int):
+        self.design, self.index = design, index
+
+    def init_state(self, n_runs: int) -> dict[str, Any]:
+        return {"n_runs": n_runs, "state": None}
+
+    def step(self, state: dict[str, Any], k: int, own: Any, inbox: Sequence[Any]) -> tuple[dict[str, Any], FloatArray, Any]:
+        d, i = self.design, self.index
+        if k >= len(d.steps):
+            raise ShapeError(f"k: the design has horizon = {len(d.steps)} steps, found step {k}; design a longer horizon")
+        n_runs = state["n_runs"]
+        y_col = np.asarray(own, dtype=float).T
+        box = [(j, s, p) for (j, s, p) in inbox]
+
+        def zero(dim: int) -> FloatArray:
+            return np.zeros((dim, n_runs))
+
+        st, pl = d.algorithm.agent_step(i, k, state["state"], y_col, box, zero)
+        z = (d.cost.L_block(i, k) @ st[d.algorithm.output]).T
+        return {"n_runs": n_runs, "state": st}, z, pl
+
+
+def finish_design(estimator: str, alg: Algorithm, variant: str, info: dict[str, Any] | None = None) -> LinearTeamDesign:
+    """Build the steps of ``alg``, their exact cost, and the design object."""
+    with single_thread_blas():  # many medium GEMMs: one BLAS thread is robust on a shared machine
+        steps = build_steps(alg)
+        with np.errstate(over="ignore", invalid="ignore"):
+            stage, _ = LinearTeamDesign.analytic(alg.system, alg.cost, steps)
+    inf = {"variant": variant, "cost_method": "analytic", **(info or {})}
+    return LinearTeamDesign(
+        estimator=estimator,
+        horizon=alg.horizon,
+        system=alg.system,
+        cost=alg.cost,
+        stage_costs=stage,
+        info=inf,
+        graph=alg.graph,
+        variant=variant,
+        steps=tuple(steps),
+        algorithm=alg,
+    )
+
+
+def compensated_measurement(system: LinearGaussianSystem, j: int, s: int, k: int) -> tuple[FloatArray, FloatArray]:
+    r"""y_j(s) as a measurement of x(k) (delay compensation of an information pair).
+
+    With x(k) = Φ x(s) + n, n ~ N(0, Q(k, s)) and Φ = Φ(k, s) invertible,
+    y_j(s) = C̃ x(k) + ṽ with C̃ = C_j(s) Φ⁻¹ and R̃ = R_j(s) + C̃ Q(k, s) C̃ᵀ: the
+    information pair (C̃ᵀR̃⁻¹C̃, C̃ᵀR̃⁻¹y_j(s)) is the pair of y_j(s) "through the
+    prediction with process noise" (its likelihood of x(k) under a flat prior on
+    x(s)). For s = k it is (C_j(k), R_j(k)).
+    """
+    C, R = system.C_at(j, s), system.R_at(j, s)
+    if s == k:
+        return C, R
+    Phi = system.transition(k, s)
+    try:
+        Ct = np.linalg.solve(Phi.T, C.T).T
+    except np.linalg.LinAlgError as exc:
+        from ..exceptions import ArgumentError
+
+        raise ArgumentError(
+            f"system.A: the delay compensation of y_{j}({s}) at step {k} needs an invertible Φ({k}, {s}), found a singular one; "
+            "use the 'ideal' variant or a model with invertible A",
+            argument="system.A",
+        ) from exc
+    Rt = R + Ct @ process_noise(system, k, s) @ Ct.T
+    return Ct, 0.5 * (Rt + Rt.T)
