@@ -115,6 +115,7 @@ class CentralizedDesign(Design):
     P_filt: FloatArray
 
     omniscient: ClassVar[bool] = True
+    handles_missing: ClassVar[bool] = True  # zero gain on a decoupled pseudo-measurement (teamkf.study.measurements)
 
     def K_at(self, k: int) -> FloatArray:
         return self.K if self.horizon is None else self.K[k]  # type: ignore[no-any-return]

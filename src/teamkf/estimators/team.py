@@ -38,7 +38,7 @@ Tr(L'SL P_0) - eta' Gamma^-1 eta (eq. 35).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Callable, Literal, Sequence
+from typing import Any, Callable, ClassVar, Literal, Sequence
 
 import numpy as np
 import scipy.linalg as sla
@@ -299,6 +299,9 @@ class TeamDesign(Design):
     K: FloatArray
     P_pred: FloatArray
     warmup: Callable[[int], tuple[FloatArray, ...]] | None = field(default=None, repr=False)
+
+    #: exact on the masked model of a missingness pattern (zero gains on decoupled pseudo-measurements)
+    handles_missing: ClassVar[bool] = True
 
     def gain_at(self, k: int) -> tuple:
         """F_i(k) for every agent (steady state: the exact transient gains for k < c, then F-bar)."""
