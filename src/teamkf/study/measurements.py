@@ -84,6 +84,8 @@ __all__ = [
     "masked_system",
     "design_for_log",
     "filter_log",
+    "online_estimates",
+    "realized_costs",
     "FORMATS",
 ]
 
@@ -624,6 +626,19 @@ def realized_costs(cost: Any, x: FloatArray, z: FloatArray) -> FloatArray:
     return c[0] if single else c
 
 
+def online_estimates(design: Any, ys: Sequence[FloatArray]) -> FloatArray:
+    """One run's estimates (n_steps, n d_z) from the design's online agents, exactly as the Monte Carlo
+    ``path="runtime"`` computes them (message passing over the design's graph, or delivery by its
+    information structure); ``design.filter`` for a design without online agents (the ideal KCF)."""
+    from ..simulation.monte_carlo import runtime_estimates
+
+    batch = [np.asarray(y, dtype=float)[None] for y in ys]
+    try:
+        return np.asarray(runtime_estimates(design, batch))[0]
+    except UnsupportedOperationError:
+        return np.asarray(design.filter(list(ys)))
+
+
 def filter_log(scenario: Any, log: MeasurementLog | Sequence[Any], *, estimators: Sequence[str] | None = None, truth: Any = None) -> FilterResult:
     """Run every estimator of ``scenario`` (or ``estimators``) on a recorded log.
 
@@ -648,7 +663,7 @@ def filter_log(scenario: Any, log: MeasurementLog | Sequence[Any], *, estimators
         d = design_for_log(scenario, name, log)
         designs[name] = d
         with np.errstate(over="ignore", invalid="ignore"):
-            est[name] = np.asarray(d.filter(ys))
+            est[name] = online_estimates(d, ys)
     costs = None
     if truth is not None:
         x = V.as_float_array(truth, "truth")
