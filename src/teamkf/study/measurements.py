@@ -67,6 +67,7 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import numpy as np
+import scipy.linalg as sla
 
 from .. import _validation as V
 from .._validation import FloatArray
@@ -87,6 +88,10 @@ __all__ = [
     "online_estimates",
     "realized_costs",
     "FORMATS",
+    "KnownInputs",
+    "known_inputs",
+    "Innovations",
+    "innovations",
 ]
 
 #: file extensions understood (lower case)
@@ -127,6 +132,7 @@ class MeasurementLog:
 
     y: list[FloatArray]
     source: str = "<arrays>"
+    u: FloatArray | None = None
 
     @property
     def n_steps(self) -> int:
@@ -159,8 +165,10 @@ class MeasurementLog:
         return [np.where(np.isnan(yi), 0.0, yi) for yi in self.y]
 
     @classmethod
-    def from_arrays(cls, y: Sequence[Any], system: LinearGaussianSystem, horizon: int | None = None, source: str = "<arrays>") -> "MeasurementLog":
-        """Validate per-agent arrays (n_steps, d_y^i) with NaN for missing values."""
+    def from_arrays(
+        cls, y: Sequence[Any], system: LinearGaussianSystem, horizon: int | None = None, source: str = "<arrays>", u: Any = None
+    ) -> "MeasurementLog":
+        """Validate per-agent arrays (n_steps, d_y^i) with NaN for missing values (and known inputs u, (n_steps, d_u))."""
         n = system.n_agents
         if not isinstance(y, (list, tuple)) or len(y) != n:
             raise MeasurementFileError(
@@ -193,7 +201,11 @@ class MeasurementLog:
             )
         for a in ys:
             a.setflags(write=False)
-        return cls(ys, source)
+        if u is not None:
+            u = np.asarray(u, dtype=float)
+            if u.ndim != 2 or u.shape[0] != T or not np.all(np.isfinite(u)):
+                raise _fmt_err(source, "u", f"expected finite known inputs of shape ({T}, d_u), found shape {u.shape}")
+        return cls(ys, source, u)
 
 
 # ---------------------------------------------------------------------------
@@ -275,8 +287,12 @@ def read_measurements(path: str | Path, system: LinearGaussianSystem, horizon: i
     n, dys = system.n_agents, system.dy
     m = max(dys)
     want = ["step", "agent"] + [f"y{c}" for c in range(m)]
+    ucols = sorted((c for c in df.columns if isinstance(c, str) and c.startswith("u") and c[1:].isdigit()), key=lambda c: int(c[1:]))
+    if ucols and ucols != [f"u{c}" for c in range(len(ucols))]:
+        raise _fmt_err(p, f"column {ucols[-1]!r}", f"input columns must be u0..u{len(ucols) - 1} without gaps, found {', '.join(ucols)}")
+    want_all = want + ucols
     for col in df.columns:
-        if col not in want:
+        if col not in want_all:
             extra = (
                 f"; the model has max d_y = {m}, so the columns are {', '.join(want)}"
                 if col.startswith("y")
@@ -338,7 +354,37 @@ def read_measurements(path: str | Path, system: LinearGaussianSystem, horizon: i
         rows = agent == i
         a[step[rows]] = vals[rows][:, : dys[i]]
         ys.append(a)
-    return MeasurementLog.from_arrays(ys, system, horizon, source=str(p))
+    u = _read_u_columns(df, ucols, step, T, p, csv) if ucols else None
+    return MeasurementLog.from_arrays(ys, system, horizon, source=str(p), u=u)
+
+
+def _read_u_columns(df: Any, ucols: list[str], step: np.ndarray, T: int, p: Path, csv: bool) -> FloatArray:
+    """u(t) from the u columns: every row of a step must give the same finite values, every step needs one."""
+    uv = df[ucols].to_numpy(dtype=float)
+    bad = np.argwhere(~np.isfinite(uv))
+    if bad.size:
+        r, c = (int(v) for v in bad[0])
+        raise _fmt_err(p, _where(r, ucols[c], csv), f"expected a finite input value, found {uv[r, c]} (known inputs u(t) cannot be missing)")
+    u = np.full((T, len(ucols)), np.nan)
+    for r in np.argsort(step, kind="stable"):
+        s = step[r]
+        if np.isnan(u[s, 0]):
+            u[s] = uv[r]
+        elif not np.array_equal(u[s], uv[r]):
+            c = int(np.flatnonzero(u[s] != uv[r])[0])
+            raise _fmt_err(
+                p,
+                _where(int(r), ucols[c], csv),
+                f"step {int(s)} has input {ucols[c]} = {uv[r, c]} here and {u[s, c]} on another row; u(t) is one value per step",
+            )
+    gone = np.flatnonzero(np.isnan(u[:, 0]))
+    if gone.size:
+        raise _fmt_err(
+            p,
+            f"column {ucols[0]!r}",
+            f"step {int(gone[0])} has no row, so no input u({int(gone[0])}); give a row (y cells may be empty) for every step",
+        )
+    return u
 
 
 def _npz_arrays(p: Path) -> dict[str, np.ndarray]:
@@ -365,6 +411,9 @@ def _read_npz(p: Path, system: LinearGaussianSystem, horizon: int | None) -> Mea
                 f"key {next(k for k in names if k not in arrs)!r}",
                 f"missing; expected one array per agent: {', '.join(names)} (found {', '.join(arrs) or 'none'})",
             )
+    u = arrs.pop("u", None)
+    if u is not None and u.dtype.kind not in "fiub":
+        raise _fmt_err(p, "key 'u'", f"expected numbers, found dtype {u.dtype}")
     extra = [k for k in arrs if k not in names]
     if extra:
         raise _fmt_err(p, f"key {extra[0]!r}", f"unknown array; expected {', '.join(names)} (the scenario has {n} agents)")
@@ -374,7 +423,7 @@ def _read_npz(p: Path, system: LinearGaussianSystem, horizon: int | None) -> Mea
         if a.dtype.kind not in "fiub":
             raise _fmt_err(p, f"key {k!r}", f"expected numbers, found dtype {a.dtype}")
         ys.append(a.astype(float))
-    return MeasurementLog.from_arrays(ys, system, horizon, source=str(p))
+    return MeasurementLog.from_arrays(ys, system, horizon, source=str(p), u=None if u is None else u.astype(float))
 
 
 def read_truth(path: str | Path, dx: int, n_steps: int) -> FloatArray:
@@ -434,16 +483,18 @@ def read_truth(path: str | Path, dx: int, n_steps: int) -> FloatArray:
 # ---------------------------------------------------------------------------
 # writers
 # ---------------------------------------------------------------------------
-def write_measurements(path: str | Path | Any, y: Sequence[Any], *, fmt: str | None = None) -> None:
+def write_measurements(path: str | Path | Any, y: Sequence[Any], *, fmt: str | None = None, u: Any = None) -> None:
     """Write per-agent measurements (n_steps, d_y^i) (NaN = missing) in long form (CSV/Parquet) or NPZ.
 
     ``path`` may be an open binary file when ``fmt`` (".csv", ".parquet", ".npz") is given.
-    A CSV/Parquet file has a row for every (step, agent) with at least one value.
+    A CSV/Parquet file has a row for every (step, agent) with at least one value (every row
+    when known inputs ``u`` (n_steps, d_u) are given: columns ``u0, u1, ...``, NPZ key ``u``).
     """
     suffix = fmt if fmt is not None else _suffix(Path(path), "path")
     ys = [np.asarray(a, dtype=float) for a in y]
+    uu = None if u is None else np.asarray(u, dtype=float).reshape(ys[0].shape[0], -1)
     if suffix == ".npz":
-        np.savez(path, **{f"agent{i}": a for i, a in enumerate(ys)})
+        np.savez(path, **{f"agent{i}": a for i, a in enumerate(ys)}, **({} if uu is None else {"u": uu}))
         return
     pd = _pandas()
     m = max(a.shape[1] for a in ys)
@@ -452,14 +503,16 @@ def write_measurements(path: str | Path | Any, y: Sequence[Any], *, fmt: str | N
     for i, a in enumerate(ys):
         full = np.full((T, m), np.nan)
         full[:, : a.shape[1]] = a
-        keep = ~np.isnan(a).all(axis=1)
+        keep = ~np.isnan(a).all(axis=1) if uu is None else np.ones(T, dtype=bool)
         blocks.append((np.flatnonzero(keep), np.full(int(keep.sum()), i), full[keep]))
     step = np.concatenate([b[0] for b in blocks])
     agent = np.concatenate([b[1] for b in blocks])
     vals = np.concatenate([b[2] for b in blocks])
     order = np.lexsort((agent, step))
-    df = pd.DataFrame({"step": step[order], "agent": agent[order], **{f"y{c}": vals[order, c] for c in range(m)}})
-    _write_frame(df, path, suffix)
+    cols = {"step": step[order], "agent": agent[order], **{f"y{c}": vals[order, c] for c in range(m)}}
+    if uu is not None:
+        cols.update({f"u{c}": uu[step[order], c] for c in range(uu.shape[1])})
+    _write_frame(pd.DataFrame(cols), path, suffix)
 
 
 def _write_frame(df: Any, path: Any, suffix: str) -> None:
@@ -499,6 +552,207 @@ def write_estimates(path: str | Path | Any, estimates: Mapping[str, FloatArray],
             f"{path}: expected an output file ending in .csv or .parquet, found {suffix or 'no extension'!r}", argument="--out"
         )
     _write_frame(estimates_frame(estimates, n_agents), path, suffix)
+
+
+# ---------------------------------------------------------------------------
+# known means: prior mean, inputs and offsets
+# ---------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class KnownInputs:
+    r"""Known means that every agent knows: prior mean, inputs and offsets.
+
+    .. math::
+
+        x(0) \sim N(\bar x_0, \Sigma_x), \quad x(t+1) = A x(t) + B u(t) + b + w(t), \quad
+        y_i(t) = C_i x(t) + D_i u(t) + d_i + v_i(t)
+
+    Every family designed for the zero-mean model runs on the centred data
+    y_i(t) - \bar y_i(t) and adds L_i(t) m(t), with the mean trajectory
+    m(0) = \bar x_0, m(t+1) = A m(t) + B u(t) + b and \bar y_i(t) = C_i m(t) + D_i u(t) + d_i.
+    For the centralized filter, MTMSE and MMSE this is the exact optimum of the
+    affine problem (the errors x - m, y - \bar y are the zero-mean problem and
+    the means are common knowledge); for every linear filter it is the filter
+    run with the known inputs in its prediction step. Errors, and so every
+    analytic and Monte Carlo cost, do not change.
+
+    Attributes
+    ----------
+    x0_mean : (d_x,)
+    B : (d_x, d_u) or None
+    u : (d_u,) constant input, or None (then per-step inputs come with the measurements)
+    b : (d_x,)
+    D : tuple over agents of (d_y^i, d_u) or None
+    d : tuple over agents of (d_y^i,)
+    """
+
+    x0_mean: FloatArray
+    b: FloatArray
+    d: tuple[FloatArray, ...]
+    B: FloatArray | None = None
+    u: FloatArray | None = None
+    D: tuple[FloatArray, ...] | None = None
+
+    def inputs(self, T: int, u_log: FloatArray | None) -> FloatArray | None:
+        """u(0..T-1): from the log when it has them, else the constant u (None without inputs)."""
+        if self.B is None and self.D is None:
+            return None
+        du = self.B.shape[1] if self.B is not None else self.D[0].shape[1]  # type: ignore[index]
+        if u_log is not None:
+            if u_log.shape[1] != du:
+                raise MeasurementFileError(
+                    f"u: the scenario's B/D take {du} inputs, the measurements give {u_log.shape[1]} (u0..u{u_log.shape[1] - 1})", argument="u"
+                )
+            if self.u is not None:
+                raise MeasurementFileError("u: given both as system.u in the scenario and as u columns of the measurements; keep one", argument="u")
+            return u_log[:T]
+        if self.u is None:
+            raise MeasurementFileError(
+                f"u: the scenario has B/D but no inputs; give system.u (a constant) or u0..u{du - 1} columns in the measurements", argument="u"
+            )
+        return np.broadcast_to(self.u, (T, du))
+
+    def means(self, system: LinearGaussianSystem, T: int, u_log: FloatArray | None = None) -> tuple[FloatArray, list[FloatArray]]:
+        """The mean trajectory m (T, d_x) and the measurement means ȳ_i (T, d_y^i)."""
+        u = self.inputs(T, u_log)
+        m = np.empty((T, system.dx))
+        m[0] = self.x0_mean
+        for t in range(T - 1):
+            nxt = system.A_at(t) @ m[t] + self.b
+            if u is not None and self.B is not None:
+                nxt = nxt + self.B @ u[t]
+            m[t + 1] = nxt
+        ybar = []
+        for i in range(system.n_agents):
+            yi = np.stack([system.C_at(i, t) @ m[t] for t in range(T)]) + self.d[i]
+            if u is not None and self.D is not None:
+                yi = yi + u @ self.D[i].T
+            ybar.append(yi)
+        return m, ybar
+
+
+def known_inputs(scenario: Any) -> KnownInputs | None:
+    """The known means of a scenario (``[system] x0_mean, B, u, b``; ``[[agents]] D, d``), validated, or None."""
+    from ..exceptions import ScenarioError
+
+    raw = getattr(scenario, "raw", {}) or {}
+    s = raw.get("system", {}) or {}
+    agents = raw.get("agents", []) or []
+    keys = ("x0_mean", "B", "u", "b")
+    if not any(k in s for k in keys) and not any(isinstance(a, dict) and ("D" in a or "d" in a) for a in agents):
+        return None
+    sys_ = scenario.system
+    dx, n = sys_.dx, sys_.n_agents
+
+    def vec(x: Any, key: str, size: int) -> FloatArray:
+        try:
+            a = np.asarray(x, dtype=float)
+        except (TypeError, ValueError):
+            raise ScenarioError(f"{key}: expected a number or a list of {size} numbers, found {V.describe(x)}", argument=key) from None
+        a = np.broadcast_to(a, (size,)).copy() if a.ndim == 0 else a
+        if a.shape != (size,) or not np.all(np.isfinite(a)):
+            raise ScenarioError(f"{key}: expected {size} finite numbers, found shape {a.shape}", argument=key)
+        return a
+
+    def mat(x: Any, key: str, rows: int, cols: int | None) -> FloatArray:
+        try:
+            a = np.asarray(x, dtype=float)
+        except (TypeError, ValueError):
+            raise ScenarioError(f"{key}: expected a matrix of numbers, found {V.describe(x)}", argument=key) from None
+        if a.ndim != 2 or a.shape[0] != rows or (cols is not None and a.shape[1] != cols) or not np.all(np.isfinite(a)):
+            want = f"{rows}x{cols}" if cols is not None else f"{rows}xd_u"
+            raise ScenarioError(f"{key}: expected a finite {want} matrix, found shape {a.shape}", argument=key)
+        return a
+
+    x0 = vec(s.get("x0_mean", 0.0), "system.x0_mean", dx)
+    b = vec(s.get("b", 0.0), "system.b", dx)
+    B = mat(s["B"], "system.B", dx, None) if "B" in s else None
+    du = B.shape[1] if B is not None else None
+    Ds: list[FloatArray] | None = None
+    if any("D" in a for a in agents):
+        Ds = []
+        for i, a in enumerate(agents):
+            if "D" in a:
+                Di = mat(a["D"], f"agents[{i}].D", sys_.dy[i], du)
+                du = Di.shape[1] if du is None else du
+            else:
+                Di = None
+            Ds.append(Di)  # type: ignore[arg-type]
+        Ds = [Di if Di is not None else np.zeros((sys_.dy[i], du)) for i, Di in enumerate(Ds)]  # type: ignore[arg-type]
+    u = vec(s["u"], "system.u", du) if "u" in s and du is not None else None
+    if "u" in s and du is None:
+        raise ScenarioError("system.u: inputs need system.B (or agents[i].D) to act on; add B or drop u", argument="system.u")
+    d = tuple(vec(a.get("d", 0.0), f"agents[{i}].d", sys_.dy[i]) for i, a in enumerate(agents))
+    if len(d) != n:
+        d = tuple(np.zeros(k) for k in sys_.dy)
+    return KnownInputs(x0_mean=x0, b=b, d=d, B=B, u=u, D=None if Ds is None else tuple(Ds))
+
+
+# ---------------------------------------------------------------------------
+# innovations and log-likelihood under the centralized filter
+# ---------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class Innovations:
+    r"""Innovations of the centralized Kalman filter on a log, and the log-likelihood of the data.
+
+    e(t) = y(t) - C(t) x̂(t|t-1) - ȳ-terms over the components present at t,
+    S(t) = C(t) P(t) C(t)' + R(t) (present rows), and
+
+    .. math::
+
+        \log p(y) = \sum_t -\tfrac12 \left[ m_t \log 2\pi + \log\det S(t) + e(t)' S(t)^{-1} e(t) \right]
+
+    with m_t the number of components present at t (a step with none adds 0).
+
+    Attributes
+    ----------
+    e : list over agents of (n_steps, d_y^i), NaN where missing
+    loglik_steps : (n_steps,)
+    """
+
+    e: list[FloatArray]
+    loglik_steps: FloatArray
+
+    @property
+    def loglik(self) -> float:
+        return float(np.sum(self.loglik_steps))
+
+
+def innovations(system: LinearGaussianSystem, log: MeasurementLog, inputs: KnownInputs | None = None) -> Innovations:
+    """Innovations and log-likelihood of ``log`` under the centralized filter (gaps: present rows only)."""
+    T, n, dx = log.n_steps, system.n_agents, system.dx
+    if inputs is not None:
+        _, ybar = inputs.means(system, T, log.u)
+        yc = [log.y[i] - ybar[i] for i in range(n)]
+    else:
+        yc = list(log.y)
+    pres = log.present
+    x, P = np.zeros(dx), np.array(system.Sigma_x, dtype=float)
+    e = [np.full(y.shape, np.nan) for y in log.y]
+    ll = np.zeros(T)
+    for t in range(T):
+        C = np.vstack([system.C_at(i, t)[pres[i][t]] for i in range(n)])
+        blocks = [system.R_at(i, t)[np.ix_(pres[i][t], pres[i][t])] for i in range(n)]
+        R = sla.block_diag(*blocks)
+        y = np.concatenate([yc[i][t][pres[i][t]] for i in range(n)])
+        if y.size:
+            S = C @ P @ C.T + R
+            S = 0.5 * (S + S.T)
+            r = y - C @ x
+            cf = sla.cho_factor(S, lower=True, check_finite=False)
+            K = sla.cho_solve(cf, C @ P, check_finite=False).T
+            ll[t] = -0.5 * (y.size * np.log(2 * np.pi) + 2 * np.sum(np.log(np.diag(cf[0]))) + r @ sla.cho_solve(cf, r, check_finite=False))
+            pos = 0
+            for i in range(n):
+                k = int(pres[i][t].sum())
+                e[i][t, pres[i][t]] = r[pos : pos + k]
+                pos += k
+            x = x + K @ r
+            IKC = np.eye(dx) - K @ C
+            P = IKC @ P @ IKC.T + K @ R @ K.T
+        A = system.A_at(t)
+        x = A @ x
+        P = A @ P @ A.T + system.Q_at(t)
+    return Innovations(e, ll)
 
 
 # ---------------------------------------------------------------------------
@@ -594,6 +848,12 @@ class FilterResult:
     n_agents: int
     stage_costs: dict[str, FloatArray] | None = None
     designs: dict[str, Any] = field(default_factory=dict, repr=False)
+    innovations: Innovations | None = None
+
+    @property
+    def loglik(self) -> float | None:
+        """log p(y) under the centralized filter (None when not computed)."""
+        return None if self.innovations is None else self.innovations.loglik
 
     @property
     def total_costs(self) -> dict[str, float] | None:
@@ -611,6 +871,8 @@ class FilterResult:
         out: dict[str, Any] = {"steps": T, "agents": self.n_agents, "estimators": list(self.estimates)}
         if self.stage_costs is not None:
             out["total_cost"] = {k: json_float(v) for k, v in (self.total_costs or {}).items()}
+        if self.innovations is not None:
+            out["loglik"] = json_float(self.innovations.loglik)
         return out
 
 
@@ -639,7 +901,15 @@ def online_estimates(design: Any, ys: Sequence[FloatArray]) -> FloatArray:
         return np.asarray(design.filter(list(ys)))
 
 
-def filter_log(scenario: Any, log: MeasurementLog | Sequence[Any], *, estimators: Sequence[str] | None = None, truth: Any = None) -> FilterResult:
+def filter_log(
+    scenario: Any,
+    log: MeasurementLog | Sequence[Any],
+    *,
+    estimators: Sequence[str] | None = None,
+    truth: Any = None,
+    inputs: Any = "scenario",
+    with_innovations: bool = True,
+) -> FilterResult:
     """Run every estimator of ``scenario`` (or ``estimators``) on a recorded log.
 
     Parameters
@@ -648,6 +918,8 @@ def filter_log(scenario: Any, log: MeasurementLog | Sequence[Any], *, estimators
     log : MeasurementLog, or per-agent (n_steps, d_y^i) arrays (NaN = missing)
     estimators : names (default: the scenario's)
     truth : (n_steps, d_x) states, or None
+    inputs : KnownInputs, None (zero means) or "scenario" (default: :func:`known_inputs` of the scenario)
+    with_innovations : also compute the centralized filter's innovations and log-likelihood
 
     Returns
     -------
@@ -656,14 +928,29 @@ def filter_log(scenario: Any, log: MeasurementLog | Sequence[Any], *, estimators
     if not isinstance(log, MeasurementLog):
         log = MeasurementLog.from_arrays(log, scenario.system, scenario.horizon)
     names = list(scenario.estimators if estimators is None else estimators)
-    ys = log.filled()
+    known = known_inputs(scenario) if inputs == "scenario" else inputs
+    T, n = log.n_steps, scenario.system.n_agents
+    if known is not None:
+        mean, ybar = known.means(scenario.system, T, log.u)
+        ys = [np.where(np.isnan(log.y[i]), 0.0, log.y[i] - ybar[i]) for i in range(n)]
+    else:
+        if log.u is not None:
+            raise MeasurementFileError(
+                f"{log.source}: u columns: the scenario has no input matrix (system.B or agents[i].D) to use them; add one or drop the columns",
+                argument="u",
+            )
+        ys = log.filled()
     est: dict[str, FloatArray] = {}
     designs: dict[str, Any] = {}
     for name in names:
         d = design_for_log(scenario, name, log)
         designs[name] = d
         with np.errstate(over="ignore", invalid="ignore"):
-            est[name] = online_estimates(d, ys)
+            z = online_estimates(d, ys)
+            if known is not None:
+                z = z + np.stack([scenario.cost.L_at(k) @ mean[k] for k in range(T)])
+        est[name] = z
+    inn = innovations(scenario.system, log, known) if with_innovations else None
     costs = None
     if truth is not None:
         x = V.as_float_array(truth, "truth")
@@ -671,4 +958,4 @@ def filter_log(scenario: Any, log: MeasurementLog | Sequence[Any], *, estimators
             raise MeasurementFileError(f"truth: expected shape ({log.n_steps}, {scenario.system.dx}) (steps, d_x), found {x.shape}", argument="truth")
         with np.errstate(over="ignore", invalid="ignore"):
             costs = {name: realized_costs(scenario.cost, x, z) for name, z in est.items()}
-    return FilterResult(est, scenario.system.n_agents, costs, designs)
+    return FilterResult(est, scenario.system.n_agents, costs, designs, inn)
