@@ -225,13 +225,17 @@ def _read_table(path: Path, suffix: str) -> Any:
             raise _fmt_err(path, "", "the file is empty; expected a header row 'step,agent,y0,...'") from None
         except pd.errors.ParserError as exc:
             raise _fmt_err(path, "", f"not a valid CSV file ({' '.join(str(exc).split())})") from None
-        first_line = 2
     else:
         try:
             df = pd.read_parquet(path)
         except Exception as exc:  # pyarrow raises its own types for a corrupt file
             raise _fmt_err(path, "", f"not a readable Parquet file ({type(exc).__name__}: {' '.join(str(exc).split())[:200]})") from None
-        first_line = None
+    return _coerce_numeric(df, path, suffix == ".csv")
+
+
+def _coerce_numeric(df: Any, path: Path, csv: bool, row0: int = 0) -> Any:
+    """Every column numeric; the first string is reported with its row (``row0``: rows before this chunk) and column."""
+    pd = _pandas()
     for col in df.columns:
         if not isinstance(col, str):
             raise _fmt_err(path, f"column {col!r}", "expected string column names")
@@ -241,8 +245,7 @@ def _read_table(path: Path, suffix: str) -> Any:
             bad = np.flatnonzero(num.isna().to_numpy() & s.notna().to_numpy())
             if bad.size:
                 r = int(bad[0])
-                line = f" (line {r + first_line})" if first_line else ""
-                raise _fmt_err(path, f"row {r + 1}{line}, column {col!r}", f"expected a number, found {s.iloc[r]!r}")
+                raise _fmt_err(path, _where(r + row0, col, csv), f"expected a number, found {s.iloc[r]!r}")
             df[col] = num.astype(float)
     return df
 
@@ -251,13 +254,94 @@ def _where(r: int, col: str, csv: bool) -> str:
     return f"row {r + 1}" + (f" (line {r + 2})" if csv else "") + f", column {col!r}"
 
 
-def _int_column(df: Any, col: str, path: Path, csv: bool) -> np.ndarray:
+_where_abs = _where
+
+
+def _int_column(df: Any, col: str, path: Path, csv: bool, row0: int = 0) -> np.ndarray:
     a = df[col].to_numpy(dtype=float)
     bad = np.flatnonzero(~np.isfinite(a) | (a != np.round(a)))
     if bad.size:
         r = int(bad[0])
-        raise _fmt_err(path, _where(r, col, csv), f"expected a whole number, found {df[col].iloc[r]!r}")
+        raise _fmt_err(path, _where(r + row0, col, csv), f"expected a whole number, found {df[col].iloc[r]!r}")
     return a.astype(np.int64)
+
+
+def _check_columns(df: Any, p: Path, system: LinearGaussianSystem) -> list[str]:
+    """The columns step, agent, y0..y{m-1} (m = max d_y^i), and optional u0..; returns the u columns."""
+    m = max(system.dy)
+    want = ["step", "agent"] + [f"y{c}" for c in range(m)]
+    ucols = sorted((c for c in df.columns if isinstance(c, str) and c.startswith("u") and c[1:].isdigit()), key=lambda c: int(c[1:]))
+    if ucols and ucols != [f"u{c}" for c in range(len(ucols))]:
+        raise _fmt_err(p, f"column {ucols[-1]!r}", f"input columns must be u0..u{len(ucols) - 1} without gaps, found {', '.join(ucols)}")
+    want_all = want + ucols
+    for col in df.columns:
+        if col not in want_all:
+            extra = (
+                f"; the model has max d_y = {m}, so the columns are {', '.join(want)}"
+                if col.startswith("y")
+                else f"; expected the columns {', '.join(want)}"
+            )
+            raise _fmt_err(p, f"column {col!r}", f"unknown column{extra}")
+    for col in want:
+        if col not in df.columns:
+            raise _fmt_err(p, f"column {col!r}", f"missing; expected the columns {', '.join(want)} (one y column per measurement component)")
+    return ucols
+
+
+def _validate_rows(
+    df: Any, p: Path, system: LinearGaussianSystem, horizon: int | None, n_steps: int | None, csv: bool, row0: int = 0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(step, agent, y values) of validated rows; ``row0`` rows came before (chunked reading)."""
+    n, dys = system.n_agents, system.dy
+    m = max(dys)
+
+    def _where(r: int, col: str, csv: bool) -> str:
+        return _where_abs(r + row0, col, csv)
+
+    step = _int_column(df, "step", p, csv, row0)
+    agent = _int_column(df, "agent", p, csv, row0)
+    bad = np.flatnonzero((agent < 0) | (agent >= n))
+    if bad.size:
+        r = int(bad[0])
+        raise _fmt_err(p, _where(r, "agent", csv), f"unknown agent {int(agent[r])}; the scenario has agents 0..{n - 1}")
+    bad = np.flatnonzero(step < 0)
+    if bad.size:
+        r = int(bad[0])
+        raise _fmt_err(p, _where(r, "step", csv), f"expected a step >= 0, found {int(step[r])}")
+    limit = horizon if horizon is not None else n_steps
+    if limit is not None:
+        bad = np.flatnonzero(step >= limit)
+        if bad.size:
+            r = int(bad[0])
+            what = f"the scenario's horizon of {horizon} steps" if horizon is not None else f"n_steps = {n_steps}"
+            raise _fmt_err(p, _where(r, "step", csv), f"step {int(step[r])} is beyond {what} (steps 0..{limit - 1}); drop it or raise horizon")
+    key = step * n + agent
+    order = np.argsort(key, kind="stable")
+    dup = np.flatnonzero(key[order][1:] == key[order][:-1])
+    if dup.size:
+        r2 = int(order[dup[0] + 1])
+        r1 = int(order[dup[0]])
+        r1, r2 = min(r1, r2), max(r1, r2)
+        raise _fmt_err(
+            p,
+            _where(r2, "step", csv),
+            f"duplicated (step, agent) = ({int(step[r2])}, {int(agent[r2])}), first at row {r1 + 1 + row0}; keep one row per agent and step",
+        )
+    vals = df[[f"y{c}" for c in range(m)]].to_numpy(dtype=float)
+    bad = np.argwhere(np.isinf(vals))
+    if bad.size:
+        r, c = (int(v) for v in bad[0])
+        raise _fmt_err(p, _where(r, f"y{c}", csv), f"expected a finite number or an empty cell (missing), found {vals[r, c]}")
+    for i in range(n):
+        if dys[i] < m:
+            rows = agent == i
+            extra = vals[rows][:, dys[i] :]
+            hit = np.argwhere(~np.isnan(extra))
+            if hit.size:
+                r = int(np.flatnonzero(rows)[hit[0][0]])
+                c = dys[i] + int(hit[0][1])
+                raise _fmt_err(p, _where(r, f"y{c}", csv), f"agent {i} has d_y = {dys[i]} (columns y0..y{dys[i] - 1}); leave y{c} empty")
+    return step, agent, vals
 
 
 def read_measurements(path: str | Path, system: LinearGaussianSystem, horizon: int | None = None, *, n_steps: int | None = None) -> MeasurementLog:
@@ -284,69 +368,11 @@ def read_measurements(path: str | Path, system: LinearGaussianSystem, horizon: i
         return _read_npz(p, system, horizon)
     csv = suffix == ".csv"
     df = _read_table(p, suffix)
-    n, dys = system.n_agents, system.dy
-    m = max(dys)
-    want = ["step", "agent"] + [f"y{c}" for c in range(m)]
-    ucols = sorted((c for c in df.columns if isinstance(c, str) and c.startswith("u") and c[1:].isdigit()), key=lambda c: int(c[1:]))
-    if ucols and ucols != [f"u{c}" for c in range(len(ucols))]:
-        raise _fmt_err(p, f"column {ucols[-1]!r}", f"input columns must be u0..u{len(ucols) - 1} without gaps, found {', '.join(ucols)}")
-    want_all = want + ucols
-    for col in df.columns:
-        if col not in want_all:
-            extra = (
-                f"; the model has max d_y = {m}, so the columns are {', '.join(want)}"
-                if col.startswith("y")
-                else f"; expected the columns {', '.join(want)}"
-            )
-            raise _fmt_err(p, f"column {col!r}", f"unknown column{extra}")
-    for col in want:
-        if col not in df.columns:
-            raise _fmt_err(p, f"column {col!r}", f"missing; expected the columns {', '.join(want)} (one y column per measurement component)")
+    ucols = _check_columns(df, p, system)
     if len(df) == 0:
         raise _fmt_err(p, "", "no data rows; expected one row per agent and step")
-    step = _int_column(df, "step", p, csv)
-    agent = _int_column(df, "agent", p, csv)
-    bad = np.flatnonzero((agent < 0) | (agent >= n))
-    if bad.size:
-        r = int(bad[0])
-        raise _fmt_err(p, _where(r, "agent", csv), f"unknown agent {int(agent[r])}; the scenario has agents 0..{n - 1}")
-    bad = np.flatnonzero(step < 0)
-    if bad.size:
-        r = int(bad[0])
-        raise _fmt_err(p, _where(r, "step", csv), f"expected a step >= 0, found {int(step[r])}")
-    limit = horizon if horizon is not None else n_steps
-    if limit is not None:
-        bad = np.flatnonzero(step >= limit)
-        if bad.size:
-            r = int(bad[0])
-            what = f"the scenario's horizon of {horizon} steps" if horizon is not None else f"n_steps = {n_steps}"
-            raise _fmt_err(p, _where(r, "step", csv), f"step {int(step[r])} is beyond {what} (steps 0..{limit - 1}); drop it or raise horizon")
-    key = step * n + agent
-    order = np.argsort(key, kind="stable")
-    dup = np.flatnonzero(key[order][1:] == key[order][:-1])
-    if dup.size:
-        r2 = int(order[dup[0] + 1])
-        r1 = int(order[dup[0]])
-        r1, r2 = min(r1, r2), max(r1, r2)
-        raise _fmt_err(
-            p,
-            _where(r2, "step", csv),
-            f"duplicated (step, agent) = ({int(step[r2])}, {int(agent[r2])}), first at row {r1 + 1}; keep one row per agent and step",
-        )
-    vals = df[[f"y{c}" for c in range(m)]].to_numpy(dtype=float)
-    bad = np.argwhere(np.isinf(vals))
-    if bad.size:
-        r, c = (int(v) for v in bad[0])
-        raise _fmt_err(p, _where(r, f"y{c}", csv), f"expected a finite number or an empty cell (missing), found {vals[r, c]}")
-    for i in range(n):
-        if dys[i] < m:
-            rows = agent == i
-            extra = vals[rows][:, dys[i] :]
-            hit = np.argwhere(~np.isnan(extra))
-            if hit.size:
-                r = int(np.flatnonzero(rows)[hit[0][0]])
-                c = dys[i] + int(hit[0][1])
-                raise _fmt_err(p, _where(r, f"y{c}", csv), f"agent {i} has d_y = {dys[i]} (columns y0..y{dys[i] - 1}); leave y{c} empty")
+    step, agent, vals = _validate_rows(df, p, system, horizon, n_steps, csv)
+    n, dys = system.n_agents, system.dy
     T = n_steps if n_steps is not None else int(step.max()) + 1
     ys = []
     for i in range(n):
