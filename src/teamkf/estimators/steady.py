@@ -18,8 +18,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-
 from .._validation import FloatArray
 
 __all__ = ["SteadyForm"]

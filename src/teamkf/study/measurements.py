@@ -177,7 +177,7 @@ class MeasurementLog:
         ys = []
         for i, yi in enumerate(y):
             try:
-                a = np.asarray(yi, dtype=float)
+                a = np.array(yi, dtype=float)
             except (TypeError, ValueError):
                 raise _fmt_err(source, f"agent {i}", f"expected numbers, found {np.asarray(yi).dtype}") from None
             if a.ndim != 2 or a.shape[1] != system.dy[i]:
