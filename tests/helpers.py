@@ -100,12 +100,17 @@ def joint_moments(system: LinearGaussianSystem, k: int):
     return X, Y, Cov
 
 
-def brute_force_team(system, cost, info_sets, k, *, mmse=False):
+def brute_force_team(system, cost, info_sets, k, *, mmse=False, rows=None):
     """Radner's person-by-person conditions on the stacked raw information, solved with an explicit Kronecker matrix.
 
-    info_sets[i] is the set of (j, s) agent i holds at step k. Returns (cost, F list).
+    info_sets[i] is the set of (j, s) agent i holds at step k. ``rows`` (optional) maps (j, s) to a
+    boolean mask of the components of y_j(s) that exist (a recorded log with gaps); the others are
+    left out of the stacked information. Returns (cost, F list); F_i acts on agent i's stacked
+    available components, in sorted (j, s) order.
     """
     X, Y, Cov = joint_moments(system, k)
+    if rows is not None:
+        Y = {p: (m[np.asarray(rows[p], dtype=bool)] if p in rows else m) for p, m in Y.items()}
     n, dz = system.n_agents, cost.dz
     S, L = cost.S_at(k), cost.L_at(k)
     M = [np.vstack([Y[p] for p in sorted(info_sets[i])]) if info_sets[i] else np.zeros((0, Cov.shape[0])) for i in range(n)]

@@ -6,6 +6,7 @@
     teamkf design   SCENARIO [--json] [--out GAINS.npz]
     teamkf demo     [--out DIR] [--quick]
     teamkf reproduce ...      (a later version)
+    teamkf filter   SCENARIO --measurements FILE [--truth FILE] --out FILE [--estimators ...] [--json]
     teamkf sweep    SWEEP.toml [--scheduler ADDRESS|local|serial] [--out RESULTS] [--resume] [--no-progress] [--json]
     teamkf --version
 
@@ -515,6 +516,122 @@ def _cmd_not_yet(args: argparse.Namespace) -> int:
 
 
 # ---------------------------------------------------------------------------
+# filter: recorded measurements (teamkf.study.measurements)
+# ---------------------------------------------------------------------------
+def _cmd_filter(args: argparse.Namespace) -> int:
+    """``teamkf filter SCENARIO --measurements FILE [--truth FILE] --out FILE [--estimators ...]``."""
+    from .study import measurements as M
+
+    out_path = _check_output(args.out, "--out", (".csv", ".parquet"))
+    cost_path = out_path.with_name(f"{out_path.stem}-cost{out_path.suffix}") if args.truth else None
+    if cost_path is not None:
+        _check_output(str(cost_path), "--out")
+    sc = _load(args.scenario)
+    if not hasattr(sc, "designs"):
+        raise ArgumentError(
+            "SCENARIO: teamkf filter needs a scenario with [system], [[agents]] and a graph, found a population scenario", argument="SCENARIO"
+        )
+    names = list(args.estimators) if args.estimators else list(sc.estimators)
+    from .estimators.registry import get_family
+
+    for k, name in enumerate(names):
+        get_family(name, f"--estimators[{k}]")
+    if sc.horizon is None:  # steady-state designs: stream the file in chunks (bounded memory)
+        return _filter_streamed(sc, args, names, out_path, cost_path)
+    log = M.read_measurements(args.measurements, sc.system, sc.horizon)
+    truth = M.read_truth(args.truth, sc.system.dx, log.n_steps) if args.truth else None
+    res = M.filter_log(sc, log, estimators=names, truth=truth)
+    fmt = out_path.suffix.lower()
+    _write_atomic(out_path, lambda fh: M.write_estimates(fh, res.estimates, res.n_agents, fmt=fmt))
+    if cost_path is not None and res.stage_costs is not None:
+        import pandas as pd
+
+        T = log.n_steps
+        frame = pd.concat(
+            [pd.DataFrame({"step": np.arange(T), "estimator": name, "cost": c}) for name, c in res.stage_costs.items()], ignore_index=True
+        )
+        _write_atomic(cost_path, lambda fh: M._write_frame(frame, fh, fmt))
+    if args.json:
+        out = {"scenario": sc.name, "measurements": str(args.measurements), "out": str(out_path), **res.summary()}
+        if cost_path is not None:
+            out["cost_out"] = str(cost_path)
+        print(dumps_json(out))
+        return 0
+    if res.loglik is not None:
+        print(f"log-likelihood of the data under the centralized filter: {res.loglik:.6f}")
+    gaps = "no gaps" if not log.has_gaps else f"{sum(int(np.isnan(y).any(axis=1).sum()) for y in log.y)} agent-steps with missing values"
+    print(f"{sc.name}: {log.n_steps} steps, {res.n_agents} agents ({gaps}); estimates of {', '.join(names)} written to {out_path}")
+    if res.total_costs is not None:
+        print(format_table(["estimator", "realized team cost (sum over steps)"], [[k, _fmt(v)] for k, v in res.total_costs.items()], align="lr"))
+        print(f"per-step realized costs written to {cost_path}")
+    return 0
+
+
+def _filter_streamed(sc: Any, args: argparse.Namespace, names: list[str], out_path: Path, cost_path: Path | None) -> int:
+    from .study.stream import stream_filter
+
+    fmt = out_path.suffix.lower()
+    done: dict[str, Any] = {}
+
+    def run(fh: Any, ch: Any = None) -> None:
+        done["summary"] = stream_filter(
+            sc,
+            args.measurements,
+            fh,
+            fmt=fmt,
+            estimators=names,
+            truth=args.truth,
+            cost_out=ch,
+            chunk_rows=args.chunk_rows,
+            progress=False if args.no_progress else None,
+        )
+
+    if cost_path is not None:
+        _write_atomic(out_path, lambda fh: _write_atomic(cost_path, lambda ch: run(fh, ch)))
+    else:
+        _write_atomic(out_path, run)
+    summ = done["summary"]
+    if args.json:
+        out = {"scenario": sc.name, "measurements": str(args.measurements), "out": str(out_path), **summ.summary()}
+        if cost_path is not None:
+            out["cost_out"] = str(cost_path)
+        print(dumps_json(out))
+        return 0
+    print(
+        f"{sc.name}: {summ.n_steps} steps streamed (steady-state gains), {summ.rows_in} measurement rows; {summ.rows_out} estimate rows of {', '.join(names)} written to {out_path}"
+    )
+    if summ.total_costs is not None:
+        print(format_table(["estimator", "realized team cost (sum over steps)"], [[k, _fmt(v)] for k, v in summ.total_costs.items()], align="lr"))
+        print(f"per-step realized costs written to {cost_path}")
+    return 0
+
+
+def _add_filter_parser(add: Any) -> None:
+    p = add("filter", "filter recorded measurements with every estimator of a scenario (CSV, Parquet or NPZ in; CSV or Parquet out)")
+    p.add_argument("scenario", metavar="SCENARIO")
+    p.add_argument(
+        "--measurements",
+        required=True,
+        metavar="FILE",
+        help="long form step,agent,y0,... (.csv/.parquet) or one array per agent (.npz); NaN or absent = missing",
+    )
+    p.add_argument("--truth", metavar="FILE", help="the true states step,x0,... (.csv/.parquet) or .npz key 'x': adds the realized team cost")
+    p.add_argument(
+        "--out",
+        required=True,
+        metavar="FILE",
+        help="estimates step,agent,estimator,z0,... (.csv or .parquet); with --truth also FILE-cost.csv/.parquet",
+    )
+    p.add_argument("--estimators", nargs="+", metavar="NAME", help="estimators to run (default: the scenario's)")
+    p.add_argument("--json", action="store_true", help="print one JSON object (steps, estimators, realized total costs)")
+    p.add_argument(
+        "--chunk-rows", type=_positive_int, default=400_000, metavar="N", help="steady-state scenarios are streamed N rows at a time (default 400000)"
+    )
+    p.add_argument("--no-progress", action="store_true", help="no progress bar (it shows only on a terminal anyway)")
+    p.set_defaults(func=_cmd_filter)
+
+
+# ---------------------------------------------------------------------------
 # parser and main
 # ---------------------------------------------------------------------------
 def _int_at_least(minimum: int, what: str) -> Any:
@@ -732,6 +849,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=_positive_int, metavar="N", help="worker processes of the local cluster (default: one per core)")
     p.add_argument("--json", action="store_true", help="print one JSON object (counts and every row)")
     p.set_defaults(func=_cmd_sweep)
+
+    _add_filter_parser(add)
     return parser
 
 

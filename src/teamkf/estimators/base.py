@@ -136,6 +136,10 @@ class Design(abc.ABC):
 
     #: True for a benchmark whose agents hold every y_j(k) at step k (the centralized filter)
     omniscient: ClassVar[bool] = False
+    #: True when a design on the masked time-varying model of a missingness pattern (C_i(t) rows of the
+    #: missing values zeroed, their noise decoupled) is the exact estimator for that pattern
+    #: (:mod:`teamkf.study.measurements`); families without an exact treatment of gaps keep False
+    handles_missing: ClassVar[bool] = False
 
     # --- identity -----------------------------------------------------------------
     @property

@@ -115,6 +115,7 @@ class CentralizedDesign(Design):
     P_filt: FloatArray
 
     omniscient: ClassVar[bool] = True
+    handles_missing: ClassVar[bool] = True  # zero gain on a decoupled pseudo-measurement (teamkf.study.measurements)
 
     def K_at(self, k: int) -> FloatArray:
         return self.K if self.horizon is None else self.K[k]  # type: ignore[no-any-return]
@@ -139,6 +140,21 @@ class CentralizedDesign(Design):
     def agents(self) -> list["CentralizedAgent"]:
         """One agent per team member; each holds every measurement at once (a bound, not a network)."""
         return [CentralizedAgent(self, i) for i in range(self.system.n_agents)]
+
+    def steady_form(self) -> Any:
+        """The steady-state filter as an LTI map (:class:`~teamkf.estimators.steady.SteadyForm`, c = 1, from step 0)."""
+        from .steady import SteadyForm
+
+        if self.horizon is not None:
+            raise self._unsupported("steady_form()", "it is a finite-horizon design; design with horizon=None")
+        sys, L = self.system, self.cost.L_at(0)
+        A, C, K = sys.A_at(0), sys.C_stack(0), np.asarray(self.K)
+        IKC = np.eye(sys.dx) - K @ C
+        if self.form == "filter":
+            G, H = L @ IKC, (L @ K)[None]
+        else:
+            G, H = L, np.zeros((1, L.shape[0], C.shape[0]))
+        return SteadyForm(M=A @ IKC, N=A @ K, G=G, H=H, start=0)
 
     def details(self) -> dict[str, Any]:
         return {"form": self.form, "local_dims": None, "gain_shapes": {"K": list(np.asarray(self.K).shape[-2:])}}

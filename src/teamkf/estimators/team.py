@@ -38,14 +38,14 @@ Tr(L'SL P_0) - eta' Gamma^-1 eta (eq. 35).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Callable, Literal, Sequence
+from typing import Any, Callable, ClassVar, Literal, Sequence
 
 import numpy as np
 import scipy.linalg as sla
 
 from .. import _validation as V
 from .._validation import FloatArray
-from ..exceptions import InformationStructureError, ShapeError
+from ..exceptions import InformationStructureError, ShapeError, UnsupportedOperationError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.information import InformationStructure
 from .base import Design, Packet
@@ -300,6 +300,9 @@ class TeamDesign(Design):
     P_pred: FloatArray
     warmup: Callable[[int], tuple[FloatArray, ...]] | None = field(default=None, repr=False)
 
+    #: exact on the masked model of a missingness pattern (zero gains on decoupled pseudo-measurements)
+    handles_missing: ClassVar[bool] = True
+
     def gain_at(self, k: int) -> tuple:
         """F_i(k) for every agent (steady state: the exact transient gains for k < c, then F-bar)."""
         if self.horizon is not None:
@@ -421,6 +424,38 @@ class TeamDesign(Design):
 
     def agents(self) -> list["TeamAgent"]:
         return [TeamAgent(self, i) for i in range(self.system.n_agents)]
+
+    def steady_form(self) -> Any:
+        """The steady-state filter as an LTI map (:class:`~teamkf.estimators.steady.SteadyForm`) from step c on.
+
+        With a = k - c + 1 and agent i's local pairs (j, k - l) (eqs. 28-29, steady gains F̄_i):
+        z_i(k) = L_i A^{c-1} x̂(a) + Σ F̄_i[:, (j, l)] (y_j(k - l) - C_j A^{c-1-l} x̂(a)).
+        """
+        from .steady import SteadyForm
+
+        if self.horizon is None and self.steady_gains is not None:
+            sys, st, cost = self.system, self.structure, self.cost
+            c, n, dz = st.common_lag, sys.n_agents, cost.dz
+            A, C, K = sys.A_at(0), sys.C_stack(0), np.asarray(self.K)
+            Ap = [np.linalg.matrix_power(A, p) for p in range(c)]
+            G = np.zeros((n * dz, sys.dx))
+            H = np.zeros((c, n * dz, sys.dy_total))
+            offs = sys.offsets
+            k = c  # any step >= c: the pairs are (j, k - l)
+            for i in range(n):
+                rows = slice(i * dz, (i + 1) * dz)
+                F = np.asarray(self.steady_gains[i])
+                G[rows] = cost.L_block(i, k) @ Ap[c - 1]
+                col = 0
+                for j, s in st.local_pairs(i, k):
+                    lag, d = k - s, sys.dy[j]
+                    Fb = F[:, col : col + d]
+                    G[rows] -= Fb @ sys.C_at(j, k) @ Ap[c - 1 - lag]
+                    H[lag, rows, offs[j] : offs[j] + d] += Fb
+                    col += d
+            IKC = np.eye(sys.dx) - K @ C
+            return SteadyForm(M=A @ IKC, N=A @ K, G=G, H=H, start=c)
+        raise UnsupportedOperationError(self.estimator, "steady_form()", "it is a finite-horizon design; design with horizon=None")
 
     def details(self) -> dict[str, Any]:
         last = self.steady_gains if self.steady_gains is not None else self.gains[-1]

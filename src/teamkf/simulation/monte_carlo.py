@@ -29,7 +29,7 @@ from ..exceptions import ArgumentError, ShapeError
 from .online import run_online
 from .sampling import run_streams, sample_paths
 
-__all__ = ["MonteCarloResult", "monte_carlo", "Z95"]
+__all__ = ["MonteCarloResult", "monte_carlo", "runtime_estimates", "Z95"]
 
 Z95 = 1.959963984540054
 
@@ -107,16 +107,22 @@ class MonteCarloResult:
         return ax
 
 
-def _team_errors(design: Any, paths: Any, path: str, graph: Any) -> FloatArray:
-    if path == "errors":
-        return design.errors(paths)  # type: ignore[no-any-return]
+def runtime_estimates(design: Any, y: Any, graph: Any = None) -> FloatArray:
+    """Every agent's estimate from the online agents: message passing over ``graph`` (default: the
+    design's own graph), or delivery by the information structure. ``y``: list over agents of
+    (n_runs, T, d_y^i). What ``path="runtime"`` and ``teamkf filter`` run."""
     graph = graph if graph is not None else getattr(design, "graph", None)
     if graph is not None:
         from .runtime import graph_agents, run_graph
 
-        z = run_graph(graph_agents(design), graph, paths.y)
-    else:
-        z = run_online(design.agents(), paths.y)
+        return run_graph(graph_agents(design), graph, y)
+    return run_online(design.agents(), y)
+
+
+def _team_errors(design: Any, paths: Any, path: str, graph: Any) -> FloatArray:
+    if path == "errors":
+        return design.errors(paths)  # type: ignore[no-any-return]
+    z = runtime_estimates(design, paths.y, graph)
     cost = design.cost
     return np.stack([paths.x[:, k] @ cost.L_at(k).T - z[:, k] for k in range(paths.n_steps)], axis=1)
 

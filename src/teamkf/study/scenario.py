@@ -81,6 +81,9 @@ def __getattr__(name: str) -> Any:  # 0.1 names: the estimators come from the re
 _BASE_KEYS = ("name", "horizon", "description", "system", "agents", "graph", "cost", "information", "estimators", "control")
 _SYSTEM_KEYS = ("A", "Q", "Sigma_x")
 _AGENT_KEYS = ("C", "R")
+#: optional known means (prior mean, inputs, offsets), read by teamkf.study.measurements.known_inputs
+_SYSTEM_OPTIONAL = ("x0_mean", "B", "u", "b")
+_AGENT_OPTIONAL = ("D", "d")
 _GRAPH_KINDS = ("complete", "line", "ring", "star")
 _COST_KINDS = ("average", "platoon", "ring", "mse")
 _INFO_KEYS = ("common_lag", "local")
@@ -447,7 +450,7 @@ def _horizon(h: Any) -> int | None:
 
 def _system(sys_tab: Any, agents: Any) -> LinearGaussianSystem:
     s = _table(sys_tab, "system", "[system] with A, Q, Sigma_x")
-    _check_keys(s, _SYSTEM_KEYS, "system.")
+    _check_keys(s, _SYSTEM_KEYS + _SYSTEM_OPTIONAL, "system.")
     for k in _SYSTEM_KEYS:
         if k not in s:
             raise _fail(f"system.{k}", f"missing required key; {_HINTS['system.' + k]}")
@@ -459,7 +462,7 @@ def _system(sys_tab: Any, agents: Any) -> LinearGaussianSystem:
     C, R = [], []
     for i, a in enumerate(agents):
         at = _table(a, f"agents[{i}]", "[[agents]] with C and R")
-        _check_keys(at, _AGENT_KEYS, f"agents[{i}].")
+        _check_keys(at, _AGENT_KEYS + _AGENT_OPTIONAL, f"agents[{i}].")
         for k in _AGENT_KEYS:
             if k not in at:
                 what = "the measurement matrix C_i (rows x d_x)" if k == "C" else "the measurement-noise covariance R_i (a number r means r*I)"
