@@ -28,7 +28,10 @@ def test_old_names_still_resolve():
     from teamkf.study.scenario import AVAILABLE_ESTIMATORS
 
     assert callable(is_detectable) and callable(evaluate_population) and callable(population_from_dict) and callable(evaluate_structures)
-    assert set(ANALYTIC) <= set(AVAILABLE_ESTIMATORS) and "kcf" in AVAILABLE_ESTIMATORS and "kcf" not in ANALYTIC
+    import teamkf
+
+    assert set(AVAILABLE_ESTIMATORS) == set(teamkf.families())
+    assert set(ANALYTIC) == {name for name, fam in teamkf.families().items() if fam.analytic_cost}
 
 
 def test_old_argument_orders_warn_and_work():

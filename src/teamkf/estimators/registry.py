@@ -20,8 +20,8 @@ Examples
 >>> import teamkf
 >>> {"centralized", "mtmse", "mmse", "kcf", "cikf"} <= set(teamkf.families())
 True
->>> teamkf.get_family("kcf").analytic_cost
-False
+>>> teamkf.get_family("mtmse").analytic_cost
+True
 """
 
 from __future__ import annotations
