@@ -4,7 +4,7 @@ VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv test test-fast demo bench typecheck clean
+.PHONY: venv test test-fast demo bench typecheck docs docs-clean clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -17,6 +17,16 @@ venv: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest -q $(PYTEST_ARGS)
 	$(BIN)/python -m mypy
+	$(MAKE) docs
+
+# The documentation site: docs/_build/html (warnings are errors; no network needed).
+# Incremental: unchanged gallery scripts are not re-run; `make docs-clean docs` rebuilds from scratch.
+DOCS_OUT ?= docs/_build/html
+docs: $(STAMP)
+	PYTHONPATH=$(CURDIR)/src MPLBACKEND=Agg TEAMKF_PROGRESS=0 $(BIN)/python -m sphinx -b html -W --keep-going -q docs $(DOCS_OUT)
+
+docs-clean:
+	rm -rf docs/_build docs/api/generated docs/api/public.rst docs/api/teamkf.*.rst docs/auto_gallery docs/auto_examples docs/_examples docs/sg_execution_times.rst
 
 test-fast: $(STAMP)
 	$(BIN)/python -m pytest -q -m "not slow" -x
@@ -34,3 +44,4 @@ typecheck: $(STAMP)
 
 clean:
 	rm -rf $(VENV) build dist src/*.egg-info .pytest_cache .mypy_cache results
+	$(MAKE) docs-clean

@@ -31,7 +31,7 @@ from .simulation import run_online, sample
 try:
     __version__ = version("teamkf")
 except PackageNotFoundError:  # pragma: no cover - running from a source tree
-    __version__ = "0.1.0"
+    __version__ = "0.2.0"
 
 __all__ = [
     "LinearGaussianSystem",

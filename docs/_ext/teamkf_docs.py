@@ -1,0 +1,214 @@
+"""Sphinx helpers for the teamkf site.
+
+* :func:`write_api_pages` writes ``api/public.rst`` from ``teamkf.__all__`` and one page per
+  subpackage from its ``__all__`` (or, for a package without one, from its submodules' ``__all__``),
+  so the API reference never holds a hand-kept list of names.
+* :func:`experiment_png_scraper` is a sphinx-gallery image scraper: the reproductions save their
+  figures as PNG files (``ExperimentResult.figures``); the scraper copies each new one into the
+  gallery, so the page shows the figure exactly as ``teamkf reproduce`` writes it.
+"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+import shutil
+from pathlib import Path
+from typing import Any
+
+SUBPACKAGES = ("models", "network", "estimators", "simulation", "study", "control", "experiments", "plotting")
+
+
+def _public_names(mod: Any) -> list[str]:
+    names = getattr(mod, "__all__", None)
+    return [n for n in names if not n.startswith("_")] if names is not None else []
+
+
+def _is_documentable(obj: Any) -> bool:
+    """Classes, functions and other callables get a page; constants are listed as data."""
+    return callable(obj)
+
+
+def _heading(text: str, ch: str = "=") -> str:
+    return f"{text}\n{ch * len(text)}\n"
+
+
+def write_api_pages(api_dir: Path) -> list[str]:
+    """Write the generated API pages under ``api_dir``; return the subpackage page names."""
+    import teamkf
+
+    api_dir.mkdir(parents=True, exist_ok=True)
+    top = [n for n in _public_names(teamkf)]
+    callables = [n for n in top if _is_documentable(getattr(teamkf, n))]
+    data = [n for n in top if n not in callables]
+    lines = [
+        ".. This file is generated from teamkf.__all__ by docs/_ext/teamkf_docs.py; do not edit.",
+        "",
+        ".. currentmodule:: teamkf",
+        "",
+        ".. autosummary::",
+        "   :toctree: generated",
+        "   :nosignatures:",
+        "",
+        *[f"   {n}" for n in callables],
+        "",
+    ]
+    for n in data:
+        lines += [f".. data:: {n}", "", f"   ``{getattr(teamkf, n)!r}``", ""]
+    _write(api_dir / "public.rst", "\n".join(lines))
+
+    pages = []
+    for sub in SUBPACKAGES:
+        modname = f"teamkf.{sub}"
+        mod = importlib.import_module(modname)
+        pages.append(modname)
+        _write(api_dir / f"{modname}.rst", _subpackage_page(mod, set(top)))
+    return pages
+
+
+def _submodules(mod: Any) -> list[str]:
+    """Public submodules, without the deprecated aliases (a module that replaced itself in sys.modules)."""
+    out = []
+    for m in pkgutil.iter_modules(mod.__path__):
+        if m.name.startswith("_") or m.name == "__main__":
+            continue
+        full = f"{mod.__name__}.{m.name}"
+        if importlib.import_module(full).__name__ == full:
+            out.append(full)
+    return sorted(out)
+
+
+def _subpackage_page(mod: Any, top: set[str]) -> str:
+    import teamkf
+
+    name = mod.__name__
+    out = [
+        f".. This page is generated from {name}.__all__ by docs/_ext/teamkf_docs.py; do not edit.",
+        "",
+        _heading(f"``{name}``"),
+        f".. automodule:: {name}",
+        "   :no-members:",
+        "",
+        ".. currentmodule:: teamkf",
+        "",
+    ]
+    own = _public_names(mod)
+    groups: list[tuple[str, list[str]]] = []
+    if own:
+        groups.append((name, own))
+    else:  # a package without __all__ (teamkf.study): its submodules' public names
+        for sm in _submodules(mod):
+            groups.append((sm, _public_names(importlib.import_module(sm))))
+    for modname, names in groups:
+        m = importlib.import_module(modname)
+        at_top = [n for n in names if n in top and getattr(teamkf, n, None) is getattr(m, n, None)]
+        rest = [n for n in names if n not in at_top]
+        fns = [n for n in rest if _is_documentable(getattr(m, n))]
+        consts = [n for n in rest if n not in fns]
+        if modname != name:
+            out += [_heading(f"``{modname}``", "-")]
+        if at_top:
+            out += [
+                "Also exported by :mod:`teamkf` (documented there):",
+                "",
+                ".. autosummary::",
+                "   :nosignatures:",
+                "",
+                *[f"   {n}" for n in at_top],
+                "",
+            ]
+        if fns:
+            out += [".. autosummary::", "   :toctree: generated", "   :nosignatures:", "", *[f"   {_rel(modname)}.{n}" for n in fns], ""]
+        if consts:
+            out += ["Constants: " + ", ".join(f"``{n}``" for n in consts), ""]
+    subs = _submodules(mod)
+    if subs:
+        out += [_heading("Modules", "-"), ".. autosummary::", "   :toctree: generated", "   :template: autosummary/module-doc.rst", "", *[f"   {_rel(s)}" for s in subs], ""]
+    return "\n".join(out)
+
+
+def _rel(modname: str) -> str:
+    """A name relative to ``teamkf`` (the pages' current module)."""
+    return modname.split(".", 1)[1]
+
+
+def _write(path: Path, text: str) -> None:
+    """Write only when the text changed, so Sphinx's incremental build stays incremental."""
+    if not path.exists() or path.read_text() != text:
+        path.write_text(text)
+
+
+# --------------------------------------------------------------------------------------------------
+# sphinx-gallery: scrape the PNG files an ExperimentResult lists
+# --------------------------------------------------------------------------------------------------
+
+
+def experiment_png_scraper(block: Any, block_vars: dict[str, Any], gallery_conf: dict[str, Any]) -> str:
+    """Copy the PNGs of every ExperimentResult in the example's globals that were not shown yet."""
+    from sphinx_gallery.scrapers import figure_rst
+
+    from teamkf.experiments import ExperimentResult
+
+    shown = block_vars.setdefault("_teamkf_png_shown", set())
+    image_names = []
+    iterator = block_vars["image_path_iterator"]
+    for value in list(block_vars["example_globals"].values()):
+        if not isinstance(value, ExperimentResult):
+            continue
+        for png in value.figures:
+            if png in shown or not Path(png).is_file():
+                continue
+            shown.add(png)
+            target = next(iterator)
+            shutil.copyfile(png, target)
+            image_names.append(target)
+    return figure_rst(image_names, gallery_conf["src_dir"])
+
+
+# --------------------------------------------------------------------------------------------------
+# the examples gallery: the repository's examples/*.py, each under a title taken from its docstring
+# --------------------------------------------------------------------------------------------------
+EXAMPLES_README = """Examples
+========
+
+The scripts of the repository's ``examples/`` folder, executed when the site is built (the test
+suite runs them too). Run one with ``python examples/NAME.py``.
+"""
+
+
+def sync_examples(src: Path, dst: Path) -> list[str]:
+    """Copy ``src/*.py`` into ``dst`` with the first docstring line made a reST title; return the names.
+
+    sphinx-gallery needs a title at the top of each script's docstring; the repository's examples
+    start with a one-line summary instead. The copy changes only that line, so the page shows the
+    script as it is in the repository.
+    """
+    import ast
+
+    dst.mkdir(parents=True, exist_ok=True)
+    _write(dst / "README.rst", EXAMPLES_README)
+    names = []
+    for path in sorted(src.glob("*.py")):
+        text = path.read_text(encoding="utf-8")
+        tree = ast.parse(text)
+        doc = ast.get_docstring(tree, clean=False)
+        first = tree.body[0] if tree.body else None
+        if doc is None or first is None:
+            raise RuntimeError(f"{path}: an example needs a module docstring (its first line is the gallery title)")
+        summary, _, rest = doc.strip().partition("\n")
+        title = summary.strip().rstrip(".")
+        new_doc = f'"""\n{title}\n{"=" * len(title)}\n\n{rest.strip()}\n"""\n'
+        lines = text.splitlines(keepends=True)
+        body = "".join(lines[first.end_lineno :])  # type: ignore[attr-defined]
+        _write(dst / path.name, new_doc + body)
+        names.append(path.stem)
+    for old in dst.glob("*.py"):
+        if old.stem not in names:
+            old.unlink()
+    return names
+
+
+def setup(app: Any) -> dict[str, Any]:
+    write_api_pages(Path(app.srcdir) / "api")
+    sync_examples(Path(app.srcdir).parent / "examples", Path(app.srcdir) / "_examples")
+    return {"parallel_read_safe": True, "parallel_write_safe": True}
