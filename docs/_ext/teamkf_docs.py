@@ -123,7 +123,15 @@ def _subpackage_page(mod: Any, top: set[str]) -> str:
             out += ["Constants: " + ", ".join(f"``{n}``" for n in consts), ""]
     subs = _submodules(mod)
     if subs:
-        out += [_heading("Modules", "-"), ".. autosummary::", "   :toctree: generated", "   :template: autosummary/module-doc.rst", "", *[f"   {_rel(s)}" for s in subs], ""]
+        out += [
+            _heading("Modules", "-"),
+            ".. autosummary::",
+            "   :toctree: generated",
+            "   :template: autosummary/module-doc.rst",
+            "",
+            *[f"   {_rel(s)}" for s in subs],
+            "",
+        ]
     return "\n".join(out)
 
 

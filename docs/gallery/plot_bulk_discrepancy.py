@@ -1,4 +1,4 @@
-"""
+r"""
 Bulk filter: discrepancy index (Fig. 6)
 =======================================
 

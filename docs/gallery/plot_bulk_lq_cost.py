@@ -1,4 +1,4 @@
-"""
+r"""
 Bulk filter: average LQ cost against the feedback gain (Figs. 10-11)
 ====================================================================
 

@@ -1,4 +1,4 @@
-"""
+r"""
 Finite-memory bulk filters: stabilization map (Fig. 12)
 =======================================================
 

@@ -1,4 +1,4 @@
-"""
+r"""
 Bulk filter: stationarity index and thresholds (Fig. 5, Table 1)
 ================================================================
 

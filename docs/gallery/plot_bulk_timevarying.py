@@ -1,4 +1,4 @@
-"""
+r"""
 Bulk filter: the persistently time-varying regime (Figs. 7-9)
 =============================================================
 

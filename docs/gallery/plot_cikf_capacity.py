@@ -1,4 +1,4 @@
-"""
+r"""
 CIKF tracking capacity (Das & Moura, Theorem 3)
 ===============================================
 

@@ -1,4 +1,4 @@
-"""
+r"""
 CIKF vs the centralized Kalman filter (Das & Moura, Fig. 4)
 ===========================================================
 

@@ -1,4 +1,4 @@
-"""
+r"""
 Decentralized LQG with one-step delayed sharing
 ===============================================
 

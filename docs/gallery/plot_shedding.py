@@ -1,4 +1,4 @@
-"""
+r"""
 Information shedding: the Pareto front
 ======================================
 

@@ -1,4 +1,4 @@
-"""
+r"""
 Table I: information shedding on the platoon
 ============================================
 
