@@ -31,6 +31,7 @@ extensions = [
     "sphinx.ext.autosummary",
     "sphinx.ext.mathjax",
     "sphinx.ext.viewcode",
+    "matplotlib.sphinxext.plot_directive",
     "numpydoc",
     "myst_parser",
     "sphinx_gallery.gen_gallery",
@@ -40,7 +41,7 @@ extensions = [
 
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
 root_doc = "index"
-exclude_patterns = ["_build", "**.ipynb_checkpoints", "gallery", "_examples", "Thumbs.db", ".DS_Store"]
+exclude_patterns = ["_build", "**.ipynb_checkpoints", "gallery", "_examples", "api/public.rst", "Thumbs.db", ".DS_Store"]  # public.rst: included
 templates_path = ["_templates"]
 
 # --- API reference --------------------------------------------------------------------------------
@@ -89,7 +90,18 @@ sphinx_gallery_conf = {
     "show_memory": False,
     "plot_gallery": "True",
     "reset_modules": ("matplotlib",),
+    # "Gallery pages using X" on every API page (thumbnails), from the names the scripts use
+    "doc_module": ("teamkf",),
+    "backreferences_dir": "api/generated/backreferences",
+    "log_level": {"backreference_missing": "debug"},  # most API pages have no gallery page: not a problem
 }
+
+# --- figures in the guide (matplotlib's plot directive, run at build time) --------------------------
+plot_include_source = True
+plot_html_show_source_link = False
+plot_html_show_formats = False
+plot_formats = [("png", 100)]
+plot_rcparams = {"figure.figsize": (6, 4)}
 
 # --- HTML --------------------------------------------------------------------------------------------
 html_theme = "pydata_sphinx_theme"

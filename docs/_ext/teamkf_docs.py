@@ -21,7 +21,9 @@ SUBPACKAGES = ("models", "network", "estimators", "simulation", "study", "contro
 
 def _public_names(mod: Any) -> list[str]:
     names = getattr(mod, "__all__", None)
-    return [n for n in names if not n.startswith("_")] if names is not None else []
+    if names is None:
+        return []
+    return [n for n in names if not n.startswith("_") or (n.startswith("__") and n.endswith("__"))]  # __version__ is public
 
 
 def _is_documentable(obj: Any) -> bool:
