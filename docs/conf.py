@@ -18,6 +18,8 @@ sys.path.insert(0, str(HERE / "_ext"))
 os.environ.setdefault("MPLBACKEND", "Agg")
 os.environ.setdefault("TEAMKF_PROGRESS", "0")  # no progress bars in the build log
 
+import teamkf_docs  # noqa: E402
+
 import teamkf  # noqa: E402
 
 project = "teamkf"
@@ -47,7 +49,7 @@ templates_path = ["_templates"]
 # --- API reference --------------------------------------------------------------------------------
 # api/public.rst and api/<subpackage>.rst are written at build start by teamkf_docs from
 # teamkf.__all__ and the subpackages' __all__: there is no hand-kept list of names.
-autosummary_generate = True
+autosummary_generate = teamkf_docs.autosummary_sources()  # api/public.rst is included, not a page of its own
 autosummary_ignore_module_all = False
 autosummary_imported_members = False
 autodoc_default_options = {"member-order": "bysource"}

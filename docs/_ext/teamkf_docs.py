@@ -19,6 +19,11 @@ from typing import Any
 SUBPACKAGES = ("models", "network", "estimators", "simulation", "study", "control", "experiments", "plotting")
 
 
+def autosummary_sources() -> list[str]:
+    """The generated pages whose autosummary tables get stub pages (paths relative to docs/)."""
+    return ["api/public.rst", *(f"api/teamkf.{sub}.rst" for sub in SUBPACKAGES)]
+
+
 def _public_names(mod: Any) -> list[str]:
     names = getattr(mod, "__all__", None)
     if names is None:

@@ -73,6 +73,7 @@ from scipy.linalg import cho_factor, cho_solve, solve_triangular
 from scipy.linalg.lapack import dtrtri
 
 from .. import _validation as V
+from .._progress import progress
 from .._validation import FloatArray
 from ..exceptions import ShapeError
 from ..models.population import PopulationModel
@@ -624,7 +625,7 @@ def exact_bulk_filter(model: PopulationModel, horizon: int, *, flush: float = FL
     band = 0
     flops = 0
     with np.errstate(over="ignore", invalid="ignore", under="ignore"), single_thread_blas():
-        for k in range(T):
+        for k in progress(range(T), desc="bulk filter", unit="step"):
             al = alpha[lo:k]
             be = beta[lo:k]
             mu = a * al - bf * be
@@ -769,7 +770,7 @@ def finite_memory_filter(model: PopulationModel, horizon: int, memory: int | Non
     row = np.empty(n + 1)
     diverged: int | None = None
     with np.errstate(over="ignore", invalid="ignore"), single_thread_blas():
-        for k in range(T):
+        for k in progress(range(T), desc="finite-memory filter", unit="step"):
             row[0] = a
             row[1:] = -bf * kprev
             for P, (cj, qj, rj, _) in zip(Ps, subs):

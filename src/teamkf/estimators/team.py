@@ -44,6 +44,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from .. import _validation as V
+from .._progress import progress
 from .._validation import FloatArray
 from ..exceptions import ShapeError
 from ..models import LinearGaussianSystem, TeamCost
@@ -467,7 +468,7 @@ def _design(
     system.require_horizon(T)
     cost.require_horizon(T)
     P_pred, K, _ = kalman_covariances(system, max(T - c + 1, 1))
-    res = [step(k, max(0, k - c + 1), P_pred[max(0, k - c + 1)]) for k in range(T)]
+    res = [step(k, max(0, k - c + 1), P_pred[max(0, k - c + 1)]) for k in progress(range(T), desc=f"{kind} design", unit="step")]
     return TeamDesign(kind, T, np.array([j for _, j in res]), None, info, system, cost, st, tuple(g for g, _ in res), None, K, P_pred)
 
 

@@ -14,6 +14,8 @@ import contextlib
 import contextvars
 from typing import Any, Callable, Iterable, Iterator, TypeVar
 
+from .._progress import progress
+
 __all__ = ["map_points", "use_scheduler", "current_scheduler"]
 
 P = TypeVar("P")
@@ -41,7 +43,7 @@ def map_points(func: Callable[[P], R], points: Iterable[P], *, scheduler: Any = 
     pts = list(points)
     sched = scheduler if scheduler is not None else _SCHEDULER.get()
     if sched in (None, "serial") or len(pts) <= 1:
-        return [func(p) for p in pts]
+        return [func(p) for p in progress(pts, desc=getattr(func, "__name__", "points"), unit="point")]
     from ..study.sweep import _open_client
 
     client, owned = _open_client(sched, None)
