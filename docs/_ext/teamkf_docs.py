@@ -125,7 +125,7 @@ def _subpackage_page(mod: Any, top: set[str]) -> str:
                 "",
             ]
         if fns:
-            out += [".. autosummary::", "   :toctree: generated", "   :nosignatures:", "", *[f"   {_rel(modname)}.{n}" for n in fns], ""]
+            out += [".. autosummary::", "   :toctree: generated", "   :nosignatures:", "", *[f"   ~{_rel(modname)}.{n}" for n in fns], ""]
         if consts:
             out += ["Constants: " + ", ".join(f"``{n}``" for n in consts), ""]
     subs = _submodules(mod)
