@@ -223,7 +223,16 @@ def sync_examples(src: Path, dst: Path) -> list[str]:
     return names
 
 
+#: abbreviations after which an API summary's first sentence goes on ("(eqs. 2-3)", "(Fig. 5)")
+ABBREVIATIONS = ("eq.", "eqs.", "Eq.", "Eqs.", "Fig.", "Figs.", "Sec.", "cf.")
+
+
 def setup(app: Any) -> dict[str, Any]:
+    from sphinx.ext import autosummary
+
+    # autosummary cuts a summary at the first period unless it ends a known abbreviation; the
+    # docstrings cite the papers' equations and figures, so add those (read at call time)
+    autosummary.WELL_KNOWN_ABBREVIATIONS = tuple(dict.fromkeys((*autosummary.WELL_KNOWN_ABBREVIATIONS, *ABBREVIATIONS)))
     write_api_pages(Path(app.srcdir) / "api")
     sync_examples(Path(app.srcdir).parent / "examples", Path(app.srcdir) / "_examples")
     return {"parallel_read_safe": True, "parallel_write_safe": True}
