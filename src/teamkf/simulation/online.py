@@ -11,6 +11,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .._progress import progress
 from .._validation import FloatArray
 from ..estimators.base import OnlineAgent
 
@@ -34,7 +35,7 @@ def run_online(agents: Sequence[OnlineAgent], y: Sequence[FloatArray]) -> FloatA
     lags = [[ag.arrival_lag(j) for j in range(n)] for ag in agents]
     states = [ag.init_state(n_runs) for ag in agents]
     out = []
-    for k in range(T):
+    for k in progress(range(T), desc="online agents", unit="step"):
         zs = []
         for i, ag in enumerate(agents):
             received = [(j, k - lags[i][j], y[j][:, k - lags[i][j]]) for j in range(n) if k - lags[i][j] >= 0]
