@@ -84,16 +84,16 @@ def main() -> None:
         "cpus": os.cpu_count(),
     }
     sysm, graph = random_field(args.size, args.size, rng=0)
-    design_cikf(sysm, graph, 1)  # warm caches (the default cost, imports)
+    design_cikf(sysm, None, graph, 1)  # warm caches (the default cost, imports)
 
     t = time.perf_counter()
-    d = design_cikf(sysm, graph, args.steps, form="predictor")
+    d = design_cikf(sysm, None, graph, args.steps, form="predictor")
     res["design_s"] = time.perf_counter() - t
     t = time.perf_counter()
-    d_few = design_cikf(sysm, graph, args.dense_steps, form="predictor")
+    d_few = design_cikf(sysm, None, graph, args.dense_steps, form="predictor")
     res["design_structured_first_steps_s"] = time.perf_counter() - t
     t = time.perf_counter()
-    dd = design_cikf(sysm, graph, args.dense_steps, form="predictor", method="dense")
+    dd = design_cikf(sysm, None, graph, args.dense_steps, form="predictor", method="dense")
     res["design_dense_first_steps_s"] = time.perf_counter() - t
     res["design_dense_per_step_s"] = res["design_dense_first_steps_s"] / args.dense_steps
     res["design_structured_per_step_s"] = res["design_structured_first_steps_s"] / args.dense_steps

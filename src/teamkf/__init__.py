@@ -1,9 +1,33 @@
 """teamkf — decentralized estimation and filtering for teams of agents.
 
-Exact minimum team mean-squared error (MTMSE) estimation and filtering over
-strongly connected communication graphs with integer delays (Afshari &
-Mahajan 2021), with the centralized Kalman filter and per-agent MMSE
-baselines.
+Agents observe parts of a linear-Gaussian process, talk over a directed
+communication graph with integer delays, and estimate for the team. teamkf
+designs, runs and evaluates four families from three papers, plus baselines:
+
+===============  =====================================================================
+``mtmse``        minimum team MSE filter, exact for any strongly connected delay graph
+                 (Afshari & Mahajan, IEEE TSP 2021, Theorems 1-3): :func:`design_mtmse`
+``mmse``         per-agent MMSE, blind to the team coupling (eq. 46): :func:`design_mmse`
+``centralized``  the centralized Kalman filter, the lower bound: :func:`design_centralized`
+``kcf``          Kalman-consensus filter (Olfati-Saber 2007): :func:`design_kcf`
+``cikf``         Consensus+Innovations KF with optimized gains (Das & Moura 2016): :func:`design_cikf`
+bulk filter      interference-coupled populations (Abedinpour Fallah et al. 2017):
+                 :mod:`teamkf.estimators.bulk`, ``[population]`` scenarios
+LQG              decentralized LQG through MTMSE (Appendix D): :mod:`teamkf.control.lqg`
+===============  =====================================================================
+
+Every design function is ``design_X(system, cost, graph_or_structure, horizon=None, **options)``
+and returns a :class:`Design` (gains, analytic cost, ``errors``, ``graph_agents``,
+``filter``, ``arrays``, ``summary``). :func:`families` lists every registered
+family; :func:`register_family` adds your own.
+
+Examples
+--------
+>>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph, design_mtmse, design_centralized
+>>> system, cost = LinearGaussianSystem.platoon(4), TeamCost.platoon(4, lam=100.0)
+>>> mtmse = design_mtmse(system, cost, CommGraph.line(4, delay=1), horizon=50)
+>>> design_centralized(system, cost, horizon=50).total_cost <= mtmse.total_cost
+True
 """
 
 from importlib.metadata import PackageNotFoundError, version
@@ -12,7 +36,9 @@ from .estimators import (
     CentralizedDesign,
     CIKFDesign,
     Design,
+    Family,
     KCFDesign,
+    Option,
     StaticTeamEstimate,
     TeamDesign,
     design_centralized,
@@ -20,13 +46,21 @@ from .estimators import (
     design_kcf,
     design_mmse,
     design_mtmse,
+    families,
+    get_family,
     kalman_covariances,
+    register_family,
     static_team_estimate,
+    unregister_family,
 )
-from .exceptions import TeamkfError
+from .exceptions import ArgumentError, DivergenceError, ShapeError, TeamkfError, UnsupportedOperationError
 from .models import LinearGaussianSystem, TeamCost
 from .network import CommGraph, InformationStructure
 from .simulation import run_online, sample
+from .simulation.monte_carlo import MonteCarloResult, monte_carlo
+from .simulation.runtime import run_graph
+from .study.evaluate import evaluate_point
+from .study.scenario import Scenario, load_scenario, scenario_from_dict
 
 try:
     __version__ = version("teamkf")
@@ -39,20 +73,37 @@ __all__ = [
     "CommGraph",
     "InformationStructure",
     "Design",
+    "Family",
+    "Option",
+    "families",
+    "get_family",
+    "register_family",
+    "unregister_family",
     "CentralizedDesign",
     "TeamDesign",
+    "KCFDesign",
+    "CIKFDesign",
     "StaticTeamEstimate",
     "design_centralized",
-    "design_kcf",
-    "KCFDesign",
-    "design_cikf",
-    "CIKFDesign",
     "design_mtmse",
     "design_mmse",
+    "design_kcf",
+    "design_cikf",
     "static_team_estimate",
     "kalman_covariances",
     "sample",
     "run_online",
+    "run_graph",
+    "monte_carlo",
+    "MonteCarloResult",
+    "Scenario",
+    "load_scenario",
+    "scenario_from_dict",
+    "evaluate_point",
     "TeamkfError",
+    "ShapeError",
+    "ArgumentError",
+    "DivergenceError",
+    "UnsupportedOperationError",
     "__version__",
 ]

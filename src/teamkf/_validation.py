@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .exceptions import (
+    ArgumentError,
     NotPositiveDefiniteError,
     NotSymmetricError,
     OptionalDependencyError,
@@ -33,6 +34,10 @@ def frozen(a: FloatArray) -> FloatArray:
 
 def as_float_array(x: ArrayLike, name: str) -> FloatArray:
     """Convert to a float array; reject non-numeric input and non-finite values."""
+    if np.iscomplexobj(x) or (isinstance(x, (list, tuple)) and _has_complex(x)):
+        raise ArgumentError(
+            f"{name}: expected real numbers, found complex values; pass the real part explicitly if that is what you mean", argument=name
+        )
     try:
         arr = np.asarray(x, dtype=float)
     except (TypeError, ValueError) as exc:
@@ -40,6 +45,14 @@ def as_float_array(x: ArrayLike, name: str) -> FloatArray:
     if not np.all(np.isfinite(arr)):
         raise ShapeError(f"{name}: expected finite numbers, found NaN or inf; check how {name} was built")
     return arr
+
+
+def _has_complex(x: Any) -> bool:
+    if isinstance(x, complex):
+        return True
+    if isinstance(x, (list, tuple)):
+        return any(_has_complex(e) for e in x)
+    return bool(np.iscomplexobj(x))
 
 
 def shape_str(shape: Sequence[int]) -> str:
@@ -99,16 +112,73 @@ def covariance(
     return arr
 
 
-def positive_int(x: Any, name: str, *, minimum: int = 1) -> int:
-    """An integer ``>= minimum`` (bools are rejected)."""
-    if isinstance(x, bool) or not isinstance(x, (int, np.integer)):
-        if isinstance(x, float) and float(x).is_integer():
+def integer(x: Any, name: str, *, minimum: int | None = None, maximum: int | None = None, what: str = "an integer") -> int:
+    """An integer in [minimum, maximum] (bools rejected; a float with an integer value is accepted)."""
+    bounds = (f" >= {minimum}" if minimum is not None else "") + (f" and <= {maximum}" if maximum is not None else "")
+    if isinstance(x, (bool, np.bool_)) or not isinstance(x, (int, np.integer)):
+        if isinstance(x, (float, np.floating)) and float(x).is_integer():
             x = int(x)
         else:
-            raise ShapeError(f"{name}: expected an integer >= {minimum}, found {x!r}")
-    if x < minimum:
-        raise ShapeError(f"{name}: expected an integer >= {minimum}, found {x}")
+            raise ArgumentError(f"{name}: expected {what}{bounds}, found {describe(x)}", argument=name)
+    if (minimum is not None and x < minimum) or (maximum is not None and x > maximum):
+        raise ArgumentError(f"{name}: expected {what}{bounds}, found {x}", argument=name)
     return int(x)
+
+
+def positive_int(x: Any, name: str, *, minimum: int = 1) -> int:
+    """An integer ``>= minimum`` (bools are rejected)."""
+    return integer(x, name, minimum=minimum)
+
+
+def real(x: Any, name: str, *, minimum: float | None = None, maximum: float | None = None, strict: bool = False, what: str = "a number") -> float:
+    """A finite real number in the given range (``strict``: the bounds themselves excluded); complex and bools rejected."""
+    if isinstance(x, (bool, np.bool_)) or not isinstance(x, (int, float, np.integer, np.floating)):
+        raise ArgumentError(f"{name}: expected {what}, found {describe(x)}", argument=name)
+    v = float(x)
+    lo, hi = (">", "<") if strict else (">=", "<=")
+    bounds = (f" {lo} {minimum:g}" if minimum is not None else "") + (f" and {hi} {maximum:g}" if maximum is not None else "")
+    if not np.isfinite(v):
+        raise ArgumentError(f"{name}: expected a finite {what.removeprefix('a ').removeprefix('an ')}{bounds}, found {v!r}", argument=name)
+    below = minimum is not None and (v <= minimum if strict else v < minimum)
+    above = maximum is not None and (v >= maximum if strict else v > maximum)
+    if below or above:
+        raise ArgumentError(f"{name}: expected {what}{bounds}, found {v:g}", argument=name)
+    return v
+
+
+def positive_float(x: Any, name: str, *, what: str = "a number") -> float:
+    """A finite number > 0."""
+    return real(x, name, minimum=0.0, strict=True, what=what)
+
+
+def probability(x: Any, name: str) -> float:
+    """A probability in [0, 1]."""
+    return real(x, name, minimum=0.0, maximum=1.0, what="a probability")
+
+
+def choice(x: Any, name: str, choices: Sequence[str], *, what: str = "one of") -> str:
+    """One of ``choices`` (strings), with a "did you mean" hint for a near miss."""
+    import difflib
+
+    allowed = ", ".join(repr(c) for c in choices)
+    if not isinstance(x, str):
+        raise ArgumentError(f"{name}: expected {what} {allowed}, found {describe(x)}", argument=name)
+    if x not in choices:
+        close = difflib.get_close_matches(x, list(choices), n=1, cutoff=0.6)
+        hint = f"; did you mean {close[0]!r}?" if close else ""
+        raise ArgumentError(f"{name}: expected {what} {allowed}, found {x!r}{hint}", argument=name)
+    return x
+
+
+def key_path(*parts: str | int) -> str:
+    """Join a key path as the scenario reader writes it: ``key_path("agents", 2, "R") == "agents[2].R"``."""
+    out = ""
+    for p in parts:
+        if isinstance(p, int):
+            out += f"[{p}]"
+        elif p:
+            out += f".{p}" if out else p
+    return out
 
 
 def require(module: str, extra: str) -> Any:

@@ -27,7 +27,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .exceptions import ScenarioError, TeamkfError
+from .exceptions import ArgumentError, ScenarioError, TeamkfError
 
 __all__ = ["main", "build_parser"]
 
@@ -60,17 +60,15 @@ def _load(arg: str) -> Any:
     raise ScenarioError(f"{arg}: no such scenario file (packaged scenarios: {', '.join(packaged)})")
 
 
-def _cost_value(design: Any) -> float:
-    return float(design.total_cost) if design.horizon is not None else float(design.average_cost)
-
-
 def _cost_label(horizon: int | None) -> str:
     return "J_T" if horizon is not None else "average cost"
 
 
-def _fmt(x: float) -> str:
-    if x is None or not np.isfinite(x):
-        return str(x)
+def _fmt(x: float | None) -> str:
+    if x is None:
+        return "-"
+    if not np.isfinite(x):
+        return "diverged"
     ax = abs(x)
     if ax != 0 and (ax >= 1e7 or ax < 1e-3):
         return f"{x:.4e}"
@@ -103,9 +101,13 @@ def dumps_json(obj: Any) -> str:
             return "{\n" + ",\n".join(items) + "\n" + pad + "}"
         if isinstance(x, (list, tuple)):
             if all(not isinstance(v, (dict, list, tuple)) for v in x):
-                return "[" + ", ".join(json.dumps(v) for v in x) + "]"
+                return "[" + ", ".join(enc(v, level + 1) for v in x) + "]"
             return "[\n" + ",\n".join(inner + enc(v, level + 1) for v in x) + "\n" + pad + "]"
-        return json.dumps(x)
+        if isinstance(x, (float, np.floating)) and not np.isfinite(x):
+            return "null"  # strict JSON (RFC 8259) has no NaN or Infinity
+        if isinstance(x, np.generic):
+            x = x.item()
+        return json.dumps(x, allow_nan=False)
 
     return enc(obj, 0)
 
@@ -148,67 +150,114 @@ def _cmd_population(sc: Any, args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_output(path: str, flag: str, suffixes: Sequence[str] | None = None) -> Path:
+    """Fail before any work when an output path has an unsupported extension or cannot be written."""
+    import os
+
+    p = Path(path)
+    if suffixes is not None and p.suffix.lower() not in suffixes:
+        raise ArgumentError(f"{flag}: expected a file name ending in {' or '.join(suffixes)}, found {path!r}", argument=flag)
+    if p.is_dir():
+        raise ArgumentError(f"{flag}: {path!r} is a directory; give a file name", argument=flag)
+    parent = p.parent if str(p.parent) else Path(".")
+    existing = parent
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir() or not os.access(existing, os.W_OK) or (p.exists() and not os.access(p, os.W_OK)):
+        raise ArgumentError(f"{flag}: cannot write {path!r} (no permission or not a directory: {existing}); choose another path", argument=flag)
+    return p
+
+
+def _write_atomic(path: Path, write: Any) -> None:
+    """Write through a temporary file in the same folder, renamed at the end: no partial file on failure."""
+    import os
+    import tempfile
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            write(fh)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _warn(message: str) -> None:
+    print(f"teamkf: warning: {message}", file=sys.stderr)
+
+
 def _cmd_evaluate(args: argparse.Namespace) -> int:
     from . import _validation as V
+    from .study.evaluate import DEFAULT_MC_RUNS
 
     sc = _load(args.scenario)
-    if getattr(sc, "model", None) is not None and not hasattr(sc, "designs"):
+    plot_to = _check_output(args.plot, "--plot", _PLOT_SUFFIXES) if args.plot else None
+    if not hasattr(sc, "designs"):  # a [population] scenario: exact statistics, nothing simulated
         if args.monte_carlo:
-            raise ScenarioError("--monte-carlo: a population scenario is evaluated exactly; nothing needs simulating")
+            raise ArgumentError("--monte-carlo: a population scenario is evaluated exactly; nothing needs simulating", argument="--monte-carlo")
+        if plot_to is not None:
+            raise ArgumentError(
+                "--plot: a population scenario has no stage costs to plot; use teamkf reproduce bulk-* for its figures", argument="--plot"
+            )
+        if args.seed is not None:
+            _warn("--seed is ignored: a population scenario is evaluated exactly, nothing is sampled")
         return _cmd_population(sc, args)
     runs = args.monte_carlo
     if runs is not None:
         if sc.horizon is None:
-            raise ScenarioError(
-                f"horizon: --monte-carlo needs a finite horizon, but scenario {sc.name!r} has none (steady state); add horizon = T to the scenario"
+            raise ArgumentError(
+                f"horizon: --monte-carlo needs a finite horizon, but scenario {sc.name!r} has none (steady state); add horizon = T to the scenario",
+                argument="horizon",
             )
         if runs < 2:
-            raise ScenarioError(f"--monte-carlo: expected at least 2 runs (for a confidence interval), found {runs}")
-    if args.plot:
+            raise ArgumentError(f"--monte-carlo: expected at least 2 runs (for a confidence interval), found {runs}", argument="--monte-carlo")
+    if plot_to is not None:
         V.require("matplotlib", "plot")  # fail before the work, with the install command
 
     designs = sc.designs()
-    mc: dict[str, Any] = {}
-    seed = args.seed
-    from .study.evaluate import DEFAULT_MC_RUNS
-
-    mc_only = [name for name, d in designs.items() if d.stage_costs is None and d.average_cost is None]  # e.g. kcf
+    mc_only = [name for name, d in designs.items() if not d.has_analytic_cost]
+    simulate = designs
     if runs is None and mc_only:
-        runs = DEFAULT_MC_RUNS
-        simulate = {name: designs[name] for name in mc_only}
-    else:
-        simulate = designs
+        runs, simulate = DEFAULT_MC_RUNS, {name: designs[name] for name in mc_only}
+    if args.seed is not None and runs is None:
+        _warn("--seed is ignored without Monte Carlo (every estimator of this scenario has an analytic cost); add --monte-carlo RUNS")
+    seed = args.seed
+    mc: dict[str, Any] = {}
     if runs is not None:
         from .simulation.monte_carlo import monte_carlo
 
         if seed is None:
             seed = int(np.random.SeedSequence().entropy % (2**32))  # type: ignore[operator]
         mc = monte_carlo(simulate, sc.horizon, runs, rng=seed)
+    for name, d in designs.items():
+        if d.diverged or (name in mc and not np.isfinite(mc[name].total_mean)):
+            _warn(f"{name}: the team cost diverges (not finite){_divergence_step(d, mc.get(name))}; reported as diverged / null")
 
     notes: list[str] = []
-    if args.plot:
-        notes.append(_plot_stage_costs(designs, sc, args.plot))
+    if plot_to is not None:
+        notes.append(_plot_stage_costs(designs, mc, sc, plot_to))
 
     control = _control_summary(sc, runs, seed)
     if args.json:
-        out: dict[str, Any] = {"scenario": sc.name, "horizon": sc.horizon, "estimators": {}}
+        out: dict[str, Any] = {"scenario": sc.name, "horizon": sc.horizon, "teamkf_version": _version(), "estimators": {}}
+        if runs is not None:
+            out["monte_carlo"] = {"runs": runs, "seed": seed}
         if control:
             out["control"] = control
         for name, d in designs.items():
             if name in mc_only:
-                out["estimators"][name] = {**mc[name].summary(), **({"variant": d.info["variant"]} if "variant" in d.info else {})}
-                continue
-            entry = d.summary()
-            if name in mc:
-                r = mc[name]
-                lo, hi = r.ci95
-                merged: dict[str, Any] = {}
-                for k, v in entry.items():
-                    merged[k] = v
-                    if k in ("total_cost", "average_cost"):
-                        merged["mc_cost"] = float(r.total_mean)
-                        merged["mc_ci95"] = [float(lo), float(hi)]
-                entry = merged
+                entry = {**mc[name].summary(), **({"variant": d.info["variant"]} if "variant" in d.info else {})}
+            else:
+                entry = {}
+                for k, v in d.cost_summary().items():
+                    entry[k] = v
+                    if k == d.cost_key and name in mc:
+                        lo, hi = mc[name].ci95
+                        entry.update(mc_cost=mc[name].total_mean, mc_ci95=[lo, hi])
+            if any(isinstance(v, float) and not np.isfinite(v) for v in _leaves(entry)):
+                entry["diverged"] = True
             out["estimators"][name] = entry
         print(dumps_json(out))
         for n in notes:
@@ -216,19 +265,19 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         return 0
 
     ref = designs.get("mtmse")
+    ref_value = ref.cost_value if ref is not None else None
     headers = ["estimator", _cost_label(sc.horizon)]
-    if ref is not None:
+    if ref_value is not None:
         headers.append("vs mtmse")
     if mc:
         headers += ["MC mean", "MC 95% CI"]
-    ref_value = _cost_value(ref) if ref is not None else 1.0
     rows = []
     for name, d in designs.items():
-        v = mc[name].total_mean if name in mc_only else _cost_value(d)
-        label = f"{name} [{d.info['variant']}]" if "variant" in d.info else name
-        row = [label, _fmt(v) + (" (MC)" if name in mc_only else "")]
-        if ref is not None:
-            row.append(f"{100.0 * (v - ref_value) / ref_value:+.2f} %")
+        v = mc[name].total_mean if name in mc_only else d.cost_value
+        row = [d.label, _fmt(v) + (" (MC)" if name in mc_only and v is not None and np.isfinite(v) else "")]
+        if ref_value is not None:
+            ok = v is not None and np.isfinite(v) and np.isfinite(ref_value) and ref_value != 0
+            row.append(f"{100.0 * (v - ref_value) / ref_value:+.2f} %" if ok else "-")  # type: ignore[operator]
         if mc:
             if name in mc:
                 lo, hi = mc[name].ci95
@@ -253,6 +302,25 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+_PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
+
+
+def _leaves(x: Any) -> list[Any]:
+    if isinstance(x, dict):
+        return [v for val in x.values() for v in _leaves(val)]
+    if isinstance(x, (list, tuple)):
+        return [v for val in x for v in _leaves(val)]
+    return [x]
+
+
+def _divergence_step(design: Any, mc: Any) -> str:
+    stages = design.stage_costs if design.stage_costs is not None else (mc.stage_mean if mc is not None else None)
+    if stages is None:
+        return ""
+    bad = np.flatnonzero(~np.isfinite(np.asarray(stages)))
+    return f" from step {int(bad[0])}" if bad.size else ""
+
+
 def _control_summary(sc: Any, runs: int | None, seed: int | None) -> dict[str, Any]:
     """Analytic (and, with runs, closed-loop Monte Carlo) costs of Theorem 4's controller and of certainty equivalence."""
     prob = sc.control
@@ -271,91 +339,51 @@ def _control_summary(sc: Any, runs: int | None, seed: int | None) -> dict[str, A
     return out
 
 
-def _plot_stage_costs(designs: dict[str, Any], sc: Any, out: str) -> str:
+def _plot_stage_costs(designs: dict[str, Any], mc: dict[str, Any], sc: Any, out: Path) -> str:
     from .plotting import stage_cost_axes
 
-    ax = stage_cost_axes(list(designs.values()), title=f"{sc.name}: stage costs")
+    analytic = [d for d in designs.values() if d.has_analytic_cost]
+    ax = stage_cost_axes(analytic, title=f"{sc.name}: stage costs")
+    for name, d in designs.items():
+        if not d.has_analytic_cost and name in mc:
+            mc[name].plot(ax=ax)
     fig = ax.figure
     fig.tight_layout()
-    path = Path(out)
-    if path.parent and not path.parent.exists():
-        path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
+    _write_atomic(out, lambda fh: fig.savefig(fh, dpi=120, format=out.suffix.lstrip(".").lower().replace("jpg", "jpeg")))
     import matplotlib.pyplot as plt
 
     plt.close(fig)
-    return f"plot written to {path}"
+    return f"plot written to {out}"
 
 
 # ---------------------------------------------------------------------------
 # design
 # ---------------------------------------------------------------------------
-def _gain_arrays(name: str, d: Any) -> dict[str, np.ndarray]:
-    """The arrays of one design for ``--out`` (npz keys ``name/...``)."""
-    out: dict[str, np.ndarray] = {}
-    if d.horizon is not None:
-        out[f"{name}/stage_costs"] = np.asarray(d.stage_costs, dtype=float)
-        out[f"{name}/total_cost"] = np.asarray(d.total_cost, dtype=float)
-    else:
-        out[f"{name}/average_cost"] = np.asarray(d.average_cost, dtype=float)
-    out[f"{name}/K"] = np.asarray(d.K, dtype=float)
-    if name == "centralized":
-        return out
-    steps = d.gains if d.horizon is not None else [d.gain_at(k) for k in range(d.structure.common_lag)]
-    for k, step in enumerate(steps):
-        for i, F in enumerate(step):
-            out[f"{name}/F_{i}_t{k}"] = np.asarray(F, dtype=float)
-    if d.steady_gains is not None:
-        for i, F in enumerate(d.steady_gains):
-            out[f"{name}/F_{i}"] = np.asarray(F, dtype=float)
-    st = d.structure
-    for i in range(st.n_agents):
-        out[f"{name}/local_{i}"] = np.asarray(st.local_lags(i), dtype=np.int64).reshape(-1, 2)
-    return out
-
-
-def _gain_shapes(name: str, d: Any) -> dict[str, list[int]]:
-    if name == "centralized":
-        K = np.asarray(d.K)
-        return {"K": list(K.shape[-2:])}
-    last = d.steady_gains if d.steady_gains is not None else d.gains[-1]
-    return {f"F_{i}": list(np.asarray(F).shape) for i, F in enumerate(last)}
-
-
-def _design_summary(name: str, d: Any, sc: Any) -> dict[str, Any]:
-    entry = {k: v for k, v in d.summary().items() if k != "stage_costs"}
-    if name == "centralized":
-        entry["local_dims"] = None
-    else:
-        entry["local_dims"] = list(d.structure.local_dims(sc.system.dy))
-    entry["gain_shapes"] = _gain_shapes(name, d)
-    return entry
-
-
 def _cmd_design(args: argparse.Namespace) -> int:
     sc = _load(args.scenario)
-    if getattr(sc, "model", None) is not None and not hasattr(sc, "designs"):
-        if args.out:
-            out = sc.evaluate()
-            path = Path(args.out)
-            path.parent.mkdir(parents=True, exist_ok=True)
-            with open(path, "wb") as fh:
-                np.savez(fh, gains=np.asarray(out["gains"]), state_variance=np.asarray(out["state_variance_trajectory"]))
+    out_path = _check_output(args.out, "--out") if args.out else None
+    if not hasattr(sc, "designs"):  # a [population] scenario
+        if out_path is not None:
+            res = sc.evaluate()
+            _write_atomic(
+                out_path, lambda fh: np.savez(fh, gains=np.asarray(res["gains"]), state_variance=np.asarray(res["state_variance_trajectory"]))
+            )
         return _cmd_population(sc, args)
     designs = sc.designs()
     notes = []
-    if args.out:
+    if out_path is not None:
         arrays: dict[str, np.ndarray] = {"scenario": np.asarray(sc.name), "horizon": np.asarray(-1 if sc.horizon is None else sc.horizon)}
         for name, d in designs.items():
-            arrays.update(_gain_arrays(name, d))
-        path = Path(args.out)
-        if path.parent and not path.parent.exists():
-            path.parent.mkdir(parents=True, exist_ok=True)
-        with open(path, "wb") as fh:  # np.savez would append .npz to a name without it
-            np.savez(fh, **arrays)  # type: ignore[arg-type]
-        notes.append(f"gains written to {path} ({len(arrays)} arrays; keys like '{next(iter(designs))}/...'; horizon -1 means steady state)")
+            arrays.update({f"{name}/{k}": v for k, v in d.arrays().items()})
+        _write_atomic(out_path, lambda fh: np.savez(fh, **arrays))  # a file handle: np.savez adds no suffix
+        notes.append(f"gains written to {out_path} ({len(arrays)} arrays; keys like '{next(iter(designs))}/...'; horizon -1 means steady state)")
     if args.json:
-        out = {"scenario": sc.name, "horizon": sc.horizon, "estimators": {name: _design_summary(name, d, sc) for name, d in designs.items()}}
+        out = {
+            "scenario": sc.name,
+            "horizon": sc.horizon,
+            "teamkf_version": _version(),
+            "estimators": {name: d.summary() for name, d in designs.items()},
+        }
         print(dumps_json(out))
         for n in notes:
             print(n, file=sys.stderr)
@@ -364,11 +392,12 @@ def _cmd_design(args: argparse.Namespace) -> int:
     print(_header(sc))
     print()
     rows = []
-    for name, d in designs.items():
-        s = _design_summary(name, d, sc)
-        dims = "all (centralized)" if s["local_dims"] is None else ", ".join(map(str, s["local_dims"]))
-        shapes = ", ".join(f"{k} {'x'.join(map(str, v))}" for k, v in s["gain_shapes"].items())
-        rows.append([name, _fmt(_cost_value(d)), dims, shapes])
+    for d in designs.values():
+        s = d.summary()
+        dims = "all (centralized)" if d.omniscient else ("-" if s.get("local_dims") is None else ", ".join(map(str, s["local_dims"])))
+        shapes = ", ".join(f"{k} {'x'.join(map(str, v))}" for k, v in s.get("gain_shapes", {}).items())
+        cost = _fmt(d.cost_value) if d.has_analytic_cost else "Monte Carlo (teamkf evaluate)"
+        rows.append([d.label, cost, dims, shapes])
     print(format_table(["estimator", _cost_label(sc.horizon), "local dims (scalars per agent)", f"gain shapes ({when})"], rows, align="lrll"))
     for n in notes:
         print(n)

@@ -44,7 +44,11 @@ def test_monte_carlo_matches_analytic(case):
         sys = random_system(rng, 3, 3, [1, 2, 1], stable=True)
         cost = random_cost(rng, 3, 3, 2)
         st = CommGraph.random(3, p=0.5, delays=(1, 3), rng=rng)
-    designs = {"mtmse": design_mtmse(sys, cost, st, T), "mmse": design_mmse(sys, cost, st, T), "centralized": design_centralized(sys, cost, T)}
+    designs = {
+        "mtmse": design_mtmse(sys, cost, st, T),
+        "mmse": design_mmse(sys, cost, st, T),
+        "centralized": design_centralized(sys, cost, horizon=T),
+    }
     mc = monte_carlo(designs, T, 3000, rng=2024)
     for name, d in designs.items():
         r = mc[name]
@@ -72,7 +76,7 @@ def test_single_agent_mtmse_agent_is_the_kalman_filter_exactly():
     T = 12
     x, y = sample(sys, T, 5, rng=1)
     z_team = run_online(design_mtmse(sys, cost, g, T).agents(), y)
-    z_kf = run_online(design_centralized(sys, cost, T).agents(), y)
+    z_kf = run_online(design_centralized(sys, cost, horizon=T).agents(), y)
     np.testing.assert_allclose(z_team, z_kf, rtol=1e-9, atol=1e-9)
 
 

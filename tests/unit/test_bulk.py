@@ -23,7 +23,7 @@ from teamkf.estimators.bulk import (
     riccati_feedback_gain,
     stationarity_index,
 )
-from teamkf.exceptions import ScenarioError, ShapeError, TeamkfError
+from teamkf.exceptions import ArgumentError, ScenarioError, ShapeError, TeamkfError
 from teamkf.models.population import PopulationModel, cdma_population
 from teamkf.study.population import PopulationScenario, evaluate_population, population_from_dict
 
@@ -302,7 +302,7 @@ def test_isolated_kalman_filter_and_riccati_gain():
 def test_model_validation(kw, words):
     args = dict(n_agents=10, a=1.0, f=0.5)
     args.update(kw)
-    with pytest.raises(ShapeError) as ei:
+    with pytest.raises(ArgumentError) as ei:
         PopulationModel(**args)
     msg = str(ei.value)
     assert isinstance(ei.value, (TeamkfError, ValueError))
@@ -321,7 +321,7 @@ def test_model_basics_and_cdma():
     assert c.c == pytest.approx(2.0 * (1 - 0.25)) and c.h == pytest.approx(50.0) and c.sigma_v == 0.5
     with pytest.raises(ShapeError, match=r"h_prime: expected 0 <= h_prime < n_agents = 10"):
         cdma_population(10, a=1.0, alpha=1.0, beta=1.0, h_prime=10.0, f=0.5)
-    with pytest.raises(ShapeError, match="alpha"):
+    with pytest.raises(ArgumentError, match="alpha"):
         cdma_population(10, a=1.0, alpha=0.0, beta=1.0, h_prime=1.0, f=0.5)
 
 
@@ -406,6 +406,6 @@ def test_flush_argument_validated():
         exact_bulk_filter(PopulationModel(n_agents=2, a=1.0, f=0.5), 5, flush=0.5)
     with pytest.raises(ShapeError, match="model: expected a PopulationModel"):
         exact_bulk_filter("model", 5)  # type: ignore[arg-type]
-    with pytest.raises(ShapeError, match="horizon"):
+    with pytest.raises(ArgumentError, match="horizon"):
         finite_memory_filter(PopulationModel(n_agents=2, a=1.0, f=0.5, memory=2), 0)
     assert FLUSH == 1e-30

@@ -21,7 +21,7 @@ from teamkf.control import (
     stability_region_mask,
 )
 from teamkf.estimators.bulk import bulk_filter, exact_bulk_filter, isolated_kalman_gain, riccati_feedback_gain
-from teamkf.exceptions import ShapeError
+from teamkf.exceptions import ArgumentError, ShapeError
 from teamkf.models.population import PopulationModel
 
 
@@ -172,7 +172,7 @@ def test_saturation_and_validation():
         simulate_population(m, 10, filt=exact_bulk_filter(m, 5))
     with pytest.raises(ShapeError, match="filt: expected a filter computed for this model"):
         simulate_population(m, 5, filt=exact_bulk_filter(m.with_(n_agents=4), 5))
-    with pytest.raises(ShapeError, match="n_runs"):
+    with pytest.raises(ArgumentError, match="n_runs"):
         simulate_population(m, 5, n_runs=0)
     assert map_points(lambda p: p * 2, [1, 2, 3]) == [2, 4, 6]
 

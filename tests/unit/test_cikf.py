@@ -9,7 +9,7 @@ from teamkf import CommGraph, LinearGaussianSystem, TeamCost
 from teamkf.estimators.cikf import CIKFDesign, design_cikf, pseudo_state_model, tracking_bound
 from teamkf.estimators.kalman import design_centralized
 from teamkf.estimators.riccati import is_detectable
-from teamkf.exceptions import DetectabilityError, GraphError, InformationStructureError, ShapeError
+from teamkf.exceptions import ArgumentError, DetectabilityError, GraphError, InformationStructureError, ShapeError
 from teamkf.simulation.runtime import run_graph
 from teamkf.simulation.sampling import sample_paths
 from teamkf.study.random_field import random_field, random_field_instance
@@ -135,7 +135,7 @@ def test_singular_instance_really_singular():
 def test_iterations_match_joint_covariance(make):
     sysm, graph = make()
     T = 12
-    d = design_cikf(sysm, graph, T)
+    d = design_cikf(sysm, None, graph, T)
     pred, filt = joint_reference(d, T)
     N, M = sysm.n_agents, sysm.dx
     for k in range(T):
@@ -153,7 +153,7 @@ def test_gains_are_theorem4_optimal_in_full_coordinates(make):
     """Theorem 4 literally ((d+1)M-dimensional ν̃ with Ȟ terms, pseudo-inverse) gives the same filtered covariances."""
     sysm, graph = make()
     T = 6
-    d = design_cikf(sysm, graph, T)
+    d = design_cikf(sysm, None, graph, T)
     pred, filt = joint_reference(d, T)
     m = d.model
     N, M = sysm.n_agents, sysm.dx
@@ -205,8 +205,8 @@ def test_gains_are_theorem4_optimal_in_full_coordinates(make):
 
 def test_dense_method_matches_structured():
     sysm, graph = small_field()
-    a = design_cikf(sysm, graph, 8)
-    b = design_cikf(sysm, graph, 8, method="dense")
+    a = design_cikf(sysm, None, graph, 8)
+    b = design_cikf(sysm, None, graph, 8, method="dense")
     assert np.allclose(a.Sigma_pred, b.Sigma_pred, rtol=1e-9, atol=1e-9)
     assert np.allclose(a.stage_costs, b.stage_costs, rtol=1e-10)
 
@@ -216,29 +216,29 @@ def test_printed_equations_are_off(make):
     """Eqs. (43) and (45) as extracted predict an MSE that is not the filter's (errata)."""
     sysm, graph = make()
     T = 10
-    lit = design_cikf(sysm, graph, T, equations="printed")
-    true = design_cikf(sysm, graph, T, gains=lit)  # the true covariances of the printed design's gains
+    lit = design_cikf(sysm, None, graph, T, equations="printed")
+    true = design_cikf(sysm, None, graph, T, gains=lit)  # the true covariances of the printed design's gains
     pred, act = lit.mse("predictor"), true.mse("predictor")
     with np.errstate(invalid="ignore", divide="ignore"):
         gap_db = np.where(pred > 0, np.abs(10 * np.log10(pred / act)), np.inf)
     assert gap_db[0] == 0.0 and gap_db.max() > 0.5  # 0.7 dB, 2.1 dB and a negative "MSE" on these three
-    good = design_cikf(sysm, graph, T)
-    assert np.allclose(design_cikf(sysm, graph, T, gains=good).stage_costs, good.stage_costs, rtol=1e-10)
+    good = design_cikf(sysm, None, graph, T)
+    assert np.allclose(design_cikf(sysm, None, graph, T, gains=good).stage_costs, good.stage_costs, rtol=1e-10)
 
 
 def test_rcond_choice_is_immaterial():
     """Cut-offs at or below the default agree to 1e-4 dB; a coarse 1e-7 costs a few thousandths of a dB."""
     sysm, graph = small_field()
-    base = 10 * np.log10(design_cikf(sysm, graph, 40).mse("predictor"))
+    base = 10 * np.log10(design_cikf(sysm, None, graph, 40).mse("predictor"))
     for rc, tol in ((1e-11, 1e-4), (1e-13, 1e-4), (1e-7, 2e-2)):
-        other = 10 * np.log10(design_cikf(sysm, graph, 40, rcond=rc).mse("predictor"))
+        other = 10 * np.log10(design_cikf(sysm, None, graph, 40, rcond=rc).mse("predictor"))
         assert np.abs(other - base).max() < tol
         assert other[-1] >= base[-1] - 1e-6  # never better than the default here
 
 
 def test_step0_consensus_gains_vanish():
     sysm, graph = small_field()
-    d = design_cikf(sysm, graph, 3)
+    d = design_cikf(sysm, None, graph, 3)
     scale = max(np.abs(b).max() for b in d.B_innov[0])
     assert all(np.abs(b).max() <= 1e-12 * scale for b in d.B_cons[0])  # round-off of the eigenvectors only
     assert any(np.abs(b).max() > 0.0 for b in d.B_cons[1])
@@ -250,7 +250,7 @@ def test_step0_consensus_gains_vanish():
 @pytest.mark.parametrize("form", ["filter", "predictor"])
 def test_run_graph_simulate_and_errors_agree(form):
     sysm, graph = small_field()
-    d = design_cikf(sysm, graph, 15, form=form)
+    d = design_cikf(sysm, None, graph, 15, form=form)
     paths = sample_paths(sysm, 15, 40, rng=11)
     z_graph = run_graph(d.graph_agents(), graph, paths.y)
     z_sim = d.simulate(paths.y)
@@ -262,7 +262,7 @@ def test_run_graph_simulate_and_errors_agree(form):
 
 def test_agent_needs_its_neighbours_messages():
     sysm, graph = small_field()
-    d = design_cikf(sysm, graph, 4)
+    d = design_cikf(sysm, None, graph, 4)
     ag = d.graph_agents()[0]
     st = ag.init_state(2)
     st, z, msg = ag.step(st, 0, np.zeros((2, 2)), [])
@@ -278,10 +278,10 @@ def test_agent_needs_its_neighbours_messages():
 def test_centralized_never_beaten(make):
     sysm, graph = make()
     T = 20
-    d = design_cikf(sysm, graph, T)
+    d = design_cikf(sysm, None, graph, T)
     N, M = sysm.n_agents, sysm.dx
-    cf = design_centralized(sysm, TeamCost.mse(N, M), T, form="filter")
-    cp = design_centralized(sysm, TeamCost.mse(N, M), T, form="predictor")
+    cf = design_centralized(sysm, TeamCost.mse(N, M), horizon=T, form="filter")
+    cp = design_centralized(sysm, TeamCost.mse(N, M), horizon=T, form="predictor")
     per_f = d.mse("filter", per_agent=True)
     per_p = d.mse("predictor", per_agent=True)
     ckf_f = cf.stage_costs / N
@@ -311,7 +311,7 @@ def test_mtmse_with_neighbourhood_sharing_is_no_worse_per_agent():
     sysm, graph = random_field(9, 4, rng=2)
     T = 7
     N, M = sysm.n_agents, sysm.dx
-    d = design_cikf(sysm, graph, T)
+    d = design_cikf(sysm, None, graph, T)
     mt = design_mtmse(sysm, TeamCost.mse(N, M), graph, T)
     cikf_agents = d.mse("filter", per_agent=True)
     for k in range(T):
@@ -331,7 +331,7 @@ def test_general_cost_stage_costs_match_monte_carlo_errors():
     L = rng.standard_normal((N * 2, M))
     B = rng.standard_normal((2 * N, 2 * N))
     cost = TeamCost(S=B @ B.T + np.eye(2 * N), L=L, n_agents=N)
-    d = design_cikf(sysm, graph, 6, cost=cost)
+    d = design_cikf(sysm, cost, graph, 6)
     # analytic: blockdiag(L_n) Σ blockdiag(L_n)' from the joint reference
     _, filt = joint_reference(d, 6)
     from scipy.linalg import block_diag
@@ -347,7 +347,7 @@ def test_general_cost_stage_costs_match_monte_carlo_errors():
 # ---------------------------------------------------------------------------
 def test_tracking_bound_with_gains():
     sysm, graph = singular_instance()
-    d = design_cikf(sysm, graph, 10)
+    d = design_cikf(sysm, None, graph, 10)
     m = d.model
     b_range = d.tracking_bound()
     b_full = tracking_bound(d, 9, subspace="full")
@@ -369,34 +369,34 @@ def test_tracking_bound_with_gains():
 def test_validation_errors():
     sysm, graph = small_field()
     with pytest.raises(GraphError, match="delay 1"):
-        design_cikf(sysm, graph.with_delay(2), 5)
+        design_cikf(sysm, None, graph.with_delay(2), 5)
     with pytest.raises(GraphError, match="agents"):
-        design_cikf(sysm, CommGraph.line(3), 5)
+        design_cikf(sysm, None, CommGraph.line(3), 5)
     with pytest.raises(GraphError, match="CommGraph"):
-        design_cikf(sysm, "ring", 5)
+        design_cikf(sysm, None, "ring", 5)
     with pytest.raises(ShapeError, match="horizon"):
-        design_cikf(sysm, graph, None)
-    with pytest.raises(ShapeError, match="horizon"):
-        design_cikf(sysm, graph, 0)
+        design_cikf(sysm, None, graph, None)
+    with pytest.raises(ArgumentError, match="horizon"):
+        design_cikf(sysm, None, graph, 0)
     with pytest.raises(ShapeError, match="rcond"):
-        design_cikf(sysm, graph, 5, rcond=0.0)
+        design_cikf(sysm, None, graph, 5, rcond=0.0)
     with pytest.raises(ShapeError, match="form"):
-        design_cikf(sysm, graph, 5, form="smoother")
+        design_cikf(sysm, None, graph, 5, form="smoother")
     with pytest.raises(ShapeError, match="method"):
-        design_cikf(sysm, graph, 5, method="sparse")
+        design_cikf(sysm, None, graph, 5, method="sparse")
     with pytest.raises(ShapeError, match="cost"):
-        design_cikf(sysm, graph, 5, cost=TeamCost.mse(3, 2))
-    with pytest.raises(ShapeError, match="system"):
-        design_cikf("sys", graph, 5)
+        design_cikf(sysm, TeamCost.mse(3, 2), graph, 5)
+    with pytest.raises(ArgumentError, match="system"):
+        design_cikf("sys", None, graph, 5)
     # (A, H) not detectable: an unstable mode nobody sees
     bad = LinearGaussianSystem(A=np.diag([1.2, 0.5]), Q=1.0, Sigma_x=1.0, C=[[[0.0, 1.0]], [[0.0, 1.0]]], R=1.0)
     with pytest.raises(DetectabilityError, match="detectable"):
-        design_cikf(bad, CommGraph.line(2), 5)
+        design_cikf(bad, None, CommGraph.line(2), 5)
     # time-varying systems are out of scope
     tv = LinearGaussianSystem(A=[np.eye(2), np.eye(2)], Q=1.0, Sigma_x=1.0, C=[np.eye(2), np.eye(2)], R=1.0)
     with pytest.raises(ShapeError, match="CIKF"):
-        design_cikf(tv, CommGraph.line(2), 2)
-    d = design_cikf(sysm, graph, 5)
+        design_cikf(tv, None, CommGraph.line(2), 2)
+    d = design_cikf(sysm, None, graph, 5)
     paths = sample_paths(sysm, 6, 3, rng=0)
     with pytest.raises(ShapeError, match="horizon"):
         d.errors(paths)
@@ -449,7 +449,7 @@ def test_random_field_validation():
 def test_paper_gains_structure():
     """B^C has the Laplacian block pattern and annihilates 1 ⊗ y; B^I and K are block-diagonal (eqs. 60-63)."""
     sysm, graph = singular_instance()
-    d = design_cikf(sysm, graph, 5)
+    d = design_cikf(sysm, None, graph, 5)
     N, M = sysm.n_agents, sysm.dx
     g = d.paper_gains(3)
     BC = g["B_C"].reshape(N, M, N, M)

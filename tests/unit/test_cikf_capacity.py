@@ -40,7 +40,7 @@ def test_given_gains_bound_never_exceeds_closed_form():
     sysm = _system()
     ub = tracking_capacity_upper_bound(sysm)
     for g in (CommGraph.line(6), CommGraph.ring(6), CommGraph.complete(6)):
-        d = design_cikf(sysm, g, 15)
+        d = design_cikf(sysm, None, g, 15)
         assert 0 < d.tracking_bound() <= ub * (1 + 1e-9)
 
 
@@ -99,7 +99,7 @@ def test_capacity_dominates_any_gains_bound():
     sysm = _system(N=5)
     for g in (CommGraph.line(5), CommGraph.complete(5)):
         cap = tracking_capacity(sysm, g)
-        d = design_cikf(sysm, g, 12)
+        d = design_cikf(sysm, None, g, 12)
         for k in (0, 5, 11):
             assert d.tracking_bound(k) <= cap.capacity * (1 + 1e-5)
         # the optimal structured gains attain the optimal norm

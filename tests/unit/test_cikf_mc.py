@@ -37,7 +37,7 @@ def _check_mc(d, paths, form):
 def small():
     sysm, graph = random_field(15, 6, rng=1)
     T = 20
-    d = design_cikf(sysm, graph, T)
+    d = design_cikf(sysm, None, graph, T)
     paths = sample_paths(sysm, T, 2000, rng=2024)
     return d, paths
 
@@ -84,7 +84,7 @@ def test_per_agent_mse_matches(small):
 def paper_size():
     sysm, graph = random_field(rng=0)
     T = 32  # predictions Σ_{i+1|i} for i = 0..30
-    d = design_cikf(sysm, graph, T, form="predictor")
+    d = design_cikf(sysm, None, graph, T, form="predictor")
     return d
 
 
@@ -98,7 +98,7 @@ def test_paper_size_monte_carlo_1000_runs(paper_size):
     e = d.errors(paths).reshape(1000, d.horizon, N, M)
     z = e.mean(axis=0) / (e.std(axis=0, ddof=1) / np.sqrt(1000))
     assert np.all(np.abs(z) < 5.5)  # 32 x 2500 correlated components
-    ckf = design_centralized(sysm, TeamCost.mse(N, M), d.horizon, form="predictor").stage_costs / N
+    ckf = design_centralized(sysm, TeamCost.mse(N, M), horizon=d.horizon, form="predictor").stage_costs / N
     assert np.all(d.mse("predictor", per_agent=True) >= ckf[:, None] * (1 - 1e-9))
     gap = 10 * np.log10(d.mse("predictor")[-1] / ckf[-1])
     assert 0.0 < gap < 6.0
@@ -109,6 +109,6 @@ def test_paper_size_pinv_choices(paper_size):
     """A near-exact cut-off (1e-12) and the eigen pseudo-inverse stay within 1e-3 dB of the default (no drift)."""
     d = paper_size
     for kw in ({"rcond": 1e-12}, {"pinv": "eigh"}):
-        other = design_cikf(d.system, d.graph, 12, form="predictor", **kw)
+        other = design_cikf(d.system, None, d.graph, 12, form="predictor", **kw)
         diff = 10 * np.log10(other.mse("predictor") / d.mse("predictor")[:12])
         assert np.abs(diff).max() < 1e-3

@@ -13,6 +13,7 @@ from teamkf import (
     design_mtmse,
 )
 from teamkf.exceptions import (
+    ArgumentError,
     DetectabilityError,
     InformationStructureError,
     NotPositiveDefiniteError,
@@ -77,7 +78,7 @@ def test_scalar_covariances_and_time_varying():
         (dict(S=np.eye(3), L=np.eye(3), n_agents=2), ShapeError, ["S", "multiple of n_agents", "3x3"]),
         (dict(S=-np.eye(2), L=np.eye(2), n_agents=2), NotPositiveDefiniteError, ["S", "positive definite"]),
         (dict(S=np.eye(2), L=np.eye(3), n_agents=2), ShapeError, ["L", "2 x d_x"]),
-        (dict(S=np.eye(2), L=np.eye(2), n_agents=0), ShapeError, ["n_agents", ">= 1"]),
+        (dict(S=np.eye(2), L=np.eye(2), n_agents=0), ArgumentError, ["n_agents", ">= 1"]),
     ],
 )
 def test_cost_validation(kw, exc, words):
@@ -94,9 +95,9 @@ def test_cost_builders():
     np.testing.assert_allclose(S.sum(axis=1), 1.0)  # differences cancel on constants
     sys = make()
     with pytest.raises(ShapeError, match="cost: expected a cost for 2 agents"):
-        design_centralized(sys, TeamCost.mse(3, 2), 3)
+        design_centralized(sys, TeamCost.mse(3, 2), horizon=3)
     with pytest.raises(ShapeError, match="cost.L: expected 2 columns"):
-        design_centralized(sys, TeamCost.mse(2, 3), 3)
+        design_centralized(sys, TeamCost.mse(2, 3), horizon=3)
 
 
 @pytest.mark.parametrize(
@@ -147,14 +148,14 @@ def test_from_graph_is_eq14():
 def test_design_argument_errors():
     sys = make()
     cost = TeamCost.mse(2, 2)
-    with pytest.raises(ShapeError, match="structure: expected an InformationStructure or a CommGraph"):
+    with pytest.raises(InformationStructureError, match="structure: expected an InformationStructure or a CommGraph"):
         design_mtmse(sys, cost, "complete")
-    with pytest.raises(ShapeError, match="structure: expected 2 agents"):
+    with pytest.raises(InformationStructureError, match="structure: expected 2 agents"):
         design_mtmse(sys, cost, InformationStructure.own_window(3, 1))
-    with pytest.raises(ShapeError, match="horizon"):
+    with pytest.raises(ArgumentError, match="horizon"):
         design_mmse(sys, cost, CommGraph.complete(2), horizon=0)
-    with pytest.raises(ShapeError, match="form"):
-        design_centralized(sys, cost, 3, form="smoother")  # type: ignore[arg-type]
+    with pytest.raises(ArgumentError, match="form"):
+        design_centralized(sys, cost, horizon=3, form="smoother")  # type: ignore[arg-type]
 
 
 def test_steady_state_needs_detectability():

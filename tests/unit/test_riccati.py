@@ -20,6 +20,7 @@ from teamkf.estimators.riccati import (
     unstable_unobservable_modes,
 )
 from teamkf.exceptions import (
+    ArgumentError,
     ConvergenceError,
     DetectabilityError,
     NotPositiveDefiniteError,
@@ -408,7 +409,7 @@ def test_bad_options():
         solve_filter_dare(A, C, Q, R, method="newton")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match=r"tol"):
         solve_filter_dare(A, C, Q, R, tol=-1.0)
-    with pytest.raises(ShapeError, match=r"max_iter"):
+    with pytest.raises(ArgumentError, match=r"max_iter"):
         solve_filter_dare(A, C, Q, R, max_iter=0)
 
 

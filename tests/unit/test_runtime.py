@@ -23,7 +23,7 @@ def _designs(system, cost, graph, T):
     return {
         "mtmse": design_mtmse(system, cost, graph, T),
         "mmse": design_mmse(system, cost, graph, T),
-        "centralized": design_centralized(system, cost, T),
+        "centralized": design_centralized(system, cost, horizon=T),
     }
 
 
@@ -73,7 +73,7 @@ def test_error_path_equals_runtime_path_on_stable_systems(steady):
     designs = {
         "mtmse": design_mtmse(system, cost, g, None if steady else T),
         "mmse": design_mmse(system, cost, g, None if steady else T),
-        "centralized": design_centralized(system, cost, None if steady else T),
+        "centralized": design_centralized(system, cost, horizon=None if steady else T),
     }
     paths = sample_paths(system, T, 6, rng=1)
     for d in designs.values():

@@ -433,9 +433,9 @@ def test_kcf_in_scenarios():
     k = sc.design("kcf")
     assert k.info["variant"] == "ideal" and k.epsilon == 0.05
     for bad, prefix in [
-        ({"epsilon": -1.0}, "kcf.epsilon: expected a positive number"),
+        ({"epsilon": -1.0}, "kcf.epsilon: expected a consensus step > 0"),
         ({"variant": "fast"}, "kcf.variant: expected"),
-        ({"eps": 1.0}, "kcf.eps: unknown key"),
+        ({"eps": 1.0}, "kcf.eps: unknown option of the 'kcf' family; did you mean 'epsilon'?"),
     ]:
         d2 = base_dict()
         d2["estimators"] = ["kcf"]
@@ -444,7 +444,7 @@ def test_kcf_in_scenarios():
     d3 = base_dict()
     d3.pop("horizon", None)
     d3["estimators"] = ["mtmse", "kcf"]
-    assert error_of(d3).startswith("estimators: kcf needs a finite horizon")
+    assert error_of(d3).startswith("horizon: the 'kcf' family has no infinite-horizon design")
 
 
 def test_cikf_in_scenarios():

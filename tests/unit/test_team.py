@@ -28,7 +28,7 @@ def test_ordering_centralized_mtmse_mmse(seed):
     sys = random_system(rng, n, 3, [1, 2, 1])
     cost = random_cost(rng, n, 3, 2)
     T = 8
-    c = design_centralized(sys, cost, T).stage_costs
+    c = design_centralized(sys, cost, horizon=T).stage_costs
     t = design_mtmse(sys, cost, g, T).stage_costs
     m = design_mmse(sys, cost, g, T).stage_costs
     assert np.all(c <= t * (1 + 1e-10))
@@ -59,7 +59,7 @@ def test_complete_graph_zero_extra_delay_single_agent_is_kalman_filter():
     sys = random_system(rng, 1, 3, [2])
     cost = random_cost(rng, 1, 3, 2)
     g = CommGraph(1, ())
-    np.testing.assert_allclose(design_mtmse(sys, cost, g, 6).stage_costs, design_centralized(sys, cost, 6).stage_costs, rtol=1e-10)
+    np.testing.assert_allclose(design_mtmse(sys, cost, g, 6).stage_costs, design_centralized(sys, cost, horizon=6).stage_costs, rtol=1e-10)
 
 
 @pytest.mark.parametrize("make", ["platoon", "uav4", "uav10"])
@@ -73,7 +73,7 @@ def test_infinite_horizon_is_limit_of_finite(make):
         inf = design(sys, cost, g)
         fin = design(sys, cost, g, horizon=150)
         assert fin.stage_costs[-1] == pytest.approx(inf.average_cost, rel=1e-9)
-    assert design_centralized(sys, cost, 150).stage_costs[-1] == pytest.approx(design_centralized(sys, cost).average_cost, rel=1e-9)
+    assert design_centralized(sys, cost, horizon=150).stage_costs[-1] == pytest.approx(design_centralized(sys, cost).average_cost, rel=1e-9)
 
 
 def test_relabelling_agents_permutes_results():

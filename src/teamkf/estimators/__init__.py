@@ -1,13 +1,27 @@
-"""Estimators: centralized Kalman filter, MTMSE (Theorems 1-3) and the per-agent MMSE baseline."""
+"""Estimator families and the contract they share.
 
+Every family module declares a :class:`~teamkf.estimators.registry.Family`
+record; :func:`families` lists them (teamkf's own, those of installed
+packages through the ``teamkf.families`` entry points, and a user's
+:func:`register_family`). Every design is a :class:`Design`.
+"""
+
+from . import _builtin  # noqa: F401  (registers the built-in families, in order)
 from .base import Design
 from .cikf import CIKFDesign, design_cikf
 from .kalman import CentralizedDesign, design_centralized, kalman_covariances
 from .kcf import KCFDesign, design_kcf
+from .registry import Family, Option, families, get_family, register_family, unregister_family
 from .team import StaticTeamEstimate, TeamDesign, design_mmse, design_mtmse, static_team_estimate
 
 __all__ = [
     "Design",
+    "Family",
+    "Option",
+    "families",
+    "get_family",
+    "register_family",
+    "unregister_family",
     "KCFDesign",
     "CIKFDesign",
     "design_cikf",

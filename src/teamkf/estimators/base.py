@@ -1,30 +1,77 @@
-"""The estimator interface: an offline *design* (gains + analytic cost) and online *agents*.
+"""The family contract: what every estimator design is and does, and how agents receive data.
 
-A design is an immutable object returned by ``design_*`` functions. It holds
-the gain schedule and the analytic team cost, and builds one online agent per
-team member with :meth:`Design.agents`. An agent is a pure
-``step(state, received) -> (state, estimate)`` function wrapped in a thin
-class; ``received`` lists the measurements that reach the agent at that step
-as ``(source j, step s, values)`` with ``values`` of shape (n_runs, d_y^j).
+Every estimator family (centralized Kalman, MTMSE, per-agent MMSE, KCF, CIKF,
+and any family a user registers) returns from its design function an
+immutable :class:`Design`. A design carries the offline gains and, where the
+family has one, the exact analytic team cost; it can
+
+=====================  ==================================================================
+``errors(paths)``      the team error e(k) = L x(k) - ẑ(k) on sampled paths, vectorized
+                       over runs, propagated from the primitive noises (Monte Carlo)
+``graph_agents()``     one online agent per node for the message-passing runtime
+``filter(y)``          the estimates ẑ_i(k) of every agent on given measurements, each agent
+                       using only what the graph (or information structure) delivers
+``stage_costs``        E[c(x(k), ẑ(k))] per step, or None without an analytic cost
+``total_cost``         Σ_k stage cost (finite horizon), or None
+``average_cost``       long-run average cost (steady state), or None
+``arrays()``           the gains as named arrays (``teamkf design --out``)
+``summary()``          a strict-JSON summary (``teamkf design --json``)
+=====================  ==================================================================
+
+An operation a family cannot perform raises
+:class:`~teamkf.exceptions.UnsupportedOperationError` naming the family and
+the operation. Whether an agent is omniscient (the centralized bound, which
+holds every y_j(k) at step k) is the class attribute :attr:`Design.omniscient`.
+
+Two delivery loops live here so that ``Design.filter`` needs nothing above
+this layer; :mod:`teamkf.simulation.runtime` builds the public runtime (and
+lossy links) on them:
+
+* :func:`deliver_structured` hands agent i the measurement y_j(s) at step
+  s + ``arrival_lag(j)`` (packet agents, :class:`OnlineAgent`);
+* :func:`pass_messages` runs graph agents (:class:`GraphAgent`): at step k
+  agent i gets its own y_i(k) and every payload an in-neighbour j sent at
+  step k - τ_ji.
 """
 
 from __future__ import annotations
 
+import abc
+import math
 from dataclasses import dataclass, field
-from typing import Any, Protocol, Sequence
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol, Sequence
 
 import numpy as np
 
 from .._validation import FloatArray
+from ..exceptions import ShapeError, UnsupportedOperationError
+from ..models import LinearGaussianSystem, TeamCost
 
-__all__ = ["Design", "OnlineAgent", "Packet", "check_measurements"]
+if TYPE_CHECKING:
+    from ..network.graph import CommGraph
+    from .registry import Family
+
+__all__ = [
+    "Design",
+    "OnlineAgent",
+    "GraphAgent",
+    "Packet",
+    "Message",
+    "MeasurementRelay",
+    "check_measurements",
+    "deliver_structured",
+    "pass_messages",
+    "json_float",
+]
 
 #: a measurement y_j(s) delivered to an agent: (j, s, values of shape (n_runs, d_y^j))
 Packet = tuple[int, int, np.ndarray]
+#: a message on an edge: (sender j, step it was sent, payload)
+Message = tuple[int, int, Any]
 
 
 class OnlineAgent(Protocol):
-    """One team member running online on what it has received."""
+    """A team member that consumes measurement packets (MTMSE, MMSE, centralized)."""
 
     index: int
 
@@ -39,53 +86,209 @@ class OnlineAgent(Protocol):
         ...
 
 
-@dataclass(frozen=True, eq=False)
-class Design:
-    """Common fields of every design.
+class GraphAgent(Protocol):
+    """A node of the message-passing runtime: ``step(state, k, own, inbox) -> (state, z_i(k), payload)``."""
+
+    index: int
+
+    def init_state(self, n_runs: int) -> Any: ...
+
+    def step(self, state: Any, k: int, own: Any, inbox: Sequence[Message]) -> tuple[Any, FloatArray, Any]: ...
+
+
+def json_float(x: Any) -> float | None:
+    """``float(x)``, or None when it is not finite (strict JSON has no NaN or Infinity)."""
+    v = float(x)
+    return v if math.isfinite(v) else None
+
+
+# ---------------------------------------------------------------------------
+# the contract
+# ---------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False, kw_only=True)
+class Design(abc.ABC):
+    """Base class of every estimator design (see the module docstring for the contract).
 
     Attributes
     ----------
     estimator : str
-        Registry name ("mtmse", "mmse", "centralized").
+        The registry name of the family ("mtmse", "kcf", ...).
     horizon : int or None
         Number of steps T, or None for the infinite-horizon (steady-state) design.
+    system : LinearGaussianSystem
+    cost : TeamCost
     stage_costs : (T,) array or None
-        E[c(x(k), z(k))] for k = 0..T-1 (finite horizon).
+        E[c(x(k), ẑ(k))] for k = 0..T-1; None when the family has no analytic cost
+        (or for a steady-state design).
     average_cost : float or None
-        Long-run average cost per step (infinite horizon).
+        Long-run average cost per step (steady state), or None.
+    info : dict
+        Family-specific facts (variant, solver statistics, ...), plain data.
     """
 
     estimator: str
     horizon: int | None
-    stage_costs: FloatArray | None
-    average_cost: float | None
+    system: LinearGaussianSystem
+    cost: TeamCost
+    stage_costs: FloatArray | None = None
+    average_cost: float | None = None
     info: dict[str, Any] = field(default_factory=dict)
 
+    #: True for a benchmark whose agents hold every y_j(k) at step k (the centralized filter)
+    omniscient: ClassVar[bool] = False
+
+    # --- identity -----------------------------------------------------------------
     @property
-    def total_cost(self) -> float:
-        """J_T = sum_k E[c(x(k), z(k))] (finite horizon only)."""
-        if self.stage_costs is None:
-            raise ValueError(f"{self.estimator}: an infinite-horizon design has no total cost; use average_cost")
+    def family(self) -> Family | None:
+        """The registry record of this design's family (None for an unregistered one)."""
+        from .registry import families
+
+        return families().get(self.estimator)
+
+    @property
+    def n_agents(self) -> int:
+        return int(self.system.n_agents)
+
+    @property
+    def label(self) -> str:
+        """The estimator name, with its variant when it has one (``"kcf [honest]"``)."""
+        v = self.info.get("variant")
+        return f"{self.estimator} [{v}]" if v else self.estimator
+
+    def _unsupported(self, operation: str, reason: str = "") -> UnsupportedOperationError:
+        return UnsupportedOperationError(self.estimator, operation, reason)
+
+    # --- analytic cost --------------------------------------------------------------
+    @property
+    def has_analytic_cost(self) -> bool:
+        """True when the design carries its exact team cost (else evaluate it by Monte Carlo)."""
+        return self.stage_costs is not None or self.average_cost is not None
+
+    @property
+    def total_cost(self) -> float | None:
+        """J_T = Σ_k E[c(x(k), ẑ(k))] (finite horizon with an analytic cost), else None."""
+        if self.stage_costs is None or self.horizon is None:
+            return None
         return float(np.sum(self.stage_costs))
 
     @property
-    def cost_value(self) -> float:
-        """total_cost for a finite horizon, average_cost for the steady state."""
-        return self.total_cost if self.horizon is not None else float(self.average_cost)  # type: ignore[arg-type]
+    def cost_value(self) -> float | None:
+        """:attr:`total_cost` for a finite horizon, :attr:`average_cost` for the steady state (None without one)."""
+        if self.horizon is None:
+            return None if self.average_cost is None else float(self.average_cost)
+        return self.total_cost
+
+    @property
+    def cost_key(self) -> str:
+        """``"total_cost"`` (finite horizon) or ``"average_cost"`` (steady state)."""
+        return "total_cost" if self.horizon is not None else "average_cost"
+
+    @property
+    def diverged(self) -> bool:
+        """True when the analytic cost left the floating-point range."""
+        v = self.cost_value
+        if v is not None and not math.isfinite(v):
+            return True
+        return self.stage_costs is not None and not bool(np.all(np.isfinite(self.stage_costs)))
+
+    # --- Monte Carlo and online agents ------------------------------------------------
+    def errors(self, paths: Any) -> FloatArray:
+        """Team errors e(k) = L x(k) - ẑ(k), shape (n_runs, T', n d_z), on sampled ``paths``."""
+        raise self._unsupported("errors(paths)", "it gives no error recursion for Monte Carlo")
+
+    def agents(self) -> Sequence[OnlineAgent]:
+        """Packet-consuming online agents (delivered by the information structure)."""
+        raise self._unsupported("agents()", "its agents exchange messages; use graph_agents()")
+
+    @property
+    def delivery_graph(self) -> CommGraph | None:
+        """The graph the agents of this design talk over (None: delivery by the information structure)."""
+        g = getattr(self, "graph", None)
+        return g if g is not None else None
+
+    def graph_agents(self) -> list[Any]:
+        """One message-passing agent per node (default: measurement relays around :meth:`agents`)."""
+        return [MeasurementRelay(a, omniscient=self.omniscient) for a in self.agents()]
+
+    def filter(self, measurements: Any) -> FloatArray:
+        """Run the designed estimator on given measurements.
+
+        Parameters
+        ----------
+        measurements : list over agents of arrays, or a ``Paths``
+            Agent i's measurements y_i(0..T'-1), shape (T', d_y^i) for one run or
+            (n_runs, T', d_y^i) for a batch; T' <= horizon.
+
+        Returns
+        -------
+        z : (T', n d_z) or (n_runs, T', n d_z)
+            Every agent's estimate ẑ_i(k), agent-major; agent i uses only the
+            measurements its graph (or information structure) has delivered by k.
+        """
+        ys, _, _, single = check_measurements(measurements, self.system, self.horizon)
+        z = self._filter(ys)
+        return z[0] if single else z
+
+    def _filter(self, ys: list[FloatArray]) -> FloatArray:
+        """Batched filtering (validated input); families with a vectorized form override it."""
+        graph = self.delivery_graph
+        if graph is not None:
+            return pass_messages(self.graph_agents(), graph, ys)
+        return deliver_structured(self.agents(), ys)
+
+    # --- what the CLI writes ------------------------------------------------------------
+    def cost_summary(self) -> dict[str, Any]:
+        """The analytic cost in the ``teamkf evaluate --json`` format (strict JSON).
+
+        ``{"method": "analytic", "total_cost": J, "stage_costs": [...]}`` (finite
+        horizon), ``{"method": "analytic", "average_cost": J}`` (steady state), or
+        ``{"method": "monte-carlo"}`` for a family without an analytic cost.
+        Non-finite numbers are written as null with ``"diverged": true``.
+        """
+        if not self.has_analytic_cost:
+            return {"method": "monte-carlo"}
+        out: dict[str, Any] = {"method": "analytic"}
+        v = self.cost_value
+        out[self.cost_key] = None if v is None else json_float(v)
+        if self.horizon is not None and self.stage_costs is not None:
+            out["stage_costs"] = [json_float(c) for c in self.stage_costs]
+        if self.diverged:
+            out["diverged"] = True
+        return out
+
+    def details(self) -> dict[str, Any]:
+        """Family-specific, JSON-ready facts about the gains (``summary`` adds them); override."""
+        return {}
 
     def summary(self) -> dict[str, Any]:
-        """A JSON-ready summary in the `teamkf evaluate --json` format."""
-        if self.horizon is None:
-            return {"method": "analytic", "average_cost": float(self.average_cost)}  # type: ignore[arg-type]
-        return {"method": "analytic", "total_cost": self.total_cost, "stage_costs": [float(c) for c in self.stage_costs]}  # type: ignore[union-attr]
+        """What ``teamkf design --json`` prints for this design (strict JSON)."""
+        out = {k: v for k, v in self.cost_summary().items() if k != "stage_costs"}
+        if "variant" in self.info:
+            out["variant"] = self.info["variant"]
+        out.update(self.details())
+        return out
 
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The design as named arrays (``teamkf design --out`` writes them under ``<name>/``).
+
+        The base gives the analytic cost; families add their gains (override and extend).
+        """
+        out: dict[str, np.ndarray] = {}
+        if self.stage_costs is not None:
+            out["stage_costs"] = np.asarray(self.stage_costs, dtype=float)
+        v = self.cost_value
+        if v is not None:
+            out[self.cost_key] = np.asarray(v, dtype=float)
+        return out
+
+    # --- results ------------------------------------------------------------------------
     def to_pandas(self) -> Any:
         """Stage costs as a DataFrame (needs pandas)."""
         from .._validation import require
 
         pd = require("pandas", "dask")
         if self.stage_costs is None:
-            return pd.DataFrame({"estimator": [self.estimator], "average_cost": [self.average_cost]})
+            return pd.DataFrame({"estimator": [self.estimator], self.cost_key: [self.cost_value]})
         return pd.DataFrame({"estimator": self.estimator, "step": np.arange(len(self.stage_costs)), "stage_cost": self.stage_costs})
 
     def plot(self, ax: Any = None, **kwargs: Any) -> Any:
@@ -94,29 +297,130 @@ class Design:
 
         return stage_cost_axes([self], ax=ax, **kwargs)
 
-    def agents(self) -> Sequence[OnlineAgent]:  # pragma: no cover - overridden
-        raise NotImplementedError
 
+# ---------------------------------------------------------------------------
+# measurements
+# ---------------------------------------------------------------------------
+def check_measurements(y: Any, system: LinearGaussianSystem, horizon: int | None) -> tuple[list[FloatArray], int, int, bool]:
+    """Validate measurements: a list over agents of (n_runs, T, d_y^i) or (T, d_y^i) arrays, or a ``Paths``.
 
-def check_measurements(y: Any, system: Any, horizon: int | None) -> tuple[list[FloatArray], int, int]:
-    """Validate measurements for a batched simulation: a list over agents of (n_runs, T, d_y^i), or a ``Paths``."""
+    Returns ``(ys, n_runs, T, single)`` with every array batched (run axis
+    first); ``single`` is True when the input had no run axis.
+    """
     from .. import _validation as V
-    from ..exceptions import ShapeError
 
     if hasattr(y, "y") and not isinstance(y, (list, tuple, np.ndarray)):
         y = y.y
     n = system.n_agents
     if not isinstance(y, (list, tuple)) or len(y) != n:
+        found = f"{type(y).__name__}" + (f" of length {len(y)}" if isinstance(y, (list, tuple)) else "")
         raise ShapeError(
-            f"y: expected a list of {n} measurement arrays (one per agent), found {type(y).__name__}"
-            + (f" of length {len(y)}" if isinstance(y, (list, tuple)) else "")
+            f"measurements: expected a list of {n} arrays (one per agent, each (n_steps, d_y^i) or (n_runs, n_steps, d_y^i)), found {found}"
         )
-    ys = [V.as_float_array(yi, f"y[{i}]") for i, yi in enumerate(y)]
+    ys = [V.as_float_array(yi, f"measurements[{i}]") for i, yi in enumerate(y)]
+    single = ys[0].ndim == 2
+    if single:
+        ys = [yi[None] if yi.ndim == 2 else yi for yi in ys]
     n_runs, T = ys[0].shape[:2] if ys[0].ndim == 3 else (0, 0)
     for i, yi in enumerate(ys):
         want = (n_runs, T, system.dy[i])
         if yi.ndim != 3 or yi.shape != want:
-            raise ShapeError(f"y[{i}]: expected shape (n_runs, n_steps, d_y^{i}) = {want}, found {yi.shape}")
+            layout = "(n_steps, d_y^i)" if single else "(n_runs, n_steps, d_y^i)"
+            raise ShapeError(
+                f"measurements[{i}]: expected shape {layout} = {want[1:] if single else want}, found {yi.shape[1:] if single and yi.ndim == 3 else yi.shape}; "
+                "every agent needs the same runs and steps, and d_y^i columns"
+            )
+    if T == 0:
+        raise ShapeError("measurements: expected at least one step, found 0")
     if horizon is not None and T > horizon:
-        raise ShapeError(f"y: expected at most horizon = {horizon} steps, found {T}; design a longer horizon")
-    return ys, n_runs, T
+        raise ShapeError(f"measurements: expected at most horizon = {horizon} steps, found {T}; design a longer horizon")
+    return ys, n_runs, T, single
+
+
+# ---------------------------------------------------------------------------
+# delivery loops
+# ---------------------------------------------------------------------------
+class MeasurementRelay:
+    """Graph agent around a packet-consuming agent: floods every measurement it learns for the first time.
+
+    This is the paper's ζ_i(t) (eq. 14): y_j(s) reaches agent i exactly at
+    s + ℓ_ji. An omniscient inner agent (the centralized bound) gets every
+    y_j(k) at step k instead.
+    """
+
+    def __init__(self, inner: OnlineAgent, *, omniscient: bool = False):
+        self.inner = inner
+        self.index = inner.index
+        self.omniscient = omniscient
+
+    def init_state(self, n_runs: int) -> dict[str, Any]:
+        return {"inner": self.inner.init_state(n_runs), "seen": set()}
+
+    def step(self, state: dict[str, Any], k: int, own: Any, inbox: Sequence[Message]) -> tuple[dict[str, Any], FloatArray, list[Packet]]:
+        seen = set(state["seen"])
+        new: list[Packet] = []
+        candidates: list[Packet] = list(own) if self.omniscient else [(self.index, k, own)]
+        for _, _, payload in inbox:
+            candidates.extend(payload)
+        for j, s, v in candidates:
+            if (j, s) not in seen:
+                seen.add((j, s))
+                new.append((j, s, v))
+        inner_state, z = self.inner.step(state["inner"], k, new)
+        return {"inner": inner_state, "seen": seen}, z, new
+
+
+def deliver_structured(agents: Sequence[OnlineAgent], ys: Sequence[FloatArray]) -> FloatArray:
+    """Step packet agents over the horizon of ``ys``, delivering y_j(s) to agent i at s + ``arrival_lag(j)``.
+
+    Returns the estimates (n_runs, T, Σ d_z), agent-major.
+    """
+    n_runs, T = ys[0].shape[:2]
+    n = len(ys)
+    lags = [[ag.arrival_lag(j) for j in range(n)] for ag in agents]
+    states = [ag.init_state(n_runs) for ag in agents]
+    out = []
+    for k in range(T):
+        zs = []
+        for i, ag in enumerate(agents):
+            received = [(j, k - lags[i][j], ys[j][:, k - lags[i][j]]) for j in range(n) if k - lags[i][j] >= 0]
+            states[i], z = ag.step(states[i], k, received)
+            zs.append(z)
+        out.append(np.concatenate(zs, axis=1))
+    return np.stack(out, axis=1)
+
+
+def pass_messages(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray]) -> FloatArray:
+    """Run graph agents over ``graph``: own y_i(k) plus in-neighbours' payloads sent at k - τ_ji.
+
+    Payloads are sent after every agent has stepped, so nothing arrives within
+    a step. Omniscient agents receive every y_j(k) at step k. Returns the
+    estimates (n_runs, T, Σ d_z), agent-major.
+    """
+    n = graph.n_agents
+    if len(agents) != n or len(ys) != n:
+        raise ShapeError(f"agents, y: expected {n} of each (as the graph), found {len(agents)} agents and {len(ys)} measurement arrays")
+    n_runs, T = ys[0].shape[:2]
+    ins = [[(j, graph.delay(j, i)) for j in graph.in_neighbors(i)] for i in range(n)]
+    sent: list[dict[int, Any]] = [{} for _ in range(n)]
+    max_delay = max((d for (_, _, d) in graph.edges), default=1)
+    states = [ag.init_state(n_runs) for ag in agents]
+    out = []
+    for k in range(T):
+        zs = []
+        payloads = []
+        for i, ag in enumerate(agents):
+            inbox = [(j, k - d, sent[j][k - d]) for (j, d) in ins[i] if k - d >= 0 and sent[j].get(k - d) is not None]
+            if getattr(ag, "omniscient", False):
+                own: Any = [(j, k, ys[j][:, k]) for j in range(n)]
+                inbox = []
+            else:
+                own = ys[i][:, k]
+            states[i], z, payload = ag.step(states[i], k, own, inbox)
+            zs.append(z)
+            payloads.append(payload)
+        for i in range(n):
+            sent[i][k] = payloads[i]
+            sent[i].pop(k - max_delay - 1, None)
+        out.append(np.concatenate(zs, axis=1))
+    return np.stack(out, axis=1)

@@ -131,6 +131,7 @@ References
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any, Literal, Sequence
@@ -141,10 +142,11 @@ from scipy.linalg.lapack import dpstrf
 
 from .. import _validation as V
 from .._validation import FloatArray
-from ..exceptions import DetectabilityError, GraphError, InformationStructureError, ShapeError
+from ..exceptions import ArgumentError, DetectabilityError, GraphError, InformationStructureError, ShapeError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
 from .base import Design, check_measurements
+from .registry import Family, Option, _register_builtin
 
 __all__ = [
     "PseudoStateModel",
@@ -500,7 +502,7 @@ def _diag_blocks(X: FloatArray, N: int, a: int) -> FloatArray:
 # ---------------------------------------------------------------------------
 # the design
 # ---------------------------------------------------------------------------
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class CIKFDesign(Design):
     r"""Gains (Algorithm 2, Theorem 4) and error covariances (corrected eqs. 41-47) of the CIKF.
 
@@ -520,19 +522,17 @@ class CIKFDesign(Design):
     stage_costs : (T,)        E[c(x(k), ẑ(k))] of the chosen form (sum over agents of the MSE for the default cost)
     """
 
-    system: Any = None
-    cost: Any = None
-    graph: Any = None
-    model: Any = None
-    form: str = "filter"
+    graph: CommGraph
+    model: PseudoStateModel
+    form: Form = "filter"
     rcond: float = DEFAULT_RCOND
-    neighbors: tuple = ()
-    B_cons: tuple = ()
-    B_innov: tuple = ()
-    K: Any = None
-    Sigma_pred: Any = None
-    Sigma_filt: Any = None
-    P_pred_trace: Any = None
+    neighbors: tuple[tuple[int, ...], ...]
+    B_cons: tuple[tuple[FloatArray, ...], ...]
+    B_innov: tuple[tuple[FloatArray, ...], ...]
+    K: FloatArray
+    Sigma_pred: FloatArray
+    Sigma_filt: FloatArray
+    P_pred_trace: FloatArray
 
     @property
     def n_agents(self) -> int:
@@ -608,14 +608,32 @@ class CIKFDesign(Design):
         return [CIKFAgent(self, n) for n in range(self.n_agents)]
 
     def agents(self) -> list[Any]:
-        raise NotImplementedError(
+        raise self._unsupported(
+            "agents()",
             "CIKF agents exchange pseudo-state predictions, not measurement packets: run them with "
-            "run_graph(design.graph_agents(), design.graph, y), or use design.simulate(y) / design.errors(paths)"
+            "run_graph(design.graph_agents(), design.graph, y), or use design.filter(y) / design.errors(paths)",
         )
+
+    def _filter(self, ys: list[FloatArray]) -> FloatArray:
+        return self.simulate(ys)
+
+    def details(self) -> dict[str, Any]:
+        return {"form": self.form, "rank": self.model.rank, "local_dims": None, "gain_shapes": {"K_n": list(self.K.shape[-2:])}}
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Costs, the state gains ``K`` (T, N, M, r), the consensus gains ``B_cons_{n}`` (T, r, d_n r) and the
+        innovation gains ``B_innov_{n}`` (T, r, M_n) of each agent, and the error covariances."""
+        out = {**super().arrays(), "K": np.asarray(self.K), "Sigma_pred": np.asarray(self.Sigma_pred), "Sigma_filt": np.asarray(self.Sigma_filt)}
+        for n in range(self.n_agents):
+            out[f"B_cons_{n}"] = np.stack([np.asarray(step[n]) for step in self.B_cons])
+            out[f"B_innov_{n}"] = np.stack([np.asarray(step[n]) for step in self.B_innov])
+            out[f"neighbors_{n}"] = np.asarray(self.neighbors[n], dtype=np.int64)
+        return out
 
     # --- vectorized Monte Carlo ---------------------------------------------------
     def _check_y(self, y: Any) -> tuple[list[FloatArray], int, int]:
-        return check_measurements(y, self.system, self.horizon)
+        ys, n_runs, T, _ = check_measurements(y, self.system, self.horizon)
+        return ys, n_runs, T
 
     def _recursion(self, ys: Sequence[FloatArray] | None, x0: FloatArray | None, w: FloatArray | None, n_runs: int, T: int, form: str) -> FloatArray:
         with _blas_threads(self.info.get("threads", 1)):
@@ -1017,10 +1035,10 @@ def _mse_cost(N: int, M: int) -> TeamCost:
 
 def design_cikf(
     system: LinearGaussianSystem,
-    graph: CommGraph,
-    horizon: int,
+    cost: TeamCost | CommGraph | None = None,
+    graph: CommGraph | int | None = None,
+    horizon: int | None = None,
     *,
-    cost: TeamCost | None = None,
     form: Form = "filter",
     rcond: float = DEFAULT_RCOND,
     method: Method = "structured",
@@ -1073,11 +1091,25 @@ def design_cikf(
     >>> from teamkf.study.random_field import random_field
     >>> from teamkf.estimators.cikf import design_cikf
     >>> system, graph = random_field(15, 6, rng=1)
-    >>> d = design_cikf(system, graph, horizon=10)
+    >>> d = design_cikf(system, None, graph, horizon=10)
     >>> d.estimator, d.stage_costs.shape, bool(d.mse()[-1] < d.mse()[0])
     ('cikf', (10,), True)
     """
+    if isinstance(cost, CommGraph):  # the 0.1 argument order: design_cikf(system, graph, horizon, cost=...)
+        warnings.warn(
+            "design_cikf(system, graph, horizon, cost=...) is deprecated; write design_cikf(system, cost, graph, horizon) "
+            "(cost None means TeamCost.mse)",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        if horizon is not None:
+            raise ArgumentError("horizon: given twice (old and new argument order mixed)", argument="horizon")
+        cost, graph, horizon = None, cost, graph  # type: ignore[assignment]
+    if graph is None:
+        raise GraphError("graph: expected a CommGraph with unit delays, found None", argument="graph")
     t0 = time.perf_counter()
+    if not isinstance(system, LinearGaussianSystem):
+        raise ArgumentError(f"system: expected a LinearGaussianSystem, found {type(system).__name__}", argument="system")
     model = pseudo_state_model(system)
     N, M = system.n_agents, system.dx
     nbrs = _neighbors(graph, N)
@@ -1142,24 +1174,23 @@ def design_cikf(
         "pinv": pinv,
     }
     return CIKFDesign(
-        "cikf",
-        T,
-        V.frozen(res["stage"]),
-        None,
-        info,
-        system,
-        cost,
-        graph,
-        model,
-        form,
-        rcond,
-        nbrs,
-        res["B_cons"],
-        res["B_innov"],
-        V.frozen(res["K"]),
-        V.frozen(res["Sigma_pred"]),
-        V.frozen(res["Sigma_filt"]),
-        V.frozen(res["P_pred_trace"]),
+        estimator="cikf",
+        horizon=T,
+        stage_costs=V.frozen(res["stage"]),
+        info=info,
+        system=system,
+        cost=cost,
+        graph=graph,
+        model=model,
+        form=form,
+        rcond=rcond,
+        neighbors=nbrs,
+        B_cons=res["B_cons"],
+        B_innov=res["B_innov"],
+        K=V.frozen(res["K"]),
+        Sigma_pred=V.frozen(res["Sigma_pred"]),
+        Sigma_filt=V.frozen(res["Sigma_filt"]),
+        P_pred_trace=V.frozen(res["P_pred_trace"]),
     )
 
 
@@ -1322,3 +1353,24 @@ def tracking_capacity(system: LinearGaussianSystem, graph: CommGraph, *, solver:
         tuple(Bu[n].value for n in range(N)),
         str(prob.status),
     )
+
+
+FAMILY = _register_builtin(
+    Family(
+        name="cikf",
+        design=design_cikf,
+        title="Consensus+Innovations Kalman filter with optimized gains (Das & Moura 2016, Algorithms 1-2, Theorem 4)",
+        uses="graph",
+        horizons=frozenset({"finite"}),
+        unit_delays=True,
+        options=(
+            Option(
+                name="form",
+                default="filter",
+                check=lambda v, k: V.choice(v, k, ("filter", "predictor")),
+                doc='"filter": L x^n(k|k); "predictor": L x^n(k|k-1) (the paper\'s Fig. 4)',
+            ),
+        ),
+        example="design_cikf(system, cost, graph, horizon=32)",
+    )
+)

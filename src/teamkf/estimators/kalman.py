@@ -17,17 +17,20 @@ z = L x^(k|k) is Tr(L' S L P(k|k)) (filter form) or Tr(L' S L P(k))
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
-from typing import Any, Literal, Sequence
+from typing import Any, ClassVar, Literal, Sequence
 
 import numpy as np
 import scipy.linalg as sla
 
 from .. import _validation as V
 from .._validation import FloatArray
-from ..exceptions import ShapeError
+from ..exceptions import ArgumentError, InformationStructureError
 from ..models import LinearGaussianSystem, TeamCost
 from .base import Design, Packet
+from .checks import check_model
+from .registry import Family, Option, _register_builtin
 
 __all__ = ["kalman_covariances", "design_centralized", "CentralizedDesign", "CentralizedAgent", "kalman_step", "predictor_errors"]
 
@@ -95,7 +98,7 @@ def predictor_errors(system: LinearGaussianSystem, K_at: Any, paths: Any, n_step
     return eps
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class CentralizedDesign(Design):
     """Centralized Kalman filter (or predictor) design.
 
@@ -106,12 +109,12 @@ class CentralizedDesign(Design):
     form : "filter" or "predictor"
     """
 
-    system: Any = None
-    cost: Any = None
-    form: str = "filter"
-    P_pred: Any = None
-    K: Any = None
-    P_filt: Any = None
+    form: Form = "filter"
+    P_pred: FloatArray
+    K: FloatArray
+    P_filt: FloatArray
+
+    omniscient: ClassVar[bool] = True
 
     def K_at(self, k: int) -> FloatArray:
         return self.K if self.horizon is None else self.K[k]  # type: ignore[no-any-return]
@@ -137,33 +140,82 @@ class CentralizedDesign(Design):
         """One agent per team member; each holds every measurement at once (a bound, not a network)."""
         return [CentralizedAgent(self, i) for i in range(self.system.n_agents)]
 
+    def details(self) -> dict[str, Any]:
+        return {"form": self.form, "local_dims": None, "gain_shapes": {"K": list(np.asarray(self.K).shape[-2:])}}
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Costs, the gain schedule ``K`` ((T, d_x, d_y) or the steady K-bar) and the covariances."""
+        return {**super().arrays(), "K": np.asarray(self.K), "P_pred": np.asarray(self.P_pred), "P_filt": np.asarray(self.P_filt)}
+
 
 def design_centralized(
-    system: LinearGaussianSystem, cost: TeamCost, horizon: int | None = None, *, form: Form = "filter", check: bool = True
+    system: LinearGaussianSystem,
+    cost: TeamCost,
+    graph_or_structure: Any = None,
+    horizon: int | None = None,
+    *,
+    form: Form = "filter",
+    check: bool = True,
 ) -> CentralizedDesign:
     """Design the centralized Kalman filter/predictor and its analytic team cost.
 
     Parameters
     ----------
-    system, cost
+    system : LinearGaussianSystem
+    cost : TeamCost
+    graph_or_structure : ignored
+        The centralized bound holds every measurement at once, whatever the
+        graph; the argument keeps the family signature
+        ``design_X(system, cost, graph_or_structure, horizon)``.
     horizon : int or None
         Number of steps T; None for the steady state (algebraic Riccati equation).
     form : "filter" (z = L x^(k|k)) or "predictor" (z = L x^(k|k-1)).
+    check : bool
+        Check detectability and stabilizability for the steady state.
+
+    Examples
+    --------
+    >>> from teamkf import LinearGaussianSystem, TeamCost, design_centralized
+    >>> d = design_centralized(LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 100.0), horizon=50)
+    >>> d.stage_costs.shape, d.omniscient
+    ((50,), True)
     """
-    cost.check_system(system.dx, system.n_agents)
-    if form not in ("filter", "predictor"):
-        raise ShapeError(f"form: expected 'filter' or 'predictor', found {form!r}")
+    if isinstance(graph_or_structure, (int, np.integer)) and not isinstance(graph_or_structure, bool):
+        if horizon is not None:
+            raise ArgumentError("horizon: given twice (third positional argument and horizon=)", argument="horizon")
+        warnings.warn(
+            "design_centralized(system, cost, T) is deprecated: the third argument is the graph or structure "
+            "(ignored by the centralized filter); write design_centralized(system, cost, horizon=T)",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        graph_or_structure, horizon = None, int(graph_or_structure)
+    check_model(system, cost)
+    V.choice(form, "form", ("filter", "predictor"))
+    W = lambda k: cost.L_at(k).T @ cost.S_at(k) @ cost.L_at(k)  # noqa: E731  (L' S L)
     if horizon is None:
         cost.require_time_invariant()
         P, K, Pf = steady_state(system, check=check)
-        W = cost.L_at(0).T @ cost.S_at(0) @ cost.L_at(0)
-        avg = float(np.trace(W @ (Pf if form == "filter" else P)))
-        return CentralizedDesign("centralized", None, None, avg, {"form": form}, system, cost, form, P, K, Pf)
+        avg = float(np.trace(W(0) @ (Pf if form == "filter" else P)))
+        return CentralizedDesign(
+            estimator="centralized",
+            horizon=None,
+            average_cost=avg,
+            info={"form": form},
+            system=system,
+            cost=cost,
+            form=form,
+            P_pred=P,
+            K=K,
+            P_filt=Pf,
+        )
     T = V.positive_int(horizon, "horizon")
     cost.require_horizon(T)
     P, K, Pf = kalman_covariances(system, T)
-    stage = np.array([np.trace(cost.L_at(k).T @ cost.S_at(k) @ cost.L_at(k) @ (Pf[k] if form == "filter" else P[k])) for k in range(T)])
-    return CentralizedDesign("centralized", T, stage, None, {"form": form}, system, cost, form, P, K, Pf)
+    stage = np.array([np.trace(W(k) @ (Pf[k] if form == "filter" else P[k])) for k in range(T)])
+    return CentralizedDesign(
+        estimator="centralized", horizon=T, stage_costs=stage, info={"form": form}, system=system, cost=cost, form=form, P_pred=P, K=K, P_filt=Pf
+    )
 
 
 class CentralizedAgent:
@@ -185,10 +237,29 @@ class CentralizedAgent:
         sys = self.system
         got = {j: v for (j, s, v) in received if s == k}
         if len(got) != sys.n_agents:
-            raise ValueError(f"centralized agent {self.index}: expected every y_j({k}) at step {k}, found {sorted(got)}")
+            raise InformationStructureError(f"centralized agent {self.index}: expected every y_j({k}) at step {k}, found {sorted(got)}")
         y = np.concatenate([got[j] for j in range(sys.n_agents)], axis=1)
         xpred = state["xhat"]
         xfilt = xpred + (y - xpred @ sys.C_stack(k).T) @ self.design.K_at(k).T
         Li = self.cost.L_block(self.index, k)
         z = (xfilt if self.design.form == "filter" else xpred) @ Li.T
         return {"xhat": xfilt @ sys.A_at(k).T}, z
+
+
+FAMILY = _register_builtin(
+    Family(
+        name="centralized",
+        design=design_centralized,
+        title="centralized Kalman filter: every agent holds every measurement at once (the lower bound, not a network)",
+        uses="none",
+        options=(
+            Option(
+                name="form",
+                default="filter",
+                check=lambda v, k: V.choice(v, k, ("filter", "predictor")),
+                doc='"filter": L x^(k|k); "predictor": L x^(k|k-1)',
+            ),
+        ),
+        example="design_centralized(system, cost, horizon=100)",
+    )
+)

@@ -90,11 +90,13 @@ import scipy.linalg as sla
 
 from .. import _validation as V
 from .._validation import FloatArray
-from ..exceptions import GraphError, InformationStructureError, ShapeError
+from ..exceptions import ArgumentError, InformationStructureError, ShapeError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
 from .base import Design, check_measurements
+from .checks import check_graph, check_model
 from .kalman import kalman_step
+from .registry import Family, Option, _register_builtin
 
 __all__ = ["KCFDesign", "KCFAgent", "KCFMessage", "design_kcf", "VARIANTS"]
 
@@ -126,7 +128,7 @@ def _update(xbar: FloatArray, s: FloatArray, S: FloatArray, M: FloatArray, gamma
     return xbar + r @ M.T  # type: ignore[no-any-return]
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class KCFDesign(Design):
     """A Kalman-consensus filter over a horizon of T steps (see the module docstring for the equations).
 
@@ -155,18 +157,16 @@ class KCFDesign(Design):
     closed form; evaluate it with :meth:`costs` over sampled paths.
     """
 
-    system: Any = None
-    cost: Any = None
-    graph: Any = None
-    variant: str = "honest"
+    graph: CommGraph
+    variant: Variant = "honest"
     epsilon: float = 0.1
-    P: Any = None
-    M: Any = None
-    gamma: Any = None
-    S_fused: Any = None
-    sources: tuple = ()
-    G: tuple = ()
-    U: tuple = ()
+    P: FloatArray
+    M: FloatArray
+    gamma: FloatArray
+    S_fused: FloatArray
+    sources: tuple[tuple[tuple[tuple[int, int], ...], ...], ...]
+    G: tuple[FloatArray, ...]
+    U: tuple[FloatArray, ...]
 
     # --- deterministic schedules ----------------------------------------------
     @property
@@ -187,22 +187,45 @@ class KCFDesign(Design):
     def graph_agents(self) -> list["KCFAgent"]:
         """One message-passing agent per node for :func:`teamkf.simulation.runtime.run_graph` (honest variant only)."""
         if self.variant != "honest":
-            raise InformationStructureError(
-                f"variant: graph_agents() needs the 'honest' variant, found {self.variant!r}; the ideal KCF exchanges "
-                "neighbours' current estimates within the step, which no delay graph can deliver; use design.simulate(y) "
-                "or design_kcf(..., variant='honest')"
+            raise self._unsupported(
+                "graph_agents() for the 'ideal' variant",
+                "the ideal KCF exchanges neighbours' current estimates within the step, which no delay graph can deliver; "
+                "use design.filter(y) or design_kcf(..., variant='honest')",
             )
         return [KCFAgent(self, i) for i in range(self.n_agents)]
 
     def agents(self) -> list[Any]:
-        raise NotImplementedError(
+        raise self._unsupported(
+            "agents()",
             "KCF agents exchange estimates, not measurement packets: run them with "
-            "run_graph(design.graph_agents(), graph, y), or use design.simulate(y) / design.errors(paths)"
+            "run_graph(design.graph_agents(), graph, y), or use design.filter(y) / design.errors(paths)",
         )
+
+    def _filter(self, ys: list[FloatArray]) -> FloatArray:
+        return self.simulate(ys)
+
+    def details(self) -> dict[str, Any]:
+        return {
+            "epsilon": self.epsilon,
+            "realizable": self.variant == "honest",
+            "local_dims": None,
+            "gain_shapes": {"M_i": [self.system.dx, self.system.dx]},
+        }
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The deterministic schedules: ``P`` (priors' nominal covariances), ``M``, ``gamma`` and ``S_fused``, each (n, T, ...)."""
+        return {
+            **super().arrays(),
+            "P": np.asarray(self.P),
+            "M": np.asarray(self.M),
+            "gamma": np.asarray(self.gamma),
+            "S_fused": np.asarray(self.S_fused),
+        }
 
     # --- helpers --------------------------------------------------------------
     def _check_y(self, y: Any) -> tuple[list[FloatArray], int, int]:
-        return check_measurements(y, self.system, self.horizon)
+        ys, n_runs, T, _ = check_measurements(y, self.system, self.horizon)
+        return ys, n_runs, T
 
     # --- vectorized simulation ----------------------------------------------
     def simulate(self, y: Any) -> FloatArray:
@@ -393,16 +416,8 @@ class KCFAgent:
         return {"xbar": nxt}, z, KCFMessage(u_i, k, xbar)
 
 
-def _epsilon(epsilon: Any) -> float:
-    if isinstance(epsilon, (bool, np.bool_)):
-        raise ShapeError(f"epsilon: expected a finite consensus step > 0 (e.g. 0.1), found {epsilon!r}")
-    try:
-        eps = float(epsilon)
-    except (TypeError, ValueError):
-        raise ShapeError(f"epsilon: expected a finite consensus step > 0 (e.g. 0.1), found {epsilon!r}") from None
-    if not np.isfinite(eps) or eps <= 0:
-        raise ShapeError(f"epsilon: expected a finite consensus step > 0 (e.g. 0.1), found {eps}")
-    return eps
+def _epsilon(epsilon: Any, name: str = "epsilon") -> float:
+    return V.positive_float(epsilon, name, what="a consensus step")
 
 
 def design_kcf(
@@ -434,23 +449,16 @@ def design_kcf(
     >>> d.estimator, d.horizon, d.info["variant"], d.stage_costs is None
     ('kcf', 20, 'honest', True)
     """
-    if not isinstance(system, LinearGaussianSystem):
-        raise ShapeError(f"system: expected a LinearGaussianSystem, found {type(system).__name__}")
-    if not isinstance(cost, TeamCost):
-        raise ShapeError(f"cost: expected a TeamCost, found {type(cost).__name__}")
-    cost.check_system(system.dx, system.n_agents)
-    if not isinstance(graph, CommGraph):
-        raise GraphError(f"graph: expected a CommGraph, found {type(graph).__name__}; build one with CommGraph.complete/line/from_edges")
+    check_model(system, cost)
     n = system.n_agents
-    if graph.n_agents != n:
-        raise GraphError(f"graph: expected a graph of {n} agents (as the system), found one of {graph.n_agents}")
-    if variant not in VARIANTS:
-        raise ShapeError(f"variant: expected 'honest' or 'ideal', found {variant!r}")
+    check_graph(graph, n)
+    V.choice(variant, "variant", tuple(VARIANTS))
     eps = _epsilon(epsilon)
     if horizon is None:
-        raise ShapeError(
+        raise ArgumentError(
             "horizon: the KCF has no steady-state (infinite-horizon) design here, found horizon=None; "
-            "give a finite number of steps T (its cost is evaluated by Monte Carlo over T steps)"
+            "give a finite number of steps T (its cost is evaluated by Monte Carlo over T steps)",
+            argument="horizon",
         )
     T = V.positive_int(horizon, "horizon")
     system.require_horizon(T)
@@ -505,21 +513,41 @@ def design_kcf(
         "cost_method": "monte-carlo",
     }
     return KCFDesign(
-        "kcf",
-        T,
-        None,
-        None,
-        info,
-        system,
-        cost,
-        graph,
-        variant,
-        eps,
-        V.frozen(P),
-        V.frozen(M),
-        V.frozen(gam),
-        V.frozen(S_f),
-        sources,
-        tuple(G),
-        tuple(U),
+        estimator="kcf",
+        horizon=T,
+        info=info,
+        system=system,
+        cost=cost,
+        graph=graph,
+        variant=variant,
+        epsilon=eps,
+        P=V.frozen(P),
+        M=V.frozen(M),
+        gamma=V.frozen(gam),
+        S_fused=V.frozen(S_f),
+        sources=sources,
+        G=tuple(G),
+        U=tuple(U),
     )
+
+
+FAMILY = _register_builtin(
+    Family(
+        name="kcf",
+        design=design_kcf,
+        title="Kalman-consensus filter (Olfati-Saber 2007): local information fusion plus a consensus step on the priors",
+        uses="graph",
+        horizons=frozenset({"finite"}),
+        analytic_cost=False,
+        options=(
+            Option(name="epsilon", default=0.1, check=_epsilon, doc="consensus step: gamma_i = epsilon / (1 + ||M_i||_F)"),
+            Option(
+                name="variant",
+                default="honest",
+                check=lambda v, k: V.choice(v, k, tuple(VARIANTS)),
+                doc=" | ".join(f"{k!r}: {d}" for k, d in VARIANTS.items()),
+            ),
+        ),
+        example="design_kcf(system, cost, graph, horizon=100, epsilon=0.1, variant='honest')",
+    )
+)

@@ -38,7 +38,7 @@ Tr(L'SL P_0) - eta' Gamma^-1 eta (eq. 35).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Literal, Sequence
+from typing import Any, Callable, Literal, Sequence
 
 import numpy as np
 import scipy.linalg as sla
@@ -46,12 +46,14 @@ import scipy.linalg as sla
 from .. import _validation as V
 from .._progress import progress
 from .._validation import FloatArray
-from ..exceptions import ShapeError
+from ..exceptions import InformationStructureError, ShapeError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.information import InformationStructure
 from .base import Design, Packet
+from .checks import check_model
 from .gamma import DENSE_MAX_BYTES, GammaProblem
 from .kalman import kalman_covariances, predictor_errors, steady_state
+from .registry import Family, Option, _register_builtin
 
 __all__ = [
     "StaticTeamEstimate",
@@ -273,7 +275,7 @@ def _solve_step(
 # ---------------------------------------------------------------------------
 # Theorems 2 and 3
 # ---------------------------------------------------------------------------
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class TeamDesign(Design):
     """Gains and analytic cost of an MTMSE (or per-agent MMSE) filter.
 
@@ -292,14 +294,12 @@ class TeamDesign(Design):
     P_pred : predictor covariances P(k), or P-bar
     """
 
-    system: Any = None
-    cost: Any = None
-    structure: Any = None
-    gains: tuple = ()
-    steady_gains: tuple | None = None
-    K: Any = None
-    P_pred: Any = None
-    warmup: Any = field(default=None, repr=False)
+    structure: InformationStructure
+    gains: tuple[tuple[FloatArray, ...], ...] = ()
+    steady_gains: tuple[FloatArray, ...] | None = None
+    K: FloatArray
+    P_pred: FloatArray
+    warmup: Callable[[int], tuple[FloatArray, ...]] | None = field(default=None, repr=False)
 
     def gain_at(self, k: int) -> tuple:
         """F_i(k) for every agent (steady state: the exact transient gains for k < c, then F-bar)."""
@@ -423,6 +423,29 @@ class TeamDesign(Design):
     def agents(self) -> list["TeamAgent"]:
         return [TeamAgent(self, i) for i in range(self.system.n_agents)]
 
+    def details(self) -> dict[str, Any]:
+        last = self.steady_gains if self.steady_gains is not None else self.gains[-1]
+        return {
+            "common_lag": self.structure.common_lag,
+            "local_dims": list(self.structure.local_dims(self.system.dy)),
+            "gain_shapes": {f"F_{i}": list(np.asarray(F).shape) for i, F in enumerate(last)},
+        }
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Costs, the Kalman gains ``K``, the gains ``F_{i}_t{k}`` (steady state: the first c steps and ``F_{i}``)
+        and each agent's local pairs ``local_{i}`` ((j, lag) rows)."""
+        out = {**super().arrays(), "K": np.asarray(self.K, dtype=float)}
+        steps = self.gains if self.horizon is not None else [self.gain_at(k) for k in range(self.structure.common_lag)]
+        for k, step in enumerate(steps):
+            for i, F in enumerate(step):
+                out[f"F_{i}_t{k}"] = np.asarray(F, dtype=float)
+        if self.steady_gains is not None:
+            for i, F in enumerate(self.steady_gains):
+                out[f"F_{i}"] = np.asarray(F, dtype=float)
+        for i in range(self.structure.n_agents):
+            out[f"local_{i}"] = np.asarray(self.structure.local_lags(i), dtype=np.int64).reshape(-1, 2)
+        return out
+
 
 def _as_structure(structure: Any, n_agents: int) -> InformationStructure:
     if isinstance(structure, InformationStructure):
@@ -430,16 +453,18 @@ def _as_structure(structure: Any, n_agents: int) -> InformationStructure:
     elif hasattr(structure, "geodesic_delays"):
         st = InformationStructure.from_graph(structure)
     else:
-        raise ShapeError(f"structure: expected an InformationStructure or a CommGraph, found {type(structure).__name__}")
+        raise InformationStructureError(
+            f"structure: expected an InformationStructure or a CommGraph, found {type(structure).__name__}", argument="structure"
+        )
     if st.n_agents != n_agents:
-        raise ShapeError(f"structure: expected {n_agents} agents (as the system), found {st.n_agents}")
+        raise InformationStructureError(f"structure: expected {n_agents} agents (as the system), found {st.n_agents}", argument="structure")
     return st
 
 
 def _design(
     kind: Kind, system: LinearGaussianSystem, cost: TeamCost, structure: Any, horizon: int | None, method: Any, dense_max_bytes: int, check: bool
 ) -> TeamDesign:
-    cost.check_system(system.dx, system.n_agents)
+    check_model(system, cost)
     st = _as_structure(structure, system.n_agents)
     c, dz, n = st.common_lag, cost.dz, system.n_agents
     want = "mtmse" if kind == "mtmse" else "mmse"
@@ -462,14 +487,35 @@ def _design(
         P_bar, K_bar, _ = steady_state(system, check=check)
         F_bar, J_bar = step(c - 1, 0, P_bar)  # full window of length c, anchor covariance P-bar (eqs. 38-40)
         return TeamDesign(
-            kind, None, None, J_bar, info, system, cost, st, (), F_bar, K_bar, P_bar, warmup=lambda k: step(k, 0, system.Sigma_x, record=False)[0]
+            estimator=kind,
+            horizon=None,
+            average_cost=J_bar,
+            info=info,
+            system=system,
+            cost=cost,
+            structure=st,
+            steady_gains=F_bar,
+            K=K_bar,
+            P_pred=P_bar,
+            warmup=lambda k: step(k, 0, system.Sigma_x, record=False)[0],
         )
     T = V.positive_int(horizon, "horizon")
     system.require_horizon(T)
     cost.require_horizon(T)
     P_pred, K, _ = kalman_covariances(system, max(T - c + 1, 1))
     res = [step(k, max(0, k - c + 1), P_pred[max(0, k - c + 1)]) for k in progress(range(T), desc=f"{kind} design", unit="step")]
-    return TeamDesign(kind, T, np.array([j for _, j in res]), None, info, system, cost, st, tuple(g for g, _ in res), None, K, P_pred)
+    return TeamDesign(
+        estimator=kind,
+        horizon=T,
+        stage_costs=np.array([j for _, j in res]),
+        info=info,
+        system=system,
+        cost=cost,
+        structure=st,
+        gains=tuple(g for g, _ in res),
+        K=K,
+        P_pred=P_pred,
+    )
 
 
 def design_mtmse(
@@ -565,3 +611,31 @@ class TeamAgent:
                 ) from None
             z = z + innov @ d.gain_at(k)[self.index].T
         return {"xhat": xhat, "anchor": a, "buf": buf}, z
+
+
+FAMILY_MTMSE = _register_builtin(
+    Family(
+        name="mtmse",
+        design=design_mtmse,
+        title="minimum team MSE filter (Afshari & Mahajan 2021, Thms 2-3): the exact team optimum for the information structure",
+        uses="structure",
+        options=(
+            Option(
+                name="method",
+                default="auto",
+                check=lambda v, k: V.choice(v, k, ("auto", "dense", "cg")),
+                doc="how Gamma F = eta is solved: dense Cholesky, matrix-free CG, or chosen by size",
+            ),
+        ),
+        example="design_mtmse(system, cost, graph, horizon=100)",
+    )
+)
+FAMILY_MMSE = _register_builtin(
+    Family(
+        name="mmse",
+        design=design_mmse,
+        title="per-agent MMSE (eq. 46): each agent's best estimate for itself, blind to the team coupling (cost eq. 47)",
+        uses="structure",
+        example="design_mmse(system, cost, graph, horizon=100)",
+    )
+)

@@ -29,7 +29,7 @@ def delta_rows(
     rows = []
     for lam in progress(lams, desc="lambda grid", unit="point"):
         system, cost, graph = build(lam)
-        t, m, c = design_mtmse(system, cost, graph, T), design_mmse(system, cost, graph, T), design_centralized(system, cost, T)
+        t, m, c = design_mtmse(system, cost, graph, T), design_mmse(system, cost, graph, T), design_centralized(system, cost, horizon=T)
         kcf = {v: design_kcf(system, cost, graph, T, epsilon=EPSILON, variant=v) for v in ("honest", "ideal")}
         mc = monte_carlo({f"kcf-{v}": d for v, d in kcf.items()}, T, runs, rng=seed)
         J = t.total_cost

@@ -75,7 +75,7 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
                     "status": tc.status,
                 }
             )
-        d = design_cikf(sysm, g, 31)
+        d = design_cikf(sysm, None, g, 31)
         row["bound with Alg. 2 gains"] = d.tracking_bound(30)
         row["CIKF MSE dB (k=30)"] = float(10 * np.log10(d.mse("predictor")[-1]))
         rows.append(row)

@@ -50,7 +50,7 @@ def _run(out_dir: Path | None, quick: bool) -> ExperimentResult:
     cost = TeamCost.mse(N, M)
 
     t0 = time.perf_counter()
-    d = design_cikf(sysm, graph, T, cost=cost, form="predictor")
+    d = design_cikf(sysm, cost, graph, T, form="predictor")
     t_design = time.perf_counter() - t0
     P_pred, K_ckf, P_filt = kalman_covariances(sysm, T)  # the centralized KF: tr P(k), tr P(k|k)
     th_cikf = d.mse("predictor")  # (T,) agent average of tr Σ^{nn}_{k|k-1}

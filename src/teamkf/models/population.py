@@ -51,7 +51,7 @@ from typing import Any
 import numpy as np
 
 from .._validation import positive_int
-from ..exceptions import ShapeError
+from ..exceptions import ArgumentError, ShapeError
 
 __all__ = [
     "PopulationModel",
@@ -61,10 +61,10 @@ __all__ = [
 
 def _real(x: Any, name: str) -> float:
     if isinstance(x, (bool, np.bool_)) or not isinstance(x, (int, float, np.integer, np.floating)):
-        raise ShapeError(f"{name}: expected a real number, found {x!r}")
+        raise ArgumentError(f"{name}: expected a real number, found {x!r}")
     v = float(x)
     if not math.isfinite(v):
-        raise ShapeError(f"{name}: expected a finite number, found {v!r}")
+        raise ArgumentError(f"{name}: expected a finite number, found {v!r}")
     return v
 
 
@@ -72,7 +72,7 @@ def _positive(x: Any, name: str, *, strict: bool = True, hint: str = "") -> floa
     v = _real(x, name)
     if (strict and v <= 0) or (not strict and v < 0):
         want = "> 0" if strict else ">= 0"
-        raise ShapeError(f"{name}: expected a number {want}, found {v!r}{'; ' + hint if hint else ''}")
+        raise ArgumentError(f"{name}: expected a number {want}, found {v!r}{'; ' + hint if hint else ''}")
     return v
 
 

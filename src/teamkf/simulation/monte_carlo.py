@@ -25,7 +25,7 @@ import numpy as np
 
 from .. import _validation as V
 from .._validation import FloatArray
-from ..exceptions import ShapeError
+from ..exceptions import ArgumentError, ShapeError
 from .online import run_online
 from .sampling import run_streams, sample_paths
 
@@ -62,15 +62,26 @@ class MonteCarloResult:
     def stage_ci95(self) -> tuple[FloatArray, FloatArray]:
         return (self.stage_mean - Z95 * self.stage_sem, self.stage_mean + Z95 * self.stage_sem)
 
+    @property
+    def diverged(self) -> bool:
+        """True when the simulated cost is not finite (the estimator diverges on this system)."""
+        return not bool(np.isfinite(self.total_mean))
+
     def summary(self) -> dict[str, Any]:
+        """JSON-ready (strict: non-finite values are null, with ``"diverged": true``)."""
+        from ..estimators.base import json_float
+
         lo, hi = self.ci95
-        return {
+        out: dict[str, Any] = {
             "method": "monte-carlo",
             "runs": self.n_runs,
-            "total_cost": self.total_mean,
-            "ci95": [lo, hi],
-            "stage_costs": [float(c) for c in self.stage_mean],
+            "total_cost": json_float(self.total_mean),
+            "ci95": [json_float(lo), json_float(hi)],
+            "stage_costs": [json_float(c) for c in self.stage_mean],
         }
+        if self.diverged:
+            out["diverged"] = True
+        return out
 
     def _repr_html_(self) -> str:
         from .._repr import html_table
@@ -127,6 +138,14 @@ def _team_errors(design: Any, paths: Any, path: str, graph: Any) -> FloatArray:
     return np.stack([paths.x[:, k] @ cost.L_at(k).T - z[:, k] for k in range(paths.n_steps)], axis=1)
 
 
+def _same_system(a: Any, b: Any) -> bool:
+    """Equal models: same sizes and equal matrices (designs built separately for one system agree)."""
+    if a.dx != b.dx or list(a.dy) != list(b.dy):
+        return False
+    pairs = [(a.A, b.A), (a.Q, b.Q), (a.Sigma_x, b.Sigma_x), *zip(a.C, b.C), *zip(a.R, b.R)]
+    return all(np.shape(x) == np.shape(y) and np.array_equal(x, y) for x, y in pairs)
+
+
 def monte_carlo(
     designs: Mapping[str, Any],
     n_steps: int,
@@ -156,24 +175,32 @@ def monte_carlo(
         raise ShapeError("designs: expected at least one design")
     if path not in ("errors", "runtime"):
         raise ShapeError(f"path: expected 'errors' or 'runtime', found {path!r}")
-    first = next(iter(designs.values()))
+    first_name, first = next(iter(designs.items()))
     system = first.system
     for name, d in designs.items():
-        if d.system is not system and d.system.n_agents != system.n_agents:
-            raise ShapeError(f"designs[{name!r}]: every design must be for the same system")
+        if d.system is not system and not _same_system(d.system, system):
+            raise ArgumentError(
+                f"designs[{name!r}]: every design must be for the same system (common random numbers), found one that differs from "
+                f"designs[{first_name!r}]'s; run monte_carlo once per system",
+                argument=f"designs[{name!r}]",
+            )
+    if (horizon := getattr(first, "horizon", None)) is not None and T > horizon:
+        raise ArgumentError(f"n_steps: expected at most the designs' horizon {horizon}, found {T}; design a longer horizon", argument="n_steps")
+    batch = V.positive_int(batch, "batch")
     streams = run_streams(rng, R_)
     costs = {name: np.empty((R_, T)) for name in designs}
     for start in range(0, R_, batch):
         stop = min(R_, start + batch)
         paths = sample_paths(system, T, stop - start, rng=None, streams=streams[start:stop])
         for name, d in designs.items():
-            e = _team_errors(d, paths, path, graph)
-            for k in range(T):
-                costs[name][start:stop, k] = np.einsum("ra,ab,rb->r", e[:, k], d.cost.S_at(k), e[:, k])
+            with np.errstate(over="ignore", invalid="ignore"):  # a diverging estimator: reported as not finite, below
+                e = _team_errors(d, paths, path, graph)
+                for k in range(T):
+                    costs[name][start:stop, k] = np.einsum("ra,ab,rb->r", e[:, k], d.cost.S_at(k), e[:, k])
     out = {}
     for name, c in costs.items():
-        if not np.all(np.isfinite(c)):
-            raise FloatingPointError(f"{name}: the simulated team cost overflowed; the estimator diverges on this system")
+        if not np.all(np.isfinite(c)):  # diverged: keep the steps that are finite, mark the rest inf
+            c = np.where(np.isfinite(c), c, np.inf)
         tot = c.sum(axis=1)
         out[name] = MonteCarloResult(
             name, R_, c.mean(axis=0), c.std(axis=0, ddof=1) / np.sqrt(R_), float(tot.mean()), float(tot.std(ddof=1) / np.sqrt(R_)), path

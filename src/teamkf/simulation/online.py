@@ -1,24 +1,23 @@
-"""Run online agents on sampled measurements, delivering each y_j(s) to agent i at step s + lag.
+"""Run packet agents on measurements, delivering each y_j(s) to agent i at step s + lag.
 
-This is the simple, structure-driven delivery used to check that online
-agents reproduce their designs; the message-passing runtime over a graph
-(`simulation/runtime.py`) builds on the same agent interface.
+The structure-driven delivery used to check that online agents reproduce
+their designs; the message-passing runtime over a graph is
+:mod:`teamkf.simulation.runtime`. Both use the loops of
+:mod:`teamkf.estimators.base`.
 """
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Any, Sequence
 
-import numpy as np
-
-from .._progress import progress
 from .._validation import FloatArray
-from ..estimators.base import OnlineAgent
+from ..estimators.base import OnlineAgent, deliver_structured
+from ..exceptions import ShapeError
 
 __all__ = ["run_online"]
 
 
-def run_online(agents: Sequence[OnlineAgent], y: Sequence[FloatArray]) -> FloatArray:
+def run_online(agents: Sequence[OnlineAgent], y: Sequence[Any]) -> FloatArray:
     """Step every agent over the horizon of ``y``.
 
     Parameters
@@ -30,16 +29,24 @@ def run_online(agents: Sequence[OnlineAgent], y: Sequence[FloatArray]) -> FloatA
     -------
     z : (n_runs, n_steps, n_agents * d_z) estimates, agent-major in the last axis
     """
-    n_runs, T = y[0].shape[:2]
-    n = len(y)
-    lags = [[ag.arrival_lag(j) for j in range(n)] for ag in agents]
-    states = [ag.init_state(n_runs) for ag in agents]
-    out = []
-    for k in progress(range(T), desc="online agents", unit="step"):
-        zs = []
-        for i, ag in enumerate(agents):
-            received = [(j, k - lags[i][j], y[j][:, k - lags[i][j]]) for j in range(n) if k - lags[i][j] >= 0]
-            states[i], z = ag.step(states[i], k, received)
-            zs.append(z)
-        out.append(np.concatenate(zs, axis=1))
-    return np.stack(out, axis=1)
+    ys = _batched(agents, y)
+    return deliver_structured(agents, ys)
+
+
+def _batched(agents: Sequence[Any], y: Sequence[Any]) -> list[FloatArray]:
+    from .. import _validation as V
+    from ..estimators.base import check_measurements
+
+    design = getattr(agents[0], "design", None) if agents else None
+    if design is not None and hasattr(design, "system"):  # validate against the design: agents, d_y, horizon
+        return check_measurements(y, design.system, design.horizon)[0]
+
+    if not isinstance(y, (list, tuple)) or len(y) != len(agents):
+        raise ShapeError(
+            f"y: expected one measurement array per agent ({len(agents)}), found {len(y) if isinstance(y, (list, tuple)) else type(y).__name__}"
+        )
+    ys = [V.as_float_array(yi, f"y[{j}]") for j, yi in enumerate(y)]
+    for j, yi in enumerate(ys):
+        if yi.ndim != 3 or yi.shape[:2] != ys[0].shape[:2]:
+            raise ShapeError(f"y[{j}]: expected shape (n_runs, n_steps, d_y^{j}) with the runs and steps of y[0] {ys[0].shape[:2]}, found {yi.shape}")
+    return ys

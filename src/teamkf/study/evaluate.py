@@ -1,21 +1,34 @@
 """Evaluate one scenario: analytic costs and, optionally, Monte Carlo, as plain rows.
 
-This is the unit of work of a sweep point and of ``teamkf evaluate``.
+This is the unit of work of a sweep point and of ``teamkf evaluate``. Which
+estimators have an analytic cost comes from the registry
+(:attr:`Family.analytic_cost <teamkf.estimators.registry.Family.analytic_cost>`).
 """
 
 from __future__ import annotations
 
 from typing import Any, Sequence
 
+from ..estimators.registry import get_family
 from ..simulation.monte_carlo import monte_carlo
 
-__all__ = ["evaluate_point", "ANALYTIC", "DEFAULT_MC_RUNS"]
-
-#: estimators with an analytic team cost (the others are evaluated by Monte Carlo)
-ANALYTIC = ("mtmse", "mmse", "centralized", "cikf")
+__all__ = ["evaluate_point", "is_analytic", "DEFAULT_MC_RUNS"]
 
 #: Monte Carlo runs for estimators without a closed form when none are asked for (the paper uses 1000)
 DEFAULT_MC_RUNS = 1000
+
+
+def is_analytic(estimator: str) -> bool:
+    """True when the family of ``estimator`` has an exact analytic team cost."""
+    return bool(get_family(estimator).analytic_cost)
+
+
+def __getattr__(name: str) -> Any:  # 0.1 name: the tuple of analytic estimators, now from the registry
+    if name == "ANALYTIC":
+        from ..estimators.registry import families
+
+        return tuple(n for n, f in families().items() if f.analytic_cost)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def evaluate_point(scenario: Any, estimators: Sequence[str] | None = None, runs: int = 0, seed: int = 0) -> list[dict[str, Any]]:
@@ -25,21 +38,21 @@ def evaluate_point(scenario: Any, estimators: Sequence[str] | None = None, runs:
     ``total_cost`` (finite horizon) or ``average_cost`` (infinite horizon),
     ``ci95_low``, ``ci95_high`` (None for analytic values), ``runs``, ``seed``;
     with ``runs > 0`` analytic estimators also get ``mc_cost``, ``mc_ci95_low``, ``mc_ci95_high``.
+    Estimators without an analytic cost are simulated with ``runs`` runs
+    (:data:`DEFAULT_MC_RUNS` when ``runs`` is 0).
     Deterministic: the same (scenario, estimators, runs, seed) gives the same rows anywhere.
     """
     names = tuple(scenario.estimators if estimators is None else estimators)
     designs = scenario.designs(names)
     key = "total_cost" if scenario.horizon is not None else "average_cost"
-    rows: list[dict[str, Any]] = []
-    analytic = {n for n, d in designs.items() if d.stage_costs is not None or d.average_cost is not None}
+    analytic = {n for n, d in designs.items() if d.has_analytic_cost}
     mc_runs = runs or (DEFAULT_MC_RUNS if len(analytic) < len(designs) else 0)
     mc = monte_carlo(designs, scenario.horizon, mc_runs, rng=seed) if (mc_runs and scenario.horizon is not None) else {}
+    rows: list[dict[str, Any]] = []
     for name, d in designs.items():
         row: dict[str, Any] = {"estimator": name, "runs": int(runs), "seed": int(seed)}
         if name in analytic:
-            row.update(
-                {"method": "analytic", key: float(d.total_cost if key == "total_cost" else d.average_cost), "ci95_low": None, "ci95_high": None}
-            )
+            row.update({"method": "analytic", key: d.cost_value, "ci95_low": None, "ci95_high": None})
             if name in mc:
                 lo, hi = mc[name].ci95
                 row.update({"mc_cost": mc[name].total_mean, "mc_ci95_low": lo, "mc_ci95_high": hi})

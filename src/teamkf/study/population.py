@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from typing import Any, Mapping
 
 from .._validation import positive_int
-from ..exceptions import ScenarioError, ShapeError
+from ..exceptions import ScenarioError, TeamkfError
 from ..models.population import PopulationModel, cdma_population
 
 __all__ = ["PopulationScenario", "population_from_dict", "evaluate_population", "POPULATION_KEYS"]
@@ -198,7 +198,7 @@ def population_from_dict(d: Mapping[str, Any]) -> PopulationScenario:
             model = cdma_population(kw.pop("n_agents"), kw.pop("a"), vals["alpha"], vals["beta"], vals["h_prime"], f=kw.pop("f"), **kw)
         else:
             model = PopulationModel(**kw)
-    except ShapeError as exc:
+    except TeamkfError as exc:
         msg = str(exc)
         head, _, rest = msg.partition(": ")
         key = f"population.cdma.{head}" if head in _CDMA_KEYS else f"population.{head}"
@@ -254,7 +254,7 @@ def evaluate_population(model: PopulationModel, horizon: int) -> dict[str, Any]:
         kstar: float | None = isolated_kalman_gain(model.a, c=model.c, sigma_w=model.sigma_w, sigma_v=model.sigma_v)
         disc: float | None = discrepancy_index(K_T, iso)
         iso_list: list[float] | None = [float(v) for v in iso]
-    except ShapeError:  # pragma: no cover - K* exists for every valid model (c > 0, sigma_v > 0)
+    except TeamkfError:  # pragma: no cover - K* exists for every valid model (c > 0, sigma_v > 0)
         kstar, disc, iso_list = None, None, None
     cross = float(cov.cross_covariance[T]) if model.n_agents > 1 else None
     cost = cov.lq_cost(model.r, model.f)

@@ -49,7 +49,7 @@ import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -65,16 +65,20 @@ __all__ = [
     "set_dotted",
     "packaged_scenarios",
     "load_packaged",
-    "AVAILABLE_ESTIMATORS",
-    "RESERVED_ESTIMATORS",
 ]
 
-#: estimators this version of teamkf can design from a scenario
-AVAILABLE_ESTIMATORS: tuple[str, ...] = ("mtmse", "mmse", "centralized", "kcf", "cikf")
-#: names kept for estimators of later versions (Kalman-consensus, Consensus+Innovations KF)
-RESERVED_ESTIMATORS: tuple[str, ...] = ()
 
-_TOP_KEYS = ("name", "horizon", "description", "system", "agents", "graph", "cost", "information", "estimators", "kcf", "control")
+def __getattr__(name: str) -> Any:  # 0.1 names: the estimators come from the registry now
+    if name == "AVAILABLE_ESTIMATORS":
+        from ..estimators.registry import families
+
+        return tuple(families())
+    if name == "RESERVED_ESTIMATORS":
+        return ()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+_BASE_KEYS = ("name", "horizon", "description", "system", "agents", "graph", "cost", "information", "estimators", "control")
 _SYSTEM_KEYS = ("A", "Q", "Sigma_x")
 _AGENT_KEYS = ("C", "R")
 _GRAPH_KINDS = ("complete", "line", "ring", "star")
@@ -127,6 +131,7 @@ class Scenario:
     estimators: tuple[str, ...]
     raw: dict[str, Any] = field(repr=False, default_factory=dict)
     source: str = "<dict>"
+    options: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
 
     @property
     def n_agents(self) -> int:
@@ -138,10 +143,24 @@ class Scenario:
         return "information" in self.raw
 
     def design(self, estimator: str, horizon: Any = "scenario") -> Any:
-        """Design one estimator (default horizon: the scenario's; None for the steady state)."""
+        """Design one estimator (default horizon: the scenario's; None for the steady state).
+
+        The family comes from the registry; its options from the scenario's
+        ``[<estimator>]`` table (defaults otherwise).
+        """
         T = self.horizon if horizon == "scenario" else horizon
-        _check_estimator(estimator, "estimator")
-        return _DESIGNERS[estimator](self, T)
+        fam = _family(estimator, "estimator")
+        opts = self.options.get(estimator)
+        if opts is None:
+            opts = _family_options(fam, {})
+        try:
+            return fam.build(self.system, self.cost, graph=self.graph, structure=self.information, horizon=T, options=opts)
+        except ScenarioError:
+            raise
+        except TeamkfError as exc:
+            if exc.argument in ("horizon", "graph"):
+                raise _fail(exc.argument, f"{estimator}: {exc.detail}") from exc
+            raise
 
     def designs(self, estimators: Sequence[str] | None = None, horizon: Any = "scenario") -> dict[str, Any]:
         """Design every estimator of the scenario (or of ``estimators``), in order: name -> design."""
@@ -159,66 +178,6 @@ class Scenario:
         for key, value in values.items():
             d = set_dotted(d, key, value)
         return scenario_from_dict(d, source=self.source)
-
-
-def _design_mtmse(sc: Scenario, T: int | None) -> Any:
-    from ..estimators import design_mtmse
-
-    return design_mtmse(sc.system, sc.cost, sc.information, T)
-
-
-def _design_mmse(sc: Scenario, T: int | None) -> Any:
-    from ..estimators import design_mmse
-
-    return design_mmse(sc.system, sc.cost, sc.information, T)
-
-
-def _design_centralized(sc: Scenario, T: int | None) -> Any:
-    from ..estimators import design_centralized
-
-    return design_centralized(sc.system, sc.cost, T)
-
-
-def _kcf_options(raw: Mapping[str, Any]) -> dict[str, Any]:
-    """``[kcf]``: epsilon (> 0, default 0.1) and variant ("honest" | "ideal", default "honest")."""
-    t = raw.get("kcf", {})
-    if not isinstance(t, Mapping):
-        raise _fail("kcf", f'expected a table (epsilon = 0.1, variant = "honest"), found {_describe(t)}')
-    _check_keys(t, ("epsilon", "variant"), "kcf.")
-    eps = t.get("epsilon", 0.1)
-    if isinstance(eps, bool) or not isinstance(eps, (int, float)) or not eps > 0 or eps != eps or eps == float("inf"):
-        raise _fail("kcf.epsilon", f"expected a positive number (the consensus step), found {eps!r}")
-    variant = t.get("variant", "honest")
-    if variant not in ("honest", "ideal"):
-        raise _fail(
-            "kcf.variant", f'expected "honest" (messages over the graph, with delays) or "ideal" (exchange within the step), found {variant!r}'
-        )
-    return {"epsilon": float(eps), "variant": variant}
-
-
-def _design_kcf(sc: Scenario, T: int | None) -> Any:
-    from ..estimators.kcf import design_kcf
-
-    if T is None:
-        raise _fail("horizon", "the Kalman-consensus filter (kcf) is evaluated by Monte Carlo over a finite horizon; give horizon = T")
-    return design_kcf(sc.system, sc.cost, sc.graph, T, **_kcf_options(sc.raw))
-
-
-def _design_cikf(sc: Scenario, T: int | None) -> Any:
-    from ..estimators.cikf import design_cikf
-
-    if T is None:
-        raise _fail("horizon", "the consensus+innovations KF (cikf) is designed over a finite horizon; give horizon = T")
-    return design_cikf(sc.system, sc.graph, T, cost=sc.cost)
-
-
-_DESIGNERS: dict[str, Callable[[Scenario, int | None], Any]] = {
-    "mtmse": _design_mtmse,
-    "mmse": _design_mmse,
-    "centralized": _design_centralized,
-    "kcf": _design_kcf,
-    "cikf": _design_cikf,
-}
 
 
 # ---------------------------------------------------------------------------
@@ -273,7 +232,8 @@ def scenario_from_dict(d: Mapping[str, Any], source: str = "<dict>") -> Scenario
 
         return population_from_dict(raw)  # type: ignore[return-value]
     _hoist_estimators(raw)
-    _check_keys(raw, _TOP_KEYS, "")
+    fams = _families()
+    _check_keys(raw, _BASE_KEYS + tuple(fams), "")
     for key in ("system", "agents", "graph", "cost", "estimators"):
         if key not in raw:
             raise _fail(key, f"missing required key; {_HINTS[key]}")
@@ -292,13 +252,47 @@ def scenario_from_dict(d: Mapping[str, Any], source: str = "<dict>") -> Scenario
         information = InformationStructure.from_graph(graph)
     _check_horizon(system, cost, horizon)
     estimators = _estimators(raw["estimators"])
-    if "kcf" in raw:
-        _kcf_options(raw)
+    options = {name: _family_options(fam, raw[name]) for name, fam in fams.items() if name in raw}
+    for k, est in enumerate(estimators):
+        _check_requirements(fams[est], k, horizon, graph)
+        options.setdefault(est, _family_options(fams[est], {}))
     if "control" in raw:
         _control(raw["control"], system, horizon)
-    if "kcf" in estimators and horizon is None:
-        raise _fail("estimators", "kcf needs a finite horizon (it is evaluated by Monte Carlo); give horizon = T or remove kcf")
-    return Scenario(name, horizon, system, cost, graph, information, estimators, raw, source)
+    return Scenario(name, horizon, system, cost, graph, information, estimators, raw, source, options)
+
+
+def _families() -> dict[str, Any]:
+    from ..estimators.registry import families
+
+    return families()
+
+
+def _family(name: Any, key: str) -> Any:
+    from ..estimators.registry import get_family
+
+    try:
+        return get_family(name, key)
+    except TeamkfError as exc:
+        raise _fail(key, exc.detail) from None
+
+
+def _family_options(fam: Any, table: Any) -> dict[str, Any]:
+    """A family's ``[name]`` table, validated by the family's option schema (key paths ``name.option``)."""
+    try:
+        return dict(fam.check_options(table, fam.name))
+    except TeamkfError as exc:
+        raise _fail(exc.argument or fam.name, exc.detail) from None
+
+
+def _check_requirements(fam: Any, k: int, horizon: int | None, graph: CommGraph) -> None:
+    """The family's horizon and graph requirements (CIKF: unit delays), checked when the scenario is read."""
+    try:
+        fam.check_horizon(horizon, "horizon")
+        if fam.uses != "none":
+            fam.check_graph(graph, "graph")
+    except TeamkfError as exc:
+        key = exc.argument or f"estimators[{k}]"
+        raise _fail(key, f"{exc.detail} (estimators[{k}] = {fam.name!r}: remove it or change {key})") from None
 
 
 def _hoist_estimators(raw: dict[str, Any]) -> None:
@@ -613,23 +607,10 @@ def _check_horizon(system: LinearGaussianSystem, cost: TeamCost, horizon: int | 
         raise _rekey(exc, "horizon", _SYSTEM_RULES + _COST_RULES) from exc
 
 
-def _check_estimator(name: Any, key: str) -> str:
-    avail = ", ".join(AVAILABLE_ESTIMATORS)
-    if not isinstance(name, str):
-        raise _fail(key, f"expected an estimator name (a string), found {_describe(name)}; available: {avail}")
-    if name in AVAILABLE_ESTIMATORS:
-        return name
-    if name in RESERVED_ESTIMATORS:
-        raise _fail(key, f"estimator {name!r} is not available in this version of teamkf ({_version()}); available: {avail}")
-    close = difflib.get_close_matches(name, AVAILABLE_ESTIMATORS + RESERVED_ESTIMATORS, n=1)
-    hint = f"did you mean {close[0]!r}? " if close else ""
-    raise _fail(key, f"unknown estimator {name!r}; {hint}available: {avail}")
-
-
 def _estimators(x: Any) -> tuple[str, ...]:
     if not isinstance(x, list) or not x:
         raise _fail("estimators", f'expected a non-empty list of names such as ["mtmse", "mmse", "centralized"], found {_describe(x)}')
-    names = tuple(_check_estimator(e, f"estimators[{k}]") for k, e in enumerate(x))
+    names = tuple(_family(e, f"estimators[{k}]").name for k, e in enumerate(x))
     for k, e in enumerate(names):
         if e in names[:k]:
             raise _fail(f"estimators[{k}]", f"{e!r} is listed twice; list each estimator once")

@@ -132,7 +132,7 @@ import numpy as np
 
 from .. import _validation as V
 from ..exceptions import ScenarioError, TeamkfError
-from .evaluate import ANALYTIC, evaluate_point  # noqa: F401  (looked up by _module_evaluate)
+from .evaluate import evaluate_point, is_analytic  # noqa: F401  (evaluate_point is looked up by _module_evaluate)
 from .results import MANIFEST_NAME, SweepError, SweepResult, load_results
 from .scenario import Scenario, _describe, _estimators, load_packaged, load_scenario, packaged_scenarios, read_data_file
 
@@ -400,7 +400,7 @@ def sweep_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", source:
         estimators = tuple(base.estimators)
     if runs == 0:
         for idx, e in enumerate(estimators):
-            if e not in ANALYTIC:
+            if not is_analytic(e):
                 raise _fail(f"estimators[{idx}]", f"{e!r} has no analytic cost; set runs >= 2 to evaluate it by Monte Carlo")
 
     grid, kinds = _grid(data["grid"])
@@ -856,7 +856,7 @@ class _Writer:
         ]
         fields += [pa.field(k, pa.float64()) for k in spec.cost_keys]
         fields += [pa.field("ci95_low", pa.float64()), pa.field("ci95_high", pa.float64())]
-        if spec.runs and any(e in ANALYTIC for e in spec.estimators):
+        if spec.runs and any(is_analytic(e) for e in spec.estimators):
             fields += [pa.field(k, pa.float64()) for k in ("mc_cost", "mc_ci95_low", "mc_ci95_high")]
         fields += [
             pa.field("runs", pa.int64()),

@@ -1,0 +1,6 @@
+"""teamkf's own families: importing this module registers each of them (see :mod:`.registry`), in this order."""
+
+from importlib import import_module
+
+for _name in ("kalman", "team", "kcf", "cikf"):
+    import_module(f"{__package__}.{_name}")
