@@ -45,6 +45,10 @@ def write_api_pages(api_dir: Path) -> list[str]:
     import teamkf
 
     api_dir.mkdir(parents=True, exist_ok=True)
+    # autosummary writes the stubs again from the tables below; old ones (a name that moved or went
+    # away) would be orphan pages, so they go first
+    for stub in (api_dir / "generated").glob("*.rst"):
+        stub.unlink()
     top = [n for n in _public_names(teamkf)]
     callables = [n for n in top if _is_documentable(getattr(teamkf, n))]
     data = [n for n in top if n not in callables]
