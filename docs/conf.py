@@ -43,7 +43,16 @@ extensions = [
 
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
 root_doc = "index"
-exclude_patterns = ["_build", "**.ipynb_checkpoints", "gallery", "_examples", "api/public.rst", "Thumbs.db", ".DS_Store"]  # public.rst: included
+exclude_patterns = [
+    "_build",
+    "**.ipynb_checkpoints",
+    "gallery",
+    "_examples",
+    "api/public.rst",
+    "guide/_*.md",
+    "Thumbs.db",
+    ".DS_Store",
+]  # included by other pages
 templates_path = ["_templates"]
 
 # --- API reference --------------------------------------------------------------------------------

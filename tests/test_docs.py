@@ -124,6 +124,10 @@ def test_user_guide_estimator_table(site):
     rows = [_text(r.split("</td>")[0]) for r in re.findall(r"<tr[^>]*>\s*<td[^>]*>(.*?)</tr>", table.group(0), flags=re.S)]
     for family in ("centralized", "MTMSE", "per-agent MMSE", "Kalman-consensus", "consensus+innovations", "bulk population", "LQG"):
         assert any(family in r for r in rows), f"{rel}: no row for {family}"
+    registered = re.search(r'<section id="the-registered-families">.*?<table.*?</table>', page, flags=re.S)
+    assert registered, f"{rel}: no table of the registered families"
+    names = [_text(r.split("</td>")[0]) for r in re.findall(r"<tr[^>]*>\s*<td[^>]*>(.*?)</tr>", registered.group(0), flags=re.S)]
+    assert names == list(teamkf.families()), "the registered-families table is generated from teamkf.families()"
     assert _images(site, rel, page), f"{rel}: the comparison figure is missing"
 
 

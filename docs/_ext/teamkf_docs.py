@@ -227,6 +227,38 @@ def sync_examples(src: Path, dst: Path) -> list[str]:
     return names
 
 
+# --------------------------------------------------------------------------------------------------
+# the registered estimator families, as a table for the user guide
+# --------------------------------------------------------------------------------------------------
+def write_family_table(path: Path) -> list[str]:
+    """Write the registry (``teamkf.families()``) as a Markdown table; return the family names."""
+    import teamkf
+
+    def cell(text: Any) -> str:
+        return str(text).replace("|", "\\|").replace("\n", " ")
+
+    uses = {"structure": "system, cost, information structure (or graph)", "graph": "system, cost, graph", "none": "system, cost"}
+    lines = [
+        "<!-- generated from teamkf.families() by docs/_ext/teamkf_docs.py; do not edit -->",
+        "",
+        "| name | what | design function takes | horizons | analytic cost | options (default) |",
+        "|---|---|---|---|---|---|",
+    ]
+    fams = teamkf.families()
+    for name, fam in fams.items():
+        fn = getattr(fam.design, "__name__", "")
+        mod = getattr(fam.design, "__module__", "")
+        ref = f"{{func}}`{fn} <teamkf.{fn}>`" if getattr(teamkf, fn, None) is fam.design else f"`{mod}.{fn}`"
+        takes = uses.get(fam.uses, fam.uses) + ("; every edge delay 1" if fam.unit_delays else "")
+        horizons = ", ".join(sorted(fam.horizons))
+        opts = "; ".join(f"`{o.name}` ({o.default!r}): {o.doc}" for o in fam.options) or "none"
+        lines.append(
+            f"| `{name}` | {cell(fam.title)} ({ref}) | {cell(takes)} | {horizons} | {'yes' if fam.analytic_cost else 'no (Monte Carlo)'} | {cell(opts)} |"
+        )
+    _write(path, "\n".join(lines) + "\n")
+    return list(fams)
+
+
 #: abbreviations after which an API summary's first sentence goes on ("(eqs. 2-3)", "(Fig. 5)")
 ABBREVIATIONS = ("eq.", "eqs.", "Eq.", "Eqs.", "Fig.", "Figs.", "Sec.", "cf.")
 
@@ -238,5 +270,6 @@ def setup(app: Any) -> dict[str, Any]:
     # docstrings cite the papers' equations and figures, so add those (read at call time)
     autosummary.WELL_KNOWN_ABBREVIATIONS = tuple(dict.fromkeys((*autosummary.WELL_KNOWN_ABBREVIATIONS, *ABBREVIATIONS)))
     write_api_pages(Path(app.srcdir) / "api")
+    write_family_table(Path(app.srcdir) / "guide" / "_families.md")
     sync_examples(Path(app.srcdir).parent / "examples", Path(app.srcdir) / "_examples")
     return {"parallel_read_safe": True, "parallel_write_safe": True}

@@ -99,7 +99,9 @@ def html_table(
 
 def design_rows(design: Any) -> list[dict[str, Any]]:
     """(field, value) rows describing a design: family, horizon, analytic cost, agents; no computation beyond a sum."""
-    rows: list[dict[str, Any]] = [{"field": "estimator", "value": getattr(design, "estimator", type(design).__name__)}]
+    rows: list[dict[str, Any]] = [
+        {"field": "estimator", "value": getattr(design, "label", None) or getattr(design, "estimator", type(design).__name__)}
+    ]
     rows.append({"field": "class", "value": type(design).__name__})
     system = getattr(design, "system", None)
     n_agents = getattr(system, "n_agents", None)
