@@ -72,6 +72,9 @@ def site() -> Path:
     cmd = [sys.executable, "-m", "sphinx", "-E", "-b", "html", "-W", "--keep-going", "-q", str(DOCS), str(OUT)]
     proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, f"make docs failed ({' '.join(cmd)}):\n{proc.stdout[-4000:]}\n{proc.stderr[-8000:]}"
+    # numpydoc reports a docstring section it cannot parse as a Python warning, not a Sphinx one
+    bad = [line for line in proc.stderr.splitlines() if "Unknown section" in line or "Potentially wrong underline" in line]
+    assert not bad, "docstrings numpydoc cannot parse:\n" + "\n".join(bad)
     return OUT
 
 

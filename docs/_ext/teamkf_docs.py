@@ -16,7 +16,7 @@ import shutil
 from pathlib import Path
 from typing import Any
 
-SUBPACKAGES = ("models", "network", "estimators", "simulation", "study", "control", "experiments", "plotting")
+SUBPACKAGES = ("models", "network", "estimators", "simulation", "study", "control", "experiments", "plotting", "exceptions")
 
 
 def autosummary_sources() -> list[str]:
@@ -79,7 +79,9 @@ def write_api_pages(api_dir: Path) -> list[str]:
 
 def _submodules(mod: Any) -> list[str]:
     """Public submodules, without the deprecated aliases (a module that replaced itself in sys.modules)."""
-    out = []
+    out: list[str] = []
+    if not hasattr(mod, "__path__"):  # a module, not a package (teamkf.exceptions)
+        return out
     for m in pkgutil.iter_modules(mod.__path__):
         if m.name.startswith("_") or m.name == "__main__":
             continue
@@ -90,6 +92,7 @@ def _submodules(mod: Any) -> list[str]:
 
 
 def _subpackage_page(mod: Any, top: set[str]) -> str:
+    """The page of one subpackage: its own ``__all__``, then each submodule with its further public names."""
     import teamkf
 
     name = mod.__name__
@@ -104,45 +107,60 @@ def _subpackage_page(mod: Any, top: set[str]) -> str:
         "",
     ]
     own = _public_names(mod)
-    groups: list[tuple[str, list[str]]] = []
-    if own:
-        groups.append((name, own))
-    else:  # a package without __all__ (teamkf.study): its submodules' public names
-        for sm in _submodules(mod):
-            groups.append((sm, _public_names(importlib.import_module(sm))))
-    for modname, names in groups:
-        m = importlib.import_module(modname)
-        at_top = [n for n in names if n in top and getattr(teamkf, n, None) is getattr(m, n, None)]
-        rest = [n for n in names if n not in at_top]
+    shown: set[int] = set()  # ids of the objects that already have a page or an entry
+
+    def at_top(n: str, m: Any) -> bool:
+        return n in top and getattr(teamkf, n, None) is getattr(m, n, None)
+
+    def table(modname: str, names: list[str], m: Any) -> list[str]:
+        lines: list[str] = []
+        tops = [n for n in names if at_top(n, m)]
+        rest = [n for n in names if n not in tops]
         fns = [n for n in rest if _is_documentable(getattr(m, n))]
         consts = [n for n in rest if n not in fns]
-        if modname != name:
-            out += [_heading(f"``{modname}``", "-")]
-        if at_top:
-            out += [
+        if tops:
+            lines += [
                 "Also exported by :mod:`teamkf` (documented there):",
                 "",
                 ".. autosummary::",
                 "   :nosignatures:",
                 "",
-                *[f"   {n}" for n in at_top],
+                *[f"   {n}" for n in tops],
                 "",
             ]
         if fns:
-            out += [".. autosummary::", "   :toctree: generated", "   :nosignatures:", "", *[f"   ~{_rel(modname)}.{n}" for n in fns], ""]
+            lines += [".. autosummary::", "   :toctree: generated", "   :nosignatures:", "", *[f"   ~{_rel(modname)}.{n}" for n in fns], ""]
         if consts:
-            out += ["Constants: " + ", ".join(f"``{n}``" for n in consts), ""]
+            lines += ["Constants: " + ", ".join(f"``{n}``" for n in consts), ""]
+        for n in names:
+            shown.add(id(getattr(m, n)))
+        return lines
+
+    out += table(name, own, mod)
     subs = _submodules(mod)
     if subs:
+        out += [_heading("Modules", "-")]
+    for sm in subs:
+        m = importlib.import_module(sm)
+        extra = []
+        for n in _public_names(m):
+            obj = getattr(m, n, None)
+            if id(obj) in shown or at_top(n, m):
+                continue
+            home = getattr(obj, "__module__", sm) if _is_documentable(obj) else sm
+            if home != sm:  # re-exported from another module: documented at home
+                continue
+            extra.append(n)
         out += [
-            _heading("Modules", "-"),
+            _heading(f"``{sm}``", "~"),
             ".. autosummary::",
             "   :toctree: generated",
             "   :template: autosummary/module-doc.rst",
             "",
-            *[f"   {_rel(s)}" for s in subs],
+            f"   {_rel(sm)}",
             "",
         ]
+        out += table(sm, extra, m)
     return "\n".join(out)
 
 

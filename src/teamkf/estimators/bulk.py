@@ -218,8 +218,10 @@ def _ro(a: np.ndarray) -> FloatArray:
 class ClosedLoopCovariances:
     """Exact first and second moments of one agent of the closed loop, k = 0 .. T.
 
-    Attributes (arrays of length T + 1, index k)
-    --------------------------------------------
+    The arrays have length T + 1 (index k).
+
+    Attributes
+    ----------
     state_mean : E x_{k,i} = a_f^k x0_mean (also E xhat_{k,i})
     state_variance : Var x_{k,i}
     estimate_variance : Var xhat_{k,i}
