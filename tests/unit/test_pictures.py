@@ -199,3 +199,25 @@ def test_experiment_result_html_and_plot(tmp_path):
     assert bare.figures == []
     with pytest.raises(ArgumentError, match="figures: experiment 'fig1' wrote none"):
         bare.plot()
+
+
+def test_bulk_filter_html_and_plot():
+    from teamkf.estimators.bulk import exact_bulk_filter, finite_memory_filter
+    from teamkf.models import PopulationModel
+
+    model = PopulationModel(n_agents=1000, a=2.5, f=2.0)
+    for flt in (exact_bulk_filter(model, 50), finite_memory_filter(model, 50, memory=3)):
+        cells = _cells(flt._repr_html_())
+        assert type(flt).__name__ in cells and "1000" in cells and "50" in cells
+        assert format_value(float(flt.covariances.error_variance[-1])) in cells
+        ax = flt.plot()
+        np.testing.assert_allclose(ax.get_lines()[1].get_ydata(), flt.covariances.error_variance)
+
+
+def test_lqg_design_html():
+    from teamkf.control.lqg import design_lqg
+    from teamkf.experiments.lqg import problem
+
+    d = design_lqg(problem(1.0), 10)
+    cells = _cells(d._repr_html_())
+    assert "Theorem 4 (MTMSE)" in cells and format_value(d.cost) in cells and "10" in cells
