@@ -119,7 +119,7 @@ class LQGDesign:
     def _repr_html_(self) -> str:
         from .._repr import html_table
 
-        rows = [
+        rows: list[dict[str, Any]] = [
             {"field": "controller", "value": "Theorem 4 (MTMSE)" if self.kind == "mtmse" else "certainty equivalence (MMSE)"},
             {"field": "agents", "value": self.problem.system.n_agents},
             {"field": "horizon T", "value": self.horizon},

@@ -286,6 +286,8 @@ class _GainsMixin:
     """Shared gain accessors (K_k oldest first)."""
 
     horizon: int
+    model: PopulationModel
+    covariances: ClosedLoopCovariances
 
     def gain(self, k: int) -> FloatArray:  # pragma: no cover - overridden
         raise NotImplementedError
@@ -297,8 +299,7 @@ class _GainsMixin:
     def _repr_html_(self) -> str:
         from .._repr import html_table
 
-        m: Any = self.model
-        cov: Any = self.covariances
+        m, cov = self.model, self.covariances
         rows: list[dict[str, Any]] = [
             {"field": "filter", "value": type(self).__name__},
             {"field": "agents N", "value": m.n_agents},
@@ -316,7 +317,7 @@ class _GainsMixin:
         """Exact closed-loop variances against k: state, estimation error, population mean; returns the axes."""
         from ..plotting import _pyplot
 
-        cov: Any = self.covariances
+        cov = self.covariances
         plt = _pyplot()
         if ax is None:
             _, ax = plt.subplots(figsize=(6, 4))
