@@ -4,7 +4,7 @@ VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv test test-fast demo bench typecheck docs docs-clean clean
+.PHONY: venv test test-fast lint demo bench typecheck docs docs-clean clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml
 
 venv: $(STAMP)
 
-test: $(STAMP)
+test: $(STAMP) lint
 	$(BIN)/python -m pytest -q $(PYTEST_ARGS)
 	$(BIN)/python -m mypy
 	$(MAKE) docs
@@ -28,6 +28,11 @@ docs: $(STAMP)
 
 docs-clean:
 	rm -rf docs/_build docs/api/generated docs/api/public.rst docs/api/teamkf.*.rst docs/auto_gallery docs/auto_examples docs/_examples docs/sg_execution_times.rst
+
+lint: $(STAMP)
+	$(BIN)/ruff check src tests examples benchmarks
+	$(BIN)/ruff format --check src tests examples benchmarks
+	$(BIN)/lint-imports
 
 test-fast: $(STAMP)
 	$(BIN)/python -m pytest -q -m "not slow" -x

@@ -309,7 +309,7 @@ class TeamDesign(Design):
             return self.steady_gains  # type: ignore[return-value]
         cache = self.info.setdefault("_warmup_gains", {})
         if k not in cache:
-            cache[k] = self.warmup(k)
+            cache[k] = self.warmup(k)  # type: ignore[misc]  # set for every steady-state design
         return cache[k]  # type: ignore[no-any-return]
 
     def K_at(self, m: int) -> FloatArray:
@@ -592,7 +592,9 @@ class TeamAgent:
             try:
                 y = np.concatenate([buf[(j, a)] for j in range(sys.n_agents)], axis=1)
             except KeyError as exc:
-                raise ValueError(f"agent {self.index}: y_{exc.args[0][0]}({a}) is common at step {k} but was never delivered") from None
+                raise InformationStructureError(
+                    f"agent {self.index}: y_{exc.args[0][0]}({a}) is common at step {k} but was never delivered"
+                ) from None
             xhat = (xhat + (y - xhat @ sys.C_stack(a).T) @ d.K_at(a).T) @ sys.A_at(a).T
             a += 1
             buf = {key: v for key, v in buf.items() if key[1] >= a}
@@ -606,7 +608,7 @@ class TeamAgent:
             try:
                 innov = np.concatenate([buf[(j, s)] - preds[s - a] @ sys.C_at(j, s).T for (j, s) in pairs], axis=1)
             except KeyError as exc:
-                raise ValueError(
+                raise InformationStructureError(
                     f"agent {self.index}: local measurement y_{exc.args[0][0]}({exc.args[0][1]}) was not delivered by step {k}"
                 ) from None
             z = z + innov @ d.gain_at(k)[self.index].T
