@@ -72,8 +72,8 @@ from scipy.linalg import cho_factor, cho_solve, solve_triangular
 from scipy.linalg.lapack import dtrtri
 
 from .. import _validation as V
-from .._progress import progress
 from .._blas import single_thread_blas
+from .._progress import progress
 from .._validation import FloatArray
 from ..exceptions import ShapeError
 from ..models.population import PopulationModel
