@@ -27,3 +27,11 @@ print(
 
 G = graph.to_networkx()  # edit with networkx, come back
 assert CommGraph.from_networkx(G) == graph
+
+# pictures (matplotlib: pip install 'teamkf[plot]'): the random graph with its delays and the
+# information structure it induces (eq. (14))
+import matplotlib.pyplot as plt  # noqa: E402
+
+graph.plot(layout="spring", seed=1)
+structure.plot()
+plt.show()

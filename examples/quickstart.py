@@ -38,3 +38,14 @@ x, y = sample(system, T, n_runs=400, rng=1)
 z = run_online(designs["mtmse"].agents(), y)
 mc = sum(cost.value(x[:, k], z[:, k]).mean() for k in range(T))
 print(f"{'mtmse (MC)':12s} J_T ~ {mc:10.2f}  (400 simulated runs)")
+
+# pictures (matplotlib: pip install 'teamkf[plot]'): the graph with its delays, what each vehicle
+# holds under IS2, and the stage costs of the three designs
+import matplotlib.pyplot as plt  # noqa: E402
+
+from teamkf.study.results import CostCurves  # noqa: E402
+
+graph.plot()
+IS2.plot()
+CostCurves.from_designs(designs, title="platoon, n = 4, T = 100").plot(log=True)
+plt.show()

@@ -65,7 +65,7 @@ from .study.scenario import Scenario, load_scenario, scenario_from_dict
 try:
     __version__ = version("teamkf")
 except PackageNotFoundError:  # pragma: no cover - running from a source tree
-    __version__ = "0.1.0"
+    __version__ = "0.2.0"
 
 __all__ = [
     "LinearGaussianSystem",

@@ -4,23 +4,19 @@ Every computation whose memory grows with the horizon or the number of runs
 calls :func:`check_memory` with its estimate *before* allocating anything, so
 an impossible request fails at once with the estimate instead of with a
 ``MemoryError`` minutes later. Long loops wrap their iterable in
-:func:`progress`: a tqdm bar on stderr that appears only after
-``PROGRESS_DELAY`` seconds, only when stderr is a terminal, and never with
-``progress=False``.
+:func:`teamkf._progress.progress` (re-exported here).
 """
 
 from __future__ import annotations
 
 import os
-import sys
-from typing import Any, Iterable, Iterator, TypeVar
+from typing import TypeVar
 
+from ._progress import progress  # noqa: F401  (the one progress bar of teamkf; re-exported)
 from .exceptions import ArgumentError
 
-__all__ = ["available_memory", "check_memory", "format_bytes", "progress", "PROGRESS_DELAY", "MEMORY_FRACTION"]
+__all__ = ["available_memory", "check_memory", "format_bytes", "progress", "MEMORY_FRACTION"]
 
-#: seconds a loop runs before its progress bar appears
-PROGRESS_DELAY = 2.0
 #: a computation may use at most this fraction of the memory available when it starts
 MEMORY_FRACTION = 0.9
 
@@ -79,22 +75,3 @@ def check_memory(estimate: float, what: str, *, argument: str, fix: str, availab
         f"{argument}: {what} needs about {format_bytes(estimate)} of memory, but this machine has {format_bytes(avail)} available; {fix}",
         argument=argument,
     )
-
-
-def progress(iterable: Iterable[T_], *, total: int | None = None, desc: str = "", enabled: bool | None = None) -> Iterator[T_]:
-    """``iterable`` with a progress bar on stderr after :data:`PROGRESS_DELAY` seconds.
-
-    ``enabled``: True forces the bar, False silences it, None (default) shows it
-    only when stderr is a terminal. Without tqdm installed the iterable is
-    returned unchanged.
-    """
-    if enabled is False:
-        return iter(iterable)
-    if enabled is None and not (hasattr(sys.stderr, "isatty") and sys.stderr.isatty()):
-        return iter(iterable)
-    try:
-        from tqdm import tqdm
-    except ImportError:  # pragma: no cover - tqdm is a dependency
-        return iter(iterable)
-    bar: Any = tqdm(iterable, total=total, desc=desc, delay=PROGRESS_DELAY, file=sys.stderr, leave=False, unit="step", dynamic_ncols=True)
-    return iter(bar)

@@ -263,7 +263,7 @@ class PopulationSimulation:
     estimates: FloatArray | None = None
 
     def max_abs_final(self, saturate: float = 1000.0) -> FloatArray:
-        """max_i |x_{T,i}| per run, saturated (non-finite values count as ``saturate``; Fig. 12)."""
+        """``max_i |x_{T,i}|`` per run, saturated (non-finite values count as ``saturate``; Fig. 12)."""
         with np.errstate(invalid="ignore"):
             m = np.max(np.abs(self.final_states), axis=1)
         m = np.where(np.isfinite(m), m, saturate)

@@ -116,6 +116,18 @@ class LQGDesign:
     def F_at(self, k: int) -> tuple:
         return self.estimation.gain_at(k)
 
+    def _repr_html_(self) -> str:
+        from .._repr import html_table
+
+        rows: list[dict[str, Any]] = [
+            {"field": "controller", "value": "Theorem 4 (MTMSE)" if self.kind == "mtmse" else "certainty equivalence (MMSE)"},
+            {"field": "agents", "value": self.problem.system.n_agents},
+            {"field": "horizon T", "value": self.horizon},
+            {"field": "expected cost J (64)", "value": float(self.cost)},
+            {"field": "strategy-independent part (66)", "value": float(self.base_cost)},
+        ]
+        return html_table(["field", "value"], rows, caption="teamkf decentralized LQG design")
+
 
 def design_lqg(problem: LQGProblem, horizon: int, *, kind: str = "mtmse") -> LQGDesign:
     """Design the optimal controller (``kind="mtmse"``, Theorem 4) or the CE baseline (``kind="mmse"``)."""

@@ -223,8 +223,10 @@ def _ro(a: np.ndarray) -> FloatArray:
 class ClosedLoopCovariances:
     """Exact first and second moments of one agent of the closed loop, k = 0 .. T.
 
-    Attributes (arrays of length T + 1, index k)
-    --------------------------------------------
+    The arrays have length T + 1 (index k).
+
+    Attributes
+    ----------
     state_mean : E x_{k,i} = a_f^k x0_mean (also E xhat_{k,i})
     state_variance : Var x_{k,i}
     estimate_variance : Var xhat_{k,i}
@@ -289,6 +291,8 @@ class _GainsMixin:
     """Shared gain accessors (K_k oldest first)."""
 
     horizon: int
+    model: PopulationModel
+    covariances: ClosedLoopCovariances
 
     def gain(self, k: int) -> FloatArray:  # pragma: no cover - overridden
         raise NotImplementedError
@@ -296,6 +300,41 @@ class _GainsMixin:
     def final_gains(self) -> FloatArray:
         """K_T, oldest measurement first."""
         return self.gain(self.horizon)
+
+    def _repr_html_(self) -> str:
+        from .._repr import html_table
+
+        m, cov = self.model, self.covariances
+        rows: list[dict[str, Any]] = [
+            {"field": "filter", "value": type(self).__name__},
+            {"field": "agents N", "value": m.n_agents},
+            {"field": "a, b, f (a_f = a - b f)", "value": f"{m.a:g}, {m.b:g}, {m.f:g} ({m.a_f:g})"},
+            {"field": "horizon T", "value": self.horizon},
+        ]
+        for name in ("memory", "band", "diverged_at"):
+            if hasattr(self, name):
+                rows.append({"field": name, "value": getattr(self, name)})
+        rows.append({"field": "Var(x_T - xhat_T) (exact)", "value": float(cov.error_variance[-1])})
+        rows.append({"field": "Var x_T (exact)", "value": float(cov.state_variance[-1])})
+        return html_table(["field", "value"], rows, caption="teamkf bulk filter")
+
+    def plot(self, ax: Any = None) -> Any:
+        """Exact closed-loop variances against k: state, estimation error, population mean; returns the axes."""
+        from ..plotting import _pyplot
+
+        cov = self.covariances
+        plt = _pyplot()
+        if ax is None:
+            _, ax = plt.subplots(figsize=(6, 4))
+        k = np.arange(len(cov.state_variance))
+        ax.plot(k, cov.state_variance, label="Var x_k")
+        ax.plot(k, cov.error_variance, label="Var(x_k - xhat_k)")
+        ax.plot(k, cov.mean_variance, label="Var m_k (population mean)")
+        ax.set_yscale("log")
+        ax.set_xlabel("k")
+        ax.set_title(f"{type(self).__name__}, N = {self.model.n_agents}")
+        ax.legend()
+        return ax
 
     def stationarity_index(self) -> float:
         """Eq. (61) at the end of the horizon (0.0 for T = 1)."""

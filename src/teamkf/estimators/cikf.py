@@ -25,7 +25,7 @@ H̄_n = H_n' R_n^-1 H_n             ``model.H_bar[n]``                          
 G = sum_n H̄_n                     ``model.G``                                          (7)
 G†, Ĩ = I - G† G                  ``model.G_pinv``, ``model.I_tilde``                  (15)
 Ã = G A G†, Ǎ = G A Ĩ             ``model.A_tilde``, ``model.A_check``                 (11, 13)
-H̃_n = H̄_n G†, Ȟ_n = H̄_n Ĩ        ``model.H_tilde[n]``, ``model.H_check[n]``           (12, 14)
+H̃_n = H̄_n G†, Ȟ_n = H̄_n Ĩ         ``model.H_tilde[n]``, ``model.H_check[n]``           (12, 14)
 λ_1, λ_m                          smallest / largest non-zero eigenvalue of G (Theorem 3)
 Ω_n                               ``graph.in_neighbors(n)`` (every edge must have delay 1)
 B^{nl}, B^{nn}, K^n               :meth:`CIKFDesign.paper_gains` (full coordinates)

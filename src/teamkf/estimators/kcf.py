@@ -59,7 +59,7 @@ Choice of ε
 -----------
 The default ``epsilon = 0.1`` is our choice (baselines.md leaves it open; the
 KCF needs "a small consensus step"). Since γ_i ||M_i||_F < ε, the consensus
-term of agent i is a correction of gain below ε · |N_i|; with ε = 0.1 that is
+term of agent i is a correction of gain below ``ε · |N_i|``; with ε = 0.1 that is
 below 1 for in-degrees up to 9, e.g. the complete graph of the ten-UAV
 formation, so the consensus correction alone never overshoots. Larger graphs
 may want a smaller ε.
@@ -275,13 +275,13 @@ class KCFDesign(Design):
         r"""Team errors e(k) = L x(k) - ẑ(k), (n_runs, T', n d_z), from the primitive noises.
 
         Forming x - x̂ from simulated states cancels catastrophically when x is
-        large (an unstable process: |x(99)| ~ 1e19 for the ten-UAV formation,
+        large (an unstable process: ``|x(99)| ~ 1e19`` for the ten-UAV formation,
         so x - x̂ keeps no digit). Instead each agent's prior error
         ẽ_i(k) = x(k) - x̄_i(k) is propagated by a recursion in the noises.
 
         Derivation. Write y_j(s) = C_j(s) x(s) + v_j(s), G_j(s) = C_j(s)' R_j(s)^-1,
         U_j(s) = G_j(s) C_j(s), and δ_j(k) = x(k) - x(s_j) (zero for j = i and
-        for the ideal variant, where s_j = k). Then
+        for the ideal variant, where s_j = k). Then::
 
             s_i - S_i x̄_i = Σ_{j∈J_i} G_j (y_j(s_j) - C_j x̄_i(k))
                           = Σ_{j∈J_i} [U_j (ẽ_i(k) - δ_j(k)) + G_j v_j(s_j)]
@@ -289,7 +289,7 @@ class KCFDesign(Design):
             x̄_j(s_j) - x̄_i(k) = (x(s_j) - ẽ_j(s_j)) - (x(k) - ẽ_i(k))
                               = ẽ_i(k) - ẽ_j(s_j) - δ_j(k),
 
-        so with e_i⁺ = x(k) - x̂_i(k),
+        so with e_i⁺ = x(k) - x̂_i(k)::
 
             e_i⁺ = ẽ_i - M_i [S_i ẽ_i + Σ_{j∈J_i} G_j v_j(s_j) - Σ_{j∈N_i} U_j δ_j]
                        - γ_i M_i Σ_{j∈N_i} (ẽ_i - ẽ_j(s_j) - δ_j),
@@ -301,12 +301,12 @@ class KCFDesign(Design):
         x(k)); it is of the order of x on an unstable process, and so is the
         honest KCF's error: nothing cancels there. We form it without the
         difference x(k) - x(s_j) of two large numbers, by telescoping
-        x(s+1) - x(s) = (A(s) - I) x(s) + w(s):
+        x(s+1) - x(s) = (A(s) - I) x(s) + w(s)::
 
             δ_j(k) = Σ_{s=s_j}^{k-1} [(A(s) - I) x(s) + w(s)],
 
-        accurate to round-off relative to |A - I| |x| + |w| (better than
-        relative to |x| when A is close to I).
+        accurate to round-off relative to ``|A - I| |x| + |w|`` (better than
+        relative to ``|x|`` when A is close to I).
 
         Parameters
         ----------

@@ -191,7 +191,7 @@ def build_steps(alg: Algorithm) -> list[LinearStep]:
         def zero(d: int, nb: int = nb) -> FloatArray:
             return np.zeros((d, nb))
 
-        def get(key: tuple) -> FloatArray:
+        def get(key: tuple, index: dict = index) -> FloatArray:
             pos, s = index[key]
             return sel(pos, s.dim)
 

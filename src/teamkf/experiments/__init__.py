@@ -20,6 +20,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
+import numpy as np
+
 __all__ = ["Experiment", "ExperimentResult", "register", "get", "names", "run"]
 
 
@@ -57,6 +59,44 @@ class ExperimentResult:
         lines += ["  ".join(v.rjust(w) for v, w in zip(row, widths)) for row in cells]
         return "\n".join(lines)
 
+    @property
+    def published_columns(self) -> list[str]:
+        """Columns holding published values (their name mentions the paper), shown only for comparison."""
+        return [c for c in self.columns if _is_published(c)]
+
+    def _repr_html_(self) -> str:
+        from .._repr import html_table
+
+        return html_table(self.columns, self.rows, caption=f"{self.name}: {self.title}", published=_is_published)
+
+    def plot(self, ax: Any = None) -> Any:
+        """Show the experiment's figures (the PNG files it wrote) on matplotlib axes; returns the axes.
+
+        The figures exist only when the experiment ran with an output folder
+        (``run(name, out_dir)``) and matplotlib was installed.
+        """
+        from ..exceptions import ArgumentError
+        from ..plotting import _pyplot
+
+        if not self.figures:
+            raise ArgumentError(
+                f"figures: experiment {self.name!r} wrote none; run it with an output folder and matplotlib installed, "
+                f"e.g. teamkf.experiments.run({self.name!r}, 'results/')"
+            )
+        plt = _pyplot()
+        import matplotlib.image as mpimg
+
+        if ax is None:
+            _, axes = plt.subplots(1, len(self.figures), figsize=(6 * len(self.figures), 4.5), squeeze=False)
+            ax = list(axes[0])
+        axs = list(ax) if isinstance(ax, (list, tuple, np.ndarray)) else [ax]
+        if len(axs) != len(self.figures):
+            raise ArgumentError(f"ax: expected {len(self.figures)} axes (one per figure), found {len(axs)}; pass ax=None for a new figure")
+        for a, path in zip(axs, self.figures):
+            a.imshow(mpimg.imread(path))
+            a.set_axis_off()
+        return axs if len(axs) > 1 else axs[0]
+
     def to_json(self) -> dict[str, Any]:
         return {"name": self.name, "title": self.title, "columns": self.columns, "rows": self.rows, "notes": self.notes, "figures": self.figures}
 
@@ -69,6 +109,11 @@ class ExperimentResult:
             for r in self.rows:
                 w.writerow(r)
         return path
+
+
+def _is_published(column: str) -> bool:
+    c = column.lower()
+    return "paper" in c or "published" in c
 
 
 @dataclass(frozen=True)

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
+from .._progress import progress
 from ..estimators.kalman import design_centralized
 from ..estimators.kcf import design_kcf
 from ..estimators.team import design_mmse, design_mtmse
@@ -26,7 +27,7 @@ def delta_rows(
 ) -> list[dict[str, Any]]:
     """One row per lambda: J_T of every estimator and Delta = (J_baseline - J*) / J* in %."""
     rows = []
-    for lam in lams:
+    for lam in progress(lams, desc="lambda grid", unit="point"):
         system, cost, graph = build(lam)
         t, m, c = design_mtmse(system, cost, graph, T), design_mmse(system, cost, graph, T), design_centralized(system, cost, horizon=T)
         kcf = {v: design_kcf(system, cost, graph, T, epsilon=EPSILON, variant=v) for v in ("stale", "ideal")}

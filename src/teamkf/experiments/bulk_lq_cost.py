@@ -1,7 +1,7 @@
 """Bulk-filter paper, Section 4.5: average LQ cost vs the feedback gain f (Figs. 10-11).
 
 For a = 2 (stationary range) and a = 5 (persistently time-varying), each
-f with |a_f| < 1 and each N, the exact bulk filter is computed and
+f with ``|a_f| < 1`` and each N, the exact bulk filter is computed and
 
 * the exact expected cost (1/T) sum_{k<T} E[x_k^2 + r u_k^2] per agent (from the
   closed-loop covariances; valid for any N, 10^9 included), and

@@ -3,7 +3,7 @@
 For memories n = 3, 5, 10, 50, N = 100 agents and T = 1000 steps, each point
 (a, a_f) of the grid gets its memory-n gains (Theorem 2, exact for the
 finite-memory closed loop; teamkf.estimators.bulk.finite_memory_filter), one
-closed-loop run of 100 explicit agents, and the cost max_i |x_{T,i}| saturated
+closed-loop run of 100 explicit agents, and the cost ``max_i |x_{T,i}|`` saturated
 at 1000 (Fig. 12). A point counts as stabilized when the cost is below 1000.
 The table also reports the exact (growing-memory) filter at a = 10, 100, 1000
 with a_f = 0.9, N = 100 (Figs. 2-4): the paper's claim that it keeps the
@@ -33,7 +33,7 @@ MEMORIES = (3, 5, 10, 50)
 
 
 def stabilization_point(p: dict[str, Any]) -> dict[str, Any]:
-    """One point {a, a_f, memory, n_agents, horizon, index[, seed]} -> max_i |x_{T,i}| (saturated)."""
+    """One point {a, a_f, memory, n_agents, horizon, index[, seed]} -> ``max_i |x_{T,i}|`` (saturated)."""
     m = PopulationModel.from_af(int(p["n_agents"]), float(p["a"]), float(p["a_f"]), memory=int(p["memory"]))
     T = int(p["horizon"])
     ss = np.random.SeedSequence(entropy=int(p.get("seed", SEED)), spawn_key=(int(p["index"]),))

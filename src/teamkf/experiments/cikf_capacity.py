@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._progress import progress
 from ..estimators.cikf import design_cikf, tracking_capacity, tracking_capacity_upper_bound
 from ..models import LinearGaussianSystem
 from ..network.graph import CommGraph
@@ -60,7 +61,7 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
     except ImportError:
         have_cvx = False
     rows = []
-    for name, edges in FAMILY:
+    for name, edges in progress(FAMILY, desc="graphs", unit="graph"):
         g = _graph(edges)
         row: dict = {"graph": name, "edges": len(edges), "closed-form ceiling": closed}
         if have_cvx:

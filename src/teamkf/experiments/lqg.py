@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._progress import progress
 from ..control.lqg import LQGProblem, design_lqg, simulate_closed_loop
 from ..models import LinearGaussianSystem
 from . import ExperimentResult, plotting_available, register, save_figure
@@ -36,7 +37,7 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
     T, runs = 20, (4000 if quick else 20000)
     rows = []
     F_hist = []
-    for rho in RHOS:
+    for rho in progress(RHOS, desc="rho", unit="point"):
         prob = problem(rho)
         opt, ce = design_lqg(prob, T), design_lqg(prob, T, kind="mmse")
         mc_opt, mc_ce = simulate_closed_loop(opt, runs, rng=7), simulate_closed_loop(ce, runs, rng=7)

@@ -20,6 +20,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Sequence
 
+from .._progress import progress
 from ..estimators.team import design_mtmse
 from ..network.shedding import HopWindows, hop_structures, pareto_front, pareto_front_nd
 from . import ExperimentResult, plotting_available, register, save_figure
@@ -36,7 +37,7 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
     cands = hop_structures(graph, dy=system.dy)
     dims = [sum(h.structure.local_dims(system.dy)) for h in cands]
     links = [h.links() for h in cands]
-    J = [design_mtmse(system, cost, h.structure, horizon).require_cost() for h in cands]
+    J = [design_mtmse(system, cost, h.structure, horizon).require_cost() for h in progress(cands, desc="hop structures", unit="structure")]
     front = set(pareto_front(dims, J))
     front3 = set(pareto_front_nd(list(zip(dims, links, J))))
     rows = []

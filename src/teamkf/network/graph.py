@@ -603,6 +603,16 @@ class CommGraph:
 
     # -- plain data ------------------------------------------------------------
 
+    def plot(self, ax: Any = None, **kwargs: Any) -> Any:
+        """Draw the graph with each edge's delay as its label (networkx + matplotlib); returns the axes.
+
+        Keywords go to :func:`teamkf.plotting.network.plot_graph` (``layout``,
+        ``node_labels``, ``node_color``, ``seed``, ``title``).
+        """
+        from ..plotting.network import plot_graph
+
+        return plot_graph(self, ax, **kwargs)
+
     def to_dict(self) -> dict[str, Any]:
         """Plain-data form ``{"n_agents": n, "edges": [[i, j, d], ...]}`` for scenario files."""
         return {"n_agents": self.n_agents, "edges": [list(e) for e in self.edges]}

@@ -212,6 +212,16 @@ class InformationStructure:
                 return False
         return True
 
+    def plot(self, ax: Any = None, **kwargs: Any) -> Any:
+        """Draw, for each agent, which y_j(s) it holds as a lag × source grid (matplotlib); returns the axes.
+
+        Keywords go to :func:`teamkf.plotting.network.plot_information`
+        (``agents``, ``max_lag``, ``title``).
+        """
+        from ..plotting.network import plot_information
+
+        return plot_information(self, ax, **kwargs)
+
     def to_dict(self) -> dict[str, Any]:
         return {"common_lag": self.common_lag, "local": [[list(w) for w in wins] for wins in self.local]}
 

@@ -83,6 +83,23 @@ class MonteCarloResult:
             out["diverged"] = True
         return out
 
+    def _repr_html_(self) -> str:
+        from .._repr import html_table
+
+        lo, hi = self.ci95
+        rows = [
+            {
+                "estimator": self.estimator,
+                "runs": self.n_runs,
+                "steps": len(self.stage_mean),
+                "J_T (mean)": self.total_mean,
+                "95 % low": lo,
+                "95 % high": hi,
+                "path": self.path,
+            }
+        ]
+        return html_table(list(rows[0]), rows, caption="teamkf Monte Carlo result")
+
     def to_pandas(self) -> Any:
         pd = V.require("pandas", "dask")
         lo, hi = self.stage_ci95

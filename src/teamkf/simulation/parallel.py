@@ -17,6 +17,7 @@ import os
 from typing import Any, Callable, Iterable, Iterator, TypeVar
 
 from .. import _validation as V
+from .._progress import progress
 from ..exceptions import ArgumentError
 
 __all__ = ["map_points", "use_scheduler", "current_scheduler", "local_cluster", "WORKER_ENV"]
@@ -50,7 +51,7 @@ def map_points(func: Callable[[P], R], points: Iterable[P], *, scheduler: Any = 
     pts = list(points)
     sched = scheduler if scheduler is not None else _SCHEDULER.get()
     if sched in (None, "serial") or len(pts) <= 1:
-        return [func(p) for p in pts]
+        return [func(p) for p in progress(pts, desc=getattr(func, "__name__", "points"), unit="point")]
     client, owned = _open_client(sched, None)
     try:
         futures = client.map(func, pts, pure=False, retries=3)

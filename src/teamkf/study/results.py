@@ -160,6 +160,16 @@ class SweepResult:
                 df[c] = df[c].astype("float64")  # None (analytic values) -> NaN
         return df
 
+    def _repr_html_(self) -> str:
+        from .._repr import html_table
+
+        cols = [*self.grid_keys, "estimator", "method", self.cost_key, "ci95_low", "ci95_high"]
+        if any("mc_cost" in r for r in self.rows):
+            cols += ["mc_cost", "mc_ci95_low", "mc_ci95_high"]
+        where = f" from {self.path}" if self.path is not None else ""
+        caption = f"teamkf sweep: {self.n_points} points × {len(self.estimators)} estimators{where}"
+        return html_table(cols, self.rows, caption=caption)
+
     # -- plots ----------------------------------------------------------------
     def plot(
         self,
@@ -376,6 +386,16 @@ class CostCurves:
     def totals(self) -> dict[str, float]:
         """Sum of the stage costs per estimator (J_T)."""
         return {n: float(np.sum(c)) for n, c in zip(self.estimators, self.stage_costs)}
+
+    def _repr_html_(self) -> str:
+        from .._repr import html_table
+
+        assert self.methods is not None  # set in __post_init__
+        rows = [
+            {"estimator": n, "method": m, "steps": c.shape[0], "J_T (sum)": float(np.sum(c)), "last stage cost": float(c[-1]) if c.size else None}
+            for n, m, c in zip(self.estimators, self.methods, self.stage_costs)
+        ]
+        return html_table(["estimator", "method", "steps", "J_T (sum)", "last stage cost"], rows, caption=self.title or "teamkf cost curves")
 
     def to_pandas(self) -> Any:
         """Long format: ``estimator``, ``method``, ``t`` (from 1), ``stage_cost``, ``sem`` (None for analytic)."""

@@ -1,0 +1,107 @@
+"""Progress bars for long loops: tqdm on a terminal, silent everywhere else.
+
+:func:`progress` wraps an iterable. It returns the iterable itself (no cost) unless
+every one of these holds:
+
+* ``enabled`` is not False (the ``progress=`` argument of the calling function),
+* the output stream (stderr) is a terminal,
+* the environment variable ``TEAMKF_PROGRESS`` is not ``0`` / ``false`` / ``no`` / ``off``,
+* :func:`set_quiet` has not been called with True (the CLI's ``--quiet``), and
+* tqdm is installed (it comes with ``pip install 'teamkf[dask]'``).
+
+The bar appears only once the loop has run for ``delay`` seconds (2 s by default),
+so short loops never print anything.
+
+Examples
+--------
+>>> items = [1, 2, 3]
+>>> progress(items, desc="silenced", enabled=False) is items   # no bar: the iterable itself
+True
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
+from typing import Any, TypeVar
+
+__all__ = ["progress", "set_quiet", "quiet", "progress_enabled", "DELAY"]
+
+T = TypeVar("T")
+
+#: seconds a loop must run before its bar is shown
+DELAY = 2.0
+
+_QUIET = False
+_OFF = {"0", "false", "no", "off"}
+
+
+def set_quiet(value: bool = True) -> bool:
+    """Silence (or re-enable) every progress bar of the process; returns the previous setting."""
+    global _QUIET
+    old, _QUIET = _QUIET, bool(value)
+    return old
+
+
+@contextmanager
+def quiet() -> Iterator[None]:
+    """``with quiet(): ...`` runs the block without progress bars."""
+    old = set_quiet(True)
+    try:
+        yield
+    finally:
+        set_quiet(old)
+
+
+def _is_tty(stream: Any) -> bool:
+    try:
+        return bool(stream.isatty())
+    except (AttributeError, ValueError):
+        return False
+
+
+def progress_enabled(enabled: bool | None = None, stream: Any = None) -> bool:
+    """Whether a bar would be shown on ``stream`` (default stderr) with ``progress=enabled``."""
+    if enabled is False or _QUIET:
+        return False
+    if os.environ.get("TEAMKF_PROGRESS", "").strip().lower() in _OFF:
+        return False
+    if not _is_tty(sys.stderr if stream is None else stream):
+        return False
+    try:
+        import tqdm  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def progress(
+    iterable: Iterable[T],
+    *,
+    desc: str | None = None,
+    total: int | None = None,
+    enabled: bool | None = None,
+    unit: str = "it",
+    stream: Any = None,
+    delay: float = DELAY,
+) -> Iterable[T]:
+    """``iterable``, with a tqdm bar on a terminal (see the module docstring for when it is silent).
+
+    Parameters
+    ----------
+    iterable : what the loop runs over
+    desc : label of the bar
+    total : number of items (default: ``len(iterable)`` when it has one)
+    enabled : False silences the bar (a function's ``progress=False``); None or True: automatic
+    unit : what one item is ("step", "point", ...)
+    stream : where the bar is written (default: stderr)
+    delay : seconds before the bar first appears
+    """
+    out = sys.stderr if stream is None else stream
+    if not progress_enabled(enabled, out):
+        return iterable
+    from tqdm import tqdm
+
+    return tqdm(iterable, desc=desc, total=total, unit=unit, file=out, delay=delay, leave=False, dynamic_ncols=True)

@@ -1,0 +1,133 @@
+"""HTML representations for notebooks and the documentation site (``_repr_html_``).
+
+Every result object shows itself as a compact HTML table: the fields a reader
+looks at first (costs, horizon, runs, confidence intervals), never anything
+that needs computing beyond a sum. :class:`DesignReprMixin` gives every design
+the same table; the other result classes call :func:`html_table` directly.
+
+Examples
+--------
+>>> print(html_table(["a", "paper a"], [{"a": 1.5, "paper a": 1.25}], published=lambda c: c.startswith("paper")))
+<table class="teamkf-table">
+<thead><tr><th>a</th><th class="teamkf-published" title="published value (comparison only)">paper a</th></tr></thead>
+<tbody>
+<tr><td>1.5</td><td class="teamkf-published">1.25</td></tr>
+</tbody>
+</table>
+"""
+
+from __future__ import annotations
+
+import html
+import math
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+__all__ = ["html_table", "format_value", "DesignReprMixin", "design_rows", "MAX_ROWS"]
+
+#: tables longer than this show their first and last rows only
+MAX_ROWS = 30
+
+
+def format_value(v: Any) -> str:
+    """A short text for one table cell: 6 significant digits for floats, '' for None, '∞' for inf."""
+    if v is None:
+        return ""
+    if isinstance(v, (bool, np.bool_)):
+        return str(bool(v))
+    if isinstance(v, (float, np.floating)):
+        f = float(v)
+        if math.isinf(f):
+            return "∞" if f > 0 else "−∞"
+        return f"{f:.6g}"
+    if isinstance(v, np.ndarray):
+        return f"array{v.shape}"
+    s = str(v)
+    return s if len(s) <= 80 else s[:77] + "..."
+
+
+def html_table(
+    columns: Sequence[str],
+    rows: Sequence[Mapping[str, Any]],
+    *,
+    caption: str | None = None,
+    published: Callable[[str], bool] | None = None,
+    max_rows: int = MAX_ROWS,
+) -> str:
+    """An HTML table of ``rows`` (dicts) in the order of ``columns``.
+
+    Parameters
+    ----------
+    columns : column names, in order
+    rows : one mapping per row (missing keys give empty cells)
+    caption : optional caption (escaped)
+    published : predicate on a column name; those columns are marked as
+        published values (class ``teamkf-published``), shown for comparison
+    max_rows : longer tables keep their first and last ``max_rows // 2`` rows
+    """
+    pub = published or (lambda c: False)
+
+    def th(c: str) -> str:
+        if pub(c):
+            return f'<th class="teamkf-published" title="published value (comparison only)">{html.escape(c)}</th>'
+        return f"<th>{html.escape(c)}</th>"
+
+    def td(c: str, v: Any) -> str:
+        cls = ' class="teamkf-published"' if pub(c) else ""
+        return f"<td{cls}>{html.escape(format_value(v))}</td>"
+
+    shown: list[Mapping[str, Any] | None] = list(rows)
+    if len(shown) > max_rows:
+        half = max(1, max_rows // 2)
+        shown = [*rows[:half], None, *rows[-half:]]
+    out = ['<table class="teamkf-table">']
+    if caption:
+        out.append(f"<caption>{html.escape(caption)}</caption>")
+    out.append("<thead><tr>" + "".join(th(c) for c in columns) + "</tr></thead>")
+    out.append("<tbody>")
+    for r in shown:
+        if r is None:
+            out.append(f'<tr><td colspan="{len(columns)}">… {len(rows) - 2 * (max_rows // 2)} rows not shown …</td></tr>')
+        else:
+            out.append("<tr>" + "".join(td(c, r.get(c)) for c in columns) + "</tr>")
+    out.append("</tbody>")
+    out.append("</table>")
+    return "\n".join(out)
+
+
+def design_rows(design: Any) -> list[dict[str, Any]]:
+    """(field, value) rows describing a design: family, horizon, analytic cost, agents; no computation beyond a sum."""
+    rows: list[dict[str, Any]] = [
+        {"field": "estimator", "value": getattr(design, "label", None) or getattr(design, "estimator", type(design).__name__)}
+    ]
+    rows.append({"field": "class", "value": type(design).__name__})
+    system = getattr(design, "system", None)
+    n_agents = getattr(system, "n_agents", None)
+    if n_agents is not None:
+        rows.append({"field": "agents", "value": n_agents})
+    horizon = getattr(design, "horizon", None)
+    rows.append({"field": "horizon T", "value": "∞ (steady state)" if horizon is None else horizon})
+    stage = getattr(design, "stage_costs", None)
+    if stage is not None:
+        rows.append({"field": "total cost J_T (analytic)", "value": float(np.sum(stage))})
+    avg = getattr(design, "average_cost", None)
+    if avg is not None:
+        rows.append({"field": "average cost (analytic)", "value": float(avg)})
+    if stage is None and avg is None:
+        rows.append({"field": "cost", "value": "no analytic cost (Monte Carlo)"})
+    info = getattr(design, "info", None)
+    if isinstance(info, Mapping):
+        for k, v in info.items():
+            if isinstance(v, (str, int, float, bool, np.integer, np.floating)) or v is None:
+                rows.append({"field": str(k), "value": v})
+    return rows
+
+
+class DesignReprMixin:
+    """Gives a design a compact HTML table in notebooks (``_repr_html_``)."""
+
+    def _repr_html_(self) -> str:
+        name = getattr(self, "estimator", type(self).__name__)
+        return html_table(["field", "value"], design_rows(self), caption=f"teamkf design: {name}")
