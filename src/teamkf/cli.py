@@ -793,6 +793,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"teamkf {_version()}")
     parser.add_argument("--debug", action="store_true", help=debug_help)
     parser.add_argument("--plugin", action="append", default=[], metavar="MODULE", help=plugin_help)
+    parser.add_argument("--quiet", action="store_true", help="no progress bars (they appear on a terminal after 2 s)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 
@@ -888,6 +889,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help, --version, usage errors
         return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
+    if getattr(args, "quiet", False):
+        from ._progress import set_quiet
+
+        set_quiet(True)
     try:
         return int(args.func(args))
     except (TeamkfError, OSError) as exc:

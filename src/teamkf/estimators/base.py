@@ -43,6 +43,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Protocol, Sequence
 
 import numpy as np
 
+from .._repr import DesignReprMixin
 from .._validation import FloatArray
 from ..exceptions import ArgumentError, ShapeError, UnsupportedOperationError
 from ..models import LinearGaussianSystem, TeamCost
@@ -106,7 +107,7 @@ def json_float(x: Any) -> float | None:
 # the contract
 # ---------------------------------------------------------------------------
 @dataclass(frozen=True, eq=False, kw_only=True)
-class Design(abc.ABC):
+class Design(DesignReprMixin, abc.ABC):
     """Base class of every estimator design (see the module docstring for the contract).
 
     Attributes
