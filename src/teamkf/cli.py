@@ -231,7 +231,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
         if seed is None:
             seed = int(np.random.SeedSequence().entropy % (2**32))  # type: ignore[operator]
-        mc = monte_carlo(simulate, sc.horizon, runs, rng=seed)
+        mc = monte_carlo(simulate, sc.horizon, runs, rng=seed, **sc.monte_carlo_options())  # [network]: unreliable links
     for name, d in designs.items():
         if d.diverged or (name in mc and not np.isfinite(mc[name].total_mean)):
             _warn(f"{name}: the team cost diverges (not finite){_divergence_step(d, mc.get(name))}; reported as diverged / null")
