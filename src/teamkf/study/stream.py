@@ -62,14 +62,19 @@ def _raw_chunks(p: Path, suffix: str, chunk_rows: int) -> Iterator[Any]:
         except pd.errors.ParserError as exc:
             raise _fmt_err(p, "", f"not a valid CSV file ({' '.join(str(exc).split())})") from None
     else:
+        import pyarrow as pa
         import pyarrow.parquet as pq
 
         try:
-            pf = pq.ParquetFile(p)
+            pf = pq.ParquetFile(p, pre_buffer=False)
         except Exception as exc:  # pyarrow's own error types
             raise _fmt_err(p, "", f"not a readable Parquet file ({type(exc).__name__}: {' '.join(str(exc).split())[:200]})") from None
+        pool = pa.default_memory_pool()
         for batch in pf.iter_batches(batch_size=chunk_rows):
-            yield batch.to_pandas()
+            df = batch.to_pandas()
+            del batch
+            pool.release_unused()  # Arrow's allocator keeps freed chunks otherwise: memory would grow with the file
+            yield df
 
 
 def iter_blocks(
@@ -464,6 +469,7 @@ def stream_filter(
                 Z = Z + (m_block @ L.T)[:, None, :]
             _write_block(writer, names, k0, Z, n, dz)
             rows_out += B * n * len(names)
+            _release_arrow()
             if costs_tot is not None:
                 if x_true is None:
                     x_true = _TruthStream(truth, system.dx, max(1, chunk_rows // n))
@@ -549,6 +555,12 @@ def _write_block(writer: _Writer, names: Sequence[str], k0: int, Z: FloatArray, 
     }
     cols.update({f"z{c}": zz[:, c] for c in range(dz)})
     writer.write(cols)
+
+
+def _release_arrow() -> None:
+    import pyarrow as pa
+
+    pa.default_memory_pool().release_unused()
 
 
 def _names_column(names: Sequence[str], repeats: int) -> Any:
