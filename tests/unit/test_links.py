@@ -203,3 +203,34 @@ def test_bad_network_table(tmp_path, network, match):
 
     with pytest.raises(ScenarioError, match=match):
         load_scenario(_network_scenario(tmp_path, network))
+
+
+def _lossy_mc_summary(seed: int) -> tuple[list[float], dict]:
+    sc = load_packaged("platoon-4").updated({"horizon": 10})
+    mc = monte_carlo({"mtmse": sc.design("mtmse")}, 10, 3, rng=seed, path="runtime", graph=sc.graph, links=LinkModel(p_drop=0.3, jitter=1))["mtmse"]
+    return mc.stage_mean.tolist(), mc.links.counts
+
+
+def test_same_seed_same_drops_in_another_process():
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(1) as ex:
+        there = ex.submit(_lossy_mc_summary, 31).result()
+    assert there == _lossy_mc_summary(31)
+
+
+def test_cli_network_flags(capsys):
+    import json
+
+    from teamkf.cli import main
+
+    argv = ["evaluate", "platoon-4", "--monte-carlo", "10", "--seed", "1", "--json"]
+    assert main(argv) == 0
+    reliable = json.loads(capsys.readouterr().out)["estimators"]["mtmse"]["mc_cost"]
+    assert main(argv + ["--p-drop", "0.5", "--jitter", "1"]) == 0
+    lossy = json.loads(capsys.readouterr().out)["estimators"]["mtmse"]["mc_cost"]
+    assert lossy > reliable
+    assert main(argv + ["--p-drop", "1.5"]) == 2
+    assert "network.p_drop" in capsys.readouterr().err
+    assert main(argv + ["--jitter", "-1"]) == 2
+    assert "network.jitter" in capsys.readouterr().err

@@ -247,7 +247,7 @@ class SteadyStream:
             self.x = _linear_recurrence(f.M, U, self.x, X)  # type: ignore[arg-type]
         return X
 
-    def block(self, k0: int, Y: FloatArray, X_cache: dict[bytes, FloatArray]) -> FloatArray:
+    def block(self, k0: int, Y: FloatArray, X_cache: dict[bytes, Any]) -> FloatArray:
         """Estimates (B, n d_z) of the steps k0 .. k0+B-1."""
         f = self.form
         c = f.lag
@@ -343,7 +343,8 @@ class _Writer:
     """Long-form estimates (and per-step costs) appended block by block, CSV or Parquet (pyarrow)."""
 
     def __init__(self, fh: Any, fmt: str, columns: Sequence[str]):
-        self.fh, self.fmt, self.columns, self.w = fh, fmt, list(columns), None
+        self.fh, self.fmt, self.columns = fh, fmt, list(columns)
+        self.w: Any = None
 
     def write(self, cols: dict[str, Any]) -> None:
         import pyarrow as pa
@@ -444,7 +445,7 @@ def stream_filter(
                 )
             rows_in += Y.shape[0] * n
             if known is not None:
-                Y, m_block, m_next = _centre(known, system, k0, Y, U, m_next)
+                Y, m_block, m_next = _centre(known, system, k0, Y, U, m_next)  # type: ignore[arg-type]
             elif U is not None:
                 raise MeasurementFileError(
                     f"{measurements}: u columns: the scenario has no input matrix (system.B or agents[i].D) to use them", argument="u"
