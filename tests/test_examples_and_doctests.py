@@ -19,6 +19,20 @@ def test_example_runs(path, capsys):
     assert capsys.readouterr().out.strip()
 
 
+def test_readme_python_blocks_run(tmp_path, monkeypatch, capsys):
+    """Every ```python block of the README, in order, in one namespace (as a reader would paste them)."""
+    import re
+
+    text = (Path(__file__).parent.parent / "README.md").read_text(encoding="utf-8")
+    blocks = re.findall(r"```python\n(.*?)```", text, re.S)
+    assert len(blocks) >= 3
+    monkeypatch.chdir(tmp_path)
+    namespace: dict = {}
+    for block in blocks:
+        exec(compile(block, "README.md", "exec"), namespace)
+    assert capsys.readouterr().out.strip()
+
+
 MODULES = [m.name for m in pkgutil.walk_packages(teamkf.__path__, "teamkf.") if not m.name.endswith("__main__")]
 
 

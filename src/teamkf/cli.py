@@ -101,14 +101,18 @@ def dumps_json(obj: Any) -> str:
             items = [f"{inner}{json.dumps(str(k))}: {enc(v, level + 1)}" for k, v in x.items()]
             return "{\n" + ",\n".join(items) + "\n" + pad + "}"
         if isinstance(x, (list, tuple)):
-            if all(not isinstance(v, (dict, list, tuple)) for v in x):
+            if all(not isinstance(v, (dict, list, tuple, np.ndarray)) for v in x):
                 return "[" + ", ".join(enc(v, level + 1) for v in x) + "]"
             return "[\n" + ",\n".join(inner + enc(v, level + 1) for v in x) + "\n" + pad + "]"
-        if isinstance(x, (float, np.floating)) and not np.isfinite(x):
-            return "null"  # strict JSON (RFC 8259) has no NaN or Infinity
+        if isinstance(x, np.ndarray):
+            return enc(x.tolist(), level)
         if isinstance(x, np.generic):
             x = x.item()
-        return json.dumps(x, allow_nan=False)
+        if isinstance(x, float) and not np.isfinite(x):
+            return "null"  # strict JSON (RFC 8259) has no NaN or Infinity
+        if x is None or isinstance(x, (str, bool, int, float)):
+            return json.dumps(x, allow_nan=False)
+        return enc(str(x), level)  # anything else (a path, ...) as its text
 
     return enc(obj, 0)
 
@@ -376,7 +380,7 @@ def _cmd_design(args: argparse.Namespace) -> int:
         arrays: dict[str, np.ndarray] = {"scenario": np.asarray(sc.name), "horizon": np.asarray(-1 if sc.horizon is None else sc.horizon)}
         for name, d in designs.items():
             arrays.update({f"{name}/{k}": v for k, v in d.arrays().items()})
-        _write_atomic(out_path, lambda fh: np.savez(fh, **arrays))  # a file handle: np.savez adds no suffix
+        _write_atomic(out_path, lambda fh: np.savez(fh, **arrays))  # type: ignore[arg-type]  # a file handle: no suffix added
         notes.append(f"gains written to {out_path} ({len(arrays)} arrays; keys like '{next(iter(designs))}/...'; horizon -1 means steady state)")
     if args.json:
         out = {
@@ -648,7 +652,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     with use_scheduler(args.scheduler):
         res = experiments.run(args.name, args.out, quick=args.quick)
     if args.json:
-        print(json.dumps(res.to_json(), indent=2, default=float))
+        print(dumps_json(res.to_json()))
         return 0
     print(res.title)
     print(res.format_table())
@@ -660,21 +664,53 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    debug_help = "show the full traceback of an error"
-    parser = argparse.ArgumentParser(
-        prog="teamkf",
-        description="Design and evaluate decentralized team estimators (MTMSE, per-agent MMSE, centralized Kalman) from scenario files.",
-        epilog="SCENARIO is a .toml/.json scenario file or a packaged scenario name (platoon-4, platoon-4-is1, platoon-4-steady, uav-4, uav-10).",
+def _help_text() -> tuple[str, str]:
+    """The description and epilog of ``teamkf --help``: every registered family and packaged scenario."""
+    from .estimators.registry import families
+    from .study.scenario import packaged_scenarios
+
+    lines = [
+        "Design, run and evaluate decentralized estimators for teams of agents that share information over a",
+        "communication graph with delays. Estimator families (estimators = [...] in a scenario file):",
+        "",
+    ]
+    for name, fam in families().items():
+        cost = "analytic cost" if fam.analytic_cost else "Monte Carlo cost"
+        lines.append(f"  {name:12s} {fam.title} [{cost}]")
+        if fam.example:
+            lines.append(f"  {'':12s}   e.g. {fam.example}")
+    lines += [
+        "  bulk filter  interference-coupled populations (Abedinpour Fallah et al. 2017): a [population] scenario,",
+        "               e.g. teamkf evaluate interference",
+        "  LQG          decentralized LQG through MTMSE (Afshari & Mahajan, Appendix D): a [control] table,",
+        "               e.g. teamkf evaluate lqg-2",
+        "",
+        "Add your own family with teamkf.register_family (Python), --plugin FILE.py or the 'teamkf.families' entry point.",
+    ]
+    epilog = (
+        "SCENARIO is a .toml/.json scenario file or a packaged scenario name ("
+        + ", ".join(packaged_scenarios())
+        + "). Errors print one line; --debug shows the traceback."
     )
+    return "\n".join(lines), epilog
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the ``teamkf`` command (its --help lists every registered family)."""
+    debug_help = "show the full traceback of an error"
+    plugin_help = "import a module or .py file that registers estimator families (repeatable; also TEAMKF_PLUGINS)"
+    description, epilog = _help_text()
+    parser = argparse.ArgumentParser(prog="teamkf", description=description, epilog=epilog, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"teamkf {_version()}")
     parser.add_argument("--debug", action="store_true", help=debug_help)
+    parser.add_argument("--plugin", action="append", default=[], metavar="MODULE", help=plugin_help)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 
     def add(name: str, help: str) -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=help, description=help)
         p.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=debug_help)
+        p.add_argument("--plugin", action="append", default=argparse.SUPPRESS, metavar="MODULE", help=plugin_help)
         return p
 
     p = add("evaluate", "design every estimator of a scenario and compare their team costs")
@@ -738,11 +774,30 @@ def _one_line(exc: BaseException) -> str:
     return text or type(exc).__name__
 
 
+def _load_plugins(argv: Sequence[str]) -> None:
+    """Import the --plugin modules first, so that their families appear in --help and in scenario files."""
+    from .estimators.registry import load_plugin
+
+    for k, a in enumerate(argv):
+        if a == "--plugin" and k + 1 < len(argv):
+            load_plugin(argv[k + 1])
+        elif a.startswith("--plugin="):
+            load_plugin(a.split("=", 1)[1])
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``teamkf`` command; returns the exit status (0 success, 2 error)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        _load_plugins(argv)
+    except TeamkfError as exc:
+        if "--debug" in argv:
+            traceback.print_exc()
+        print(f"teamkf: error: {_one_line(exc)}", file=sys.stderr)
+        return 2
     parser = build_parser()
     try:
-        args = parser.parse_args(list(argv) if argv is not None else None)
+        args = parser.parse_args(argv)
     except SystemExit as exc:  # --help, --version, usage errors
         return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
     try:

@@ -128,7 +128,7 @@ def design_lqg(problem: LQGProblem, horizon: int, *, kind: str = "mtmse") -> LQG
     structure = InformationStructure.delayed_sharing(sys.n_agents, 1)
     est = (design_mtmse if kind == "mtmse" else design_mmse)(sys, cost, structure, T - 1)
     base = float(np.trace(sys.Sigma_x @ P[0]) + sum(np.trace(sys.Q_at(k) @ P[k + 1]) for k in range(T - 1)))
-    return LQGDesign(problem, T, kind, est, P, S, L, base + est.total_cost, base)
+    return LQGDesign(problem, T, kind, est, P, S, L, base + est.require_cost(), base)
 
 
 def simulate_closed_loop(design: LQGDesign, n_runs: int, *, rng: Any) -> dict[str, Any]:

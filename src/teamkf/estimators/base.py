@@ -154,6 +154,15 @@ class Design(abc.ABC):
         return int(self.system.n_agents)
 
     @property
+    def realizable(self) -> bool:
+        """True when every agent uses only what the graph delivers (not omniscient, not an 'ideal' variant).
+
+        No realizable design can beat MTMSE on the same graph: MTMSE is optimal
+        among all estimators that use that information (a property test checks it).
+        """
+        return not self.omniscient and bool(self.info.get("realizable", True))
+
+    @property
     def label(self) -> str:
         """The estimator name, with its variant when it has one (``"kcf [honest]"``)."""
         v = self.info.get("variant")
@@ -182,6 +191,13 @@ class Design(abc.ABC):
             return None if self.average_cost is None else float(self.average_cost)
         return self.total_cost
 
+    def require_cost(self) -> float:
+        """:attr:`cost_value` as a float; :class:`~teamkf.exceptions.UnsupportedOperationError` without an analytic cost."""
+        v = self.cost_value
+        if v is None:
+            raise self._unsupported("an analytic team cost", "evaluate it by Monte Carlo (teamkf.monte_carlo or teamkf evaluate)")
+        return v
+
     @property
     def cost_key(self) -> str:
         """``"total_cost"`` (finite horizon) or ``"average_cost"`` (steady state)."""
@@ -197,8 +213,17 @@ class Design(abc.ABC):
 
     # --- Monte Carlo and online agents ------------------------------------------------
     def errors(self, paths: Any) -> FloatArray:
-        """Team errors e(k) = L x(k) - ẑ(k), shape (n_runs, T', n d_z), on sampled ``paths``."""
-        raise self._unsupported("errors(paths)", "it gives no error recursion for Monte Carlo")
+        """Team errors e(k) = L x(k) - ẑ(k), shape (n_runs, T', n d_z), on sampled ``paths``.
+
+        The default filters the sampled measurements and subtracts: e(k) = L x(k) - ẑ(k).
+        That cancels catastrophically when x grows (an unstable process), so teamkf's
+        families override it with an error recursion driven by the primitive noises
+        (``paths.x[:, 0]``, ``paths.w``, ``paths.v``).
+        """
+        ys, _, T, _ = check_measurements(paths.y, self.system, self.horizon)
+        z = self._filter(ys)
+        L = [self.cost.L_at(k) for k in range(T)]
+        return np.stack([paths.x[:, k] @ L[k].T - z[:, k] for k in range(T)], axis=1)
 
     def agents(self) -> Sequence[OnlineAgent]:
         """Packet-consuming online agents (delivered by the information structure)."""
@@ -275,14 +300,30 @@ class Design(abc.ABC):
     def arrays(self) -> dict[str, np.ndarray]:
         """The design as named arrays (``teamkf design --out`` writes them under ``<name>/``).
 
-        The base gives the analytic cost; families add their gains (override and extend).
+        The analytic cost, then every array-valued field a family adds (a tuple of
+        arrays is stacked when the shapes agree, else written as ``field_0``,
+        ``field_1``, ...). Families override it to choose names and layouts.
         """
+        from dataclasses import fields
+
         out: dict[str, np.ndarray] = {}
         if self.stage_costs is not None:
             out["stage_costs"] = np.asarray(self.stage_costs, dtype=float)
         v = self.cost_value
         if v is not None:
             out[self.cost_key] = np.asarray(v, dtype=float)
+        own = {f.name for f in fields(Design)}
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.name in own:
+                continue
+            if isinstance(value, np.ndarray):
+                out[f.name] = value
+            elif isinstance(value, tuple) and value and all(isinstance(a, np.ndarray) for a in value):
+                if all(a.shape == value[0].shape for a in value):
+                    out[f.name] = np.stack(value)
+                else:
+                    out.update({f"{f.name}_{i}": a for i, a in enumerate(value)})
         return out
 
     # --- results ------------------------------------------------------------------------

@@ -63,7 +63,6 @@ K'_j               isolated FIR sequence (a_f (1 - c K*))^{j-1} K* (Prop. 1)
 
 from __future__ import annotations
 
-import contextlib
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -73,6 +72,7 @@ from scipy.linalg import cho_factor, cho_solve, solve_triangular
 from scipy.linalg.lapack import dtrtri
 
 from .. import _validation as V
+from .._blas import single_thread_blas
 from .._validation import FloatArray
 from ..exceptions import ShapeError
 from ..models.population import PopulationModel
@@ -483,64 +483,6 @@ class FiniteMemoryFilter(_GainsMixin):
 # the exact filter
 # ---------------------------------------------------------------------------
 _OPENBLAS: list[tuple[Any, Any]] | None = None
-
-
-def _openblas_handles() -> list[tuple[Any, Any]]:
-    """(get, set) thread-count functions of every OpenBLAS loaded in this process (Linux; else [])."""
-    global _OPENBLAS
-    if _OPENBLAS is None:
-        found: list[tuple[Any, Any]] = []
-        try:
-            import ctypes
-
-            paths = set()
-            with open("/proc/self/maps") as fh:
-                for line in fh:
-                    p = line.rsplit(None, 1)[-1]
-                    if "openblas" in p.lower() and p.startswith("/"):
-                        paths.add(p)
-            for p in sorted(paths):
-                lib = ctypes.CDLL(p)
-                for pre in ("", "scipy_"):
-                    for suf in ("", "64_"):
-                        get = getattr(lib, f"{pre}openblas_get_num_threads{suf}", None)
-                        set_ = getattr(lib, f"{pre}openblas_set_num_threads{suf}", None)
-                        if get is not None and set_ is not None:
-                            get.restype = ctypes.c_int
-                            set_.argtypes = [ctypes.c_int]
-                            found.append((get, set_))
-        except (OSError, AttributeError):  # pragma: no cover - not Linux / unusual build
-            found = []
-        _OPENBLAS = found
-    return _OPENBLAS
-
-
-@contextlib.contextmanager
-def single_thread_blas() -> Any:
-    """Context manager limiting BLAS to one thread for the recursions.
-
-    The recursions do thousands of small and medium matrix-vector products; a
-    threaded BLAS spends more time synchronizing (and spinning against other
-    work on the machine) than computing: one thread is 2-6x faster here on 2
-    cores (benchmarks/bench_bulk.py). Uses threadpoolctl when installed, else
-    OpenBLAS's own ``openblas_set_num_threads`` found in the loaded libraries;
-    does nothing where neither is available.
-    """
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:
-        handles = _openblas_handles()
-        old = [get() for get, _ in handles]
-        try:
-            for _, set_ in handles:
-                set_(1)
-            yield
-        finally:
-            for (_, set_), n in zip(handles, old):
-                set_(n)
-        return
-    with threadpool_limits(limits=1, user_api="blas"):  # pragma: no cover - optional dependency
-        yield
 
 
 def _flush(v: np.ndarray, thr_rel: float) -> None:

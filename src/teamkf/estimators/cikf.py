@@ -141,8 +141,9 @@ import scipy.linalg as sla
 from scipy.linalg.lapack import dpstrf
 
 from .. import _validation as V
+from .._blas import blas_threads
 from .._validation import FloatArray
-from ..exceptions import ArgumentError, DetectabilityError, GraphError, InformationStructureError, ShapeError
+from ..exceptions import ArgumentError, DetectabilityError, DivergenceError, GraphError, InformationStructureError, ShapeError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
 from .base import Design, check_measurements
@@ -316,7 +317,7 @@ def _psd_solve(S_xy: FloatArray, S_yy: FloatArray, rcond: float, how: str = "cho
         d = np.diag(S)
         top = float(d.max()) if d.size else 0.0
         if not np.isfinite(top):
-            raise FloatingPointError("CIKF gain design: a covariance overflowed (the error dynamics diverge; see tracking_capacity)")
+            raise DivergenceError("CIKF gain design: a covariance overflowed (the error dynamics diverge; see tracking_capacity)")
         out = np.zeros_like(S_xy)
         if top <= 0.0:
             return out
@@ -330,76 +331,10 @@ def _psd_solve(S_xy: FloatArray, S_yy: FloatArray, rcond: float, how: str = "cho
     w, Q = sla.eigh(S, driver="evd", check_finite=False)
     top = float(w[-1]) if w.size else 0.0
     if not np.isfinite(top):
-        raise FloatingPointError("CIKF gain design: a covariance overflowed (the error dynamics diverge; see tracking_capacity)")
+        raise DivergenceError("CIKF gain design: a covariance overflowed (the error dynamics diverge; see tracking_capacity)")
     keep = w > rcond * max(top, np.finfo(float).tiny)
     Qk = Q[:, keep]
     return ((S_xy @ Qk) / w[keep]) @ Qk.T  # type: ignore[no-any-return]
-
-
-_SETTERS = ("openblas_set_num_threads", "openblas_set_num_threads64_", "scipy_openblas_set_num_threads64_", "scipy_openblas_set_num_threads")
-
-
-def _openblas_handles() -> list[tuple[Any, Any]]:
-    """(setter, getter) pairs of every OpenBLAS loaded in this process (Linux /proc/self/maps; else none)."""
-    import ctypes
-    import re
-
-    try:
-        with open("/proc/self/maps") as fh:
-            paths = sorted(set(re.findall(r"(/\S*openblas\S*\.so\S*)", fh.read())))
-    except OSError:
-        return []
-    out = []
-    for path in paths:
-        try:
-            lib = ctypes.CDLL(path)
-        except OSError:
-            continue
-        for name in _SETTERS:
-            getter = name.replace("set_num_threads", "get_num_threads")
-            if hasattr(lib, name) and hasattr(lib, getter):
-                out.append((getattr(lib, name), getattr(lib, getter)))
-                break
-    return out
-
-
-class _blas_threads:
-    """Limit BLAS to ``n`` threads inside the block (threadpoolctl if installed, else OpenBLAS through ctypes).
-
-    The CIKF design is many medium-sized GEMMs; on a shared, oversubscribed machine OpenBLAS's
-    spinning worker threads can make it ten times slower than one thread (measured on the 2-core
-    development machine). ``n = None`` leaves BLAS alone.
-    """
-
-    def __init__(self, n: int | None):
-        self.n = n
-        self._restore: list[tuple[Any, int]] = []
-        self._ctl: Any = None
-
-    def __enter__(self) -> "_blas_threads":
-        if self.n is None:
-            return self
-        try:
-            from threadpoolctl import threadpool_limits
-
-            self._ctl = threadpool_limits(self.n, user_api="blas")
-            return self
-        except Exception:  # not installed, or it failed: fall back to OpenBLAS's own setter
-            self._ctl = None
-        try:
-            for setter, getter in _openblas_handles():
-                old = int(getter())
-                setter(int(self.n))
-                self._restore.append((setter, old))
-        except Exception:  # pragma: no cover - best effort only
-            pass
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        if self._ctl is not None:
-            self._ctl.restore_original_limits()
-        for setter, old in self._restore:
-            setter(old)
 
 
 def _sym(X: FloatArray) -> FloatArray:
@@ -636,7 +571,7 @@ class CIKFDesign(Design):
         return ys, n_runs, T
 
     def _recursion(self, ys: Sequence[FloatArray] | None, x0: FloatArray | None, w: FloatArray | None, n_runs: int, T: int, form: str) -> FloatArray:
-        with _blas_threads(self.info.get("threads", 1)):
+        with blas_threads(self.info.get("threads", 1)):
             return self._recursion_impl(ys, x0, w, n_runs, T, form)
 
     def _recursion_impl(
@@ -651,7 +586,7 @@ class CIKFDesign(Design):
         A = sys.A_at(0)
         errors = x0 is not None
         if errors:
-            yh = np.repeat((x0 @ m.G_r.T)[None], N, axis=0)  # type: ignore[index]  # e^n_{0|-1} = G_r (x0 - x̄0)
+            yh = np.repeat((x0 @ m.G_r.T)[None], N, axis=0)  # type: ignore[index,operator]  # e^n_{0|-1} = G_r (x0 - x̄0)
             xh = np.repeat(x0[None], N, axis=0)  # type: ignore[index]  # ε^n_{0|-1}
         else:
             yh = np.zeros((N, n_runs, r))  # ŷ^n_{0|-1} = G_r x̄_0 = 0
@@ -1017,7 +952,7 @@ def _iterate(
         Sig = ops.bd_right(ops.bd_left(A, Sf), A)  # symmetric to round-off (Σ_f is symmetrized)
         Sig += VV
         if not (np.isfinite(P[0, 0]) and np.isfinite(Sig[0, 0])):
-            raise FloatingPointError(
+            raise DivergenceError(
                 f"CIKF gain design: the error covariances overflowed at step {k + 1}; the error dynamics diverge (see tracking_capacity)"
             )
     return {
@@ -1109,8 +1044,8 @@ def design_cikf(
         if horizon is not None:
             raise ArgumentError("horizon: given twice (old and new argument order mixed)", argument="horizon")
         cost, graph, horizon = None, cost, graph  # type: ignore[assignment]
-    if graph is None:
-        raise GraphError("graph: expected a CommGraph with unit delays, found None", argument="graph")
+    if not isinstance(graph, CommGraph):
+        raise GraphError(f"graph: expected a CommGraph with unit delays, found {type(graph).__name__}", argument="graph")
     t0 = time.perf_counter()
     if not isinstance(system, LinearGaussianSystem):
         raise ArgumentError(f"system: expected a LinearGaussianSystem, found {type(system).__name__}", argument="system")
@@ -1160,7 +1095,7 @@ def design_cikf(
         raise ShapeError(f"pinv: expected 'cholesky' or 'eigh', found {pinv!r}")
     if threads is not None:
         threads = V.positive_int(threads, "threads")
-    with _blas_threads(threads):
+    with blas_threads(threads):
         res = _iterate(system, model, nbrs, cost, T, rcond, form, ops, gains, equations, pinv)
     info = {
         "rank_G": r,

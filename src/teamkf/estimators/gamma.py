@@ -38,7 +38,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .._validation import FloatArray
-from ..exceptions import ConvergenceError, NotPositiveDefiniteError
+from ..exceptions import ArgumentError, ConvergenceError, NotPositiveDefiniteError
 
 __all__ = ["GammaProblem", "DENSE_MAX_BYTES"]
 
@@ -173,7 +173,7 @@ class GammaProblem:
         elif m == "cg":
             x = self._cg(b, rtol=rtol, max_iter=max_iter)
         else:
-            raise ValueError(f"method: expected 'auto', 'dense' or 'cg', found {m!r}")
+            raise ArgumentError(f"method: expected 'auto', 'dense' or 'cg', found {m!r}", argument="method")
         return self.unflatten(x)
 
     def _preconditioner(self) -> spla.LinearOperator:

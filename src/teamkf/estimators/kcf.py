@@ -449,7 +449,7 @@ def _epsilon(epsilon: Any, name: str = "epsilon") -> float:
 
 
 def design_kcf(
-    system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, horizon: int | None, *, epsilon: float = 0.1, variant: Variant = "honest"
+    system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, horizon: int | None = None, *, epsilon: float = 0.1, variant: Variant = "honest"
 ) -> KCFDesign:
     """Design the Kalman-consensus filter: the deterministic schedules M_i(k), γ_i(k), P_i(k), S_i(k).
 

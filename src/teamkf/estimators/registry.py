@@ -18,10 +18,10 @@ information structure (``"structure"``), its communication graph
 Examples
 --------
 >>> import teamkf
->>> sorted(teamkf.families())[:3]
-['centralized', 'cikf', 'kcf']
->>> teamkf.get_family("kcf").analytic_cost
-False
+>>> {"centralized", "mtmse", "mmse", "kcf", "cikf"} <= set(teamkf.families())
+True
+>>> teamkf.get_family("mtmse").analytic_cost
+True
 """
 
 from __future__ import annotations
@@ -34,7 +34,10 @@ from typing import Any, Callable, Literal, Mapping
 from .. import _validation as V
 from ..exceptions import ArgumentError, GraphError, TeamkfError
 
-__all__ = ["Family", "Option", "register_family", "unregister_family", "families", "get_family", "ENTRY_POINT_GROUP"]
+__all__ = ["Family", "Option", "register_family", "unregister_family", "families", "get_family", "load_plugin", "ENTRY_POINT_GROUP", "PLUGINS_ENV"]
+
+#: environment variable with plugin modules or files to load (separated by os.pathsep), as ``teamkf --plugin``
+PLUGINS_ENV = "TEAMKF_PLUGINS"
 
 #: the entry-point group through which installed packages add families
 ENTRY_POINT_GROUP = "teamkf.families"
@@ -118,6 +121,11 @@ class Family:
         for o in self.options:
             if not isinstance(o, Option):
                 raise ArgumentError(f"options: expected Option records, found {type(o).__name__}", argument="options")
+
+    def __repr__(self) -> str:
+        cost = "analytic" if self.analytic_cost else "monte-carlo"
+        opts = ", ".join(self.option_names)
+        return f"Family({self.name!r}, uses={self.uses!r}, horizons={sorted(self.horizons)}, cost={cost!r}, options=[{opts}])"
 
     # --- checks ---------------------------------------------------------------------
     @property
@@ -243,6 +251,7 @@ def _load_entry_points() -> None:
     _ENTRY_POINTS_LOADED = True
     from importlib.metadata import entry_points
 
+    load_env_plugins()
     for ep in entry_points(group=ENTRY_POINT_GROUP):
         try:
             obj = ep.load()
@@ -254,7 +263,7 @@ def _load_entry_points() -> None:
 
 
 def families() -> dict[str, Family]:
-    """Every registered family, name -> record (built-ins first, then entry points, then user registrations)."""
+    """Every registered family, name -> record (built-ins first, then entry points and plugins, then user registrations)."""
     _load_builtins()
     _load_entry_points()
     return dict(_REGISTRY)
@@ -271,3 +280,56 @@ def get_family(name: Any, key: str = "estimator") -> Family:
     close = difflib.get_close_matches(name, list(fams), n=1)
     hint = f"did you mean {close[0]!r}? " if close else ""
     raise ArgumentError(f"{key}: unknown estimator {name!r}; {hint}available: {avail}", argument=key)
+
+
+def load_plugin(spec: str) -> Any:
+    """Import a module that registers families: a module name (``mypkg.filters``) or a ``.py`` file path.
+
+    A file is imported under the name ``teamkf_plugin_<stem>`` and, when
+    cloudpickle is installed (it comes with Dask), its functions are pickled by
+    value, so that the families it registers also run on Dask workers.
+    Returns the module.
+    """
+    import importlib
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    if not isinstance(spec, str) or not spec:
+        raise ArgumentError(f"plugin: expected a module name or a .py file, found {V.describe(spec)}", argument="plugin")
+    path = Path(spec)
+    if spec.endswith(".py") or path.exists():
+        if not path.is_file():
+            raise ArgumentError(f"plugin: no such file {spec!r}; give a .py file or an importable module name", argument="plugin")
+        name = f"teamkf_plugin_{path.stem}"
+        if name in sys.modules:
+            return sys.modules[name]
+        loader_spec = importlib.util.spec_from_file_location(name, path)
+        if loader_spec is None or loader_spec.loader is None:
+            raise ArgumentError(f"plugin: cannot import {spec!r} as a Python module", argument="plugin")
+        module = importlib.util.module_from_spec(loader_spec)
+        sys.modules[name] = module
+        try:
+            loader_spec.loader.exec_module(module)
+        except BaseException:
+            sys.modules.pop(name, None)
+            raise
+        try:
+            import cloudpickle
+
+            cloudpickle.register_pickle_by_value(module)
+        except (ImportError, ValueError):  # no cloudpickle: in-process runs only
+            pass
+        return module
+    try:
+        return importlib.import_module(spec)
+    except ImportError as exc:
+        raise ArgumentError(f"plugin: cannot import module {spec!r} ({exc}); check the name or give a .py file", argument="plugin") from None
+
+
+def load_env_plugins() -> None:
+    """Load the plugins named in the ``TEAMKF_PLUGINS`` environment variable (once per process)."""
+    import os
+
+    for spec in filter(None, os.environ.get(PLUGINS_ENV, "").split(os.pathsep)):
+        load_plugin(spec)

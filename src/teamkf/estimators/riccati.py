@@ -38,7 +38,24 @@ import scipy.linalg as sla
 from numpy.typing import ArrayLike
 
 from .. import _validation as V
-from ..exceptions import ConvergenceError, DetectabilityError, NotPositiveDefiniteError, ShapeError, TeamkfError
+from .._linalg import (  # noqa: F401  (re-exported: detectability lives below the models layer)
+    PBH_RTOL,
+    UNIT_CIRCLE_TOL,
+    _detectability_message,
+    _modes_from_subspace,
+    _psd_factor_rows,
+    _schur_select,
+    _square,
+    _stabilizability_message,
+    _stabilizability_modes,
+    _tol,
+    check_detectable,
+    check_stabilizable,
+    is_detectable,
+    is_stabilizable,
+    unstable_unobservable_modes,
+)
+from ..exceptions import ConvergenceError, DetectabilityError, NotPositiveDefiniteError, TeamkfError
 
 FloatArray = V.FloatArray
 
@@ -53,20 +70,10 @@ __all__ = [
     "check_stabilizable",
 ]
 
-Method = Literal["auto", "sda", "scipy"]
-
 #: relative Riccati residual above which a computed solution is rejected
 RESIDUAL_RTOL = 1e-8
-#: relative tolerance of the PBH rank test (scaled by max(||A||_F, ||C||_F))
-PBH_RTOL = 1e-8
-#: eigenvalues with |lambda| >= 1 - margin - UNIT_CIRCLE_TOL count as unstable,
-#: so that marginal modes computed as 0.9999999999999998 are not missed
-UNIT_CIRCLE_TOL = float(np.sqrt(np.finfo(float).eps))
-#: eigenvalues closer than this (relative to max(1, |lambda|)) are tested as one cluster
-_CLUSTER_RTOL = 1e-6
-#: above this many unstable eigenvalues, simple eigenvalues are tested with
-#: their eigenvectors (O(k^3) in all) instead of one k x k SVD each (O(k^4))
-_SVD_MAX_K = 96
+
+Method = Literal["auto", "sda", "scipy"]
 
 
 class _OptionError(TeamkfError, ValueError):
@@ -78,13 +85,6 @@ class _OptionError(TeamkfError, ValueError):
 # ----------------------------------------------------------------------------
 
 
-def _square(x: ArrayLike, name: str) -> FloatArray:
-    a = V.matrix(x, name)
-    if a.shape[0] != a.shape[1]:
-        raise ShapeError(f"{name}: expected a square (d_x x d_x) state matrix, found {V.shape_str(a.shape)}")
-    return a
-
-
 def _system(A: ArrayLike, C: ArrayLike, Q: ArrayLike, R: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """Validate (A, C, Q, R): A dx x dx, C dy x dx, Q dx x dx PSD, R dy x dy PD."""
     A_ = _square(A, "A")
@@ -94,288 +94,6 @@ def _system(A: ArrayLike, C: ArrayLike, Q: ArrayLike, R: ArrayLike) -> tuple[Flo
     Q_ = V.covariance(Q, "Q", dx)
     R_ = V.covariance(R, "R", dy, definite=True)
     return A_, C_, Q_, R_
-
-
-def _psd_factor_rows(Q: FloatArray) -> FloatArray:
-    """Rows ``F`` with ``F.T @ F == Q`` (Q symmetric PSD), zero directions dropped."""
-    w, U = np.linalg.eigh(Q)
-    scale = max(float(w[-1]), 0.0) if w.size else 0.0
-    keep = w > max(scale, np.finfo(float).tiny) * Q.shape[0] * np.finfo(float).eps
-    return (U[:, keep] * np.sqrt(w[keep])).T
-
-
-# ----------------------------------------------------------------------------
-# detectability / stabilizability
-# ----------------------------------------------------------------------------
-
-
-def _quasi_triangular_eigvals(T: FloatArray) -> np.ndarray:
-    """Eigenvalues of a real quasi-upper-triangular (real Schur) matrix, in diagonal order."""
-    n = T.shape[0]
-    out = np.empty(n, dtype=complex)
-    i = 0
-    while i < n:
-        if i + 1 < n and T[i + 1, i] != 0.0:
-            out[i : i + 2] = np.linalg.eigvals(T[i : i + 2, i : i + 2])
-            if out[i].imag < out[i + 1].imag:
-                out[i], out[i + 1] = out[i + 1], out[i]
-            i += 2
-        else:
-            out[i] = T[i, i]
-            i += 1
-    return out
-
-
-def _schur_select(A: FloatArray, thr: float) -> tuple[FloatArray, FloatArray, np.ndarray]:
-    """Real Schur form ``A = Z T Z'`` and the mask of diagonal positions with |lambda| >= thr."""
-    T, Z = sla.schur(A, output="real")
-    lam = _quasi_triangular_eigvals(T)
-    sel = np.abs(lam) >= thr
-    # a complex pair has one modulus, but keep the two halves consistent anyway
-    i = 0
-    n = T.shape[0]
-    while i < n:
-        if i + 1 < n and T[i + 1, i] != 0.0:
-            sel[i] = sel[i + 1] = bool(sel[i] or sel[i + 1])
-            i += 2
-        else:
-            i += 1
-    return T, Z, sel
-
-
-def _reorder(T: FloatArray, Z: FloatArray, sel: np.ndarray) -> tuple[FloatArray, FloatArray, int] | None:
-    """Move the selected eigenvalues to the top-left (LAPACK ``dtrsen``); None if that fails."""
-    if not sel.any() or sel.all():
-        return T, Z, int(sel.sum())
-    ts, qs, _wr, _wi, m, _s, _sep, info = sla.lapack.dtrsen(sel.astype(np.int32), T, Z, job="N")
-    if info != 0 or int(m) != int(sel.sum()):
-        return None
-    return ts, qs, int(m)
-
-
-def _cluster(lams: np.ndarray) -> list[list[int]]:
-    """Group indices of (upper-half-plane) eigenvalues closer than _CLUSTER_RTOL."""
-    clusters: list[list[int]] = []
-    reps: list[complex] = []
-    for i in np.argsort(-np.abs(lams), kind="stable"):
-        lam = complex(lams[i])
-        for c, rep in zip(clusters, reps):
-            if abs(lam - rep) <= _CLUSTER_RTOL * max(1.0, abs(rep)):
-                c.append(int(i))
-                break
-        else:
-            clusters.append([int(i)])
-            reps.append(lam)
-    return clusters
-
-
-def _pbh_offenders(T11: np.ndarray, Cr: np.ndarray, lams: np.ndarray, tol: float) -> list[complex]:
-    """Eigenvalues ``lam`` of T11 (given) at which ``[T11 - lam I; Cr]`` is rank deficient.
-
-    ``lams`` are the eigenvalues to test (complex pairs both listed); only the
-    member with non-negative imaginary part is tested, its conjugate follows.
-    """
-    k = T11.shape[0]
-    if k == 0 or lams.size == 0:
-        return []
-    if Cr.shape[0] > k:  # same singular values of the stack with Cr replaced by its R factor
-        Cr = np.asarray(np.linalg.qr(Cr, mode="r"))
-    upper = lams[lams.imag >= 0.0]
-    eye = np.eye(k)
-
-    def sigma_min(lam: complex) -> float:
-        if lam.imag == 0.0:
-            M = np.vstack([T11 - lam.real * eye, Cr])
-        else:
-            M = np.vstack([T11 - lam * eye, Cr.astype(complex)])
-        return float(np.linalg.svd(M, compute_uv=False)[-1])
-
-    eig_vectors: tuple[np.ndarray, np.ndarray] | None = None
-    if k > _SVD_MAX_K:
-        w, Vr = np.linalg.eig(T11)
-        eig_vectors = (w, Vr)
-
-    bad: list[complex] = []
-    for cl in _cluster(upper):
-        members = upper[cl]
-        mean = complex(np.mean(members))
-        if abs(mean.imag) <= 1e-14 * max(1.0, abs(mean)):
-            mean = complex(mean.real, 0.0)
-        if eig_vectors is not None and len(cl) == 1:
-            w, Vr = eig_vectors
-            j = int(np.argmin(np.abs(w - mean)))
-            v = Vr[:, j]
-            offending = float(np.linalg.norm(Cr @ v)) <= tol * float(np.linalg.norm(v))
-        else:
-            tests = [mean] + [complex(m) for m in members if abs(m - mean) > 64 * np.finfo(float).eps * max(1.0, abs(mean))]
-            offending = any(sigma_min(lam) <= tol for lam in tests)
-        if offending:
-            bad.append(mean)
-            if mean.imag != 0.0:
-                bad.append(mean.conjugate())
-    return bad
-
-
-def _modes_from_subspace(T: FloatArray, Z: FloatArray, sel: np.ndarray, C: FloatArray, tol: float, *, left: bool) -> list[complex]:
-    """Offending modes of a pair, given the Schur form of A and the unstable mask.
-
-    ``left=False``: (A, C), unstable right invariant subspace (unstable first).
-    ``left=True``: (A', C), obtained from the same Schur form of A: with the
-    *stable* eigenvalues first, ``A = Z [S11 S12; 0 S22] Z'`` gives
-    ``A' Z2 = Z2 S22'``, so Z2 spans the unstable invariant subspace of A'.
-    """
-    lam_all = _quasi_triangular_eigvals(T)
-    r = _reorder(T, Z, ~sel if left else sel)
-    if r is None:  # reordering failed (near-equal eigenvalues): test on the full form
-        M = T.T if left else T
-        return _pbh_offenders(M, C @ Z, lam_all[sel], tol)
-    Ts, Zs, m = r
-    if left:
-        k = T.shape[0] - m
-        T11 = Ts[m:, m:].T
-        U1 = Zs[:, m:]
-    else:
-        k = m
-        T11 = Ts[:k, :k]
-        U1 = Zs[:, :k]
-    if k == 0:
-        return []
-    lams = _quasi_triangular_eigvals(Ts[m:, m:] if left else T11)
-    return _pbh_offenders(T11, C @ U1, lams, tol)
-
-
-def _tol(A: FloatArray, C: FloatArray) -> float:
-    scale = max(float(np.linalg.norm(A)), float(np.linalg.norm(C)), np.finfo(float).tiny)
-    return PBH_RTOL * scale
-
-
-def unstable_unobservable_modes(A: ArrayLike, C: ArrayLike, *, margin: float = 0.0) -> list[complex]:
-    r"""Eigenvalues of ``A`` with :math:`|\lambda| \ge 1 - \text{margin}` that ``C`` cannot see.
-
-    The pair :math:`(A, C)` is detectable iff every eigenvalue with
-    :math:`|\lambda| \ge 1` is observable, i.e. (PBH/Hautus test)
-
-    .. math::
-
-        \operatorname{rank} \begin{bmatrix} A - \lambda I \\ C \end{bmatrix} = d_x .
-
-    The test is restricted to the unstable invariant subspace: an ordered real
-    Schur form :math:`A = [U_1\ U_2] \begin{bmatrix} T_{11} & T_{12} \\ 0 & T_{22}
-    \end{bmatrix} [U_1\ U_2]^\top` with the :math:`k` unstable eigenvalues in
-    :math:`T_{11}`, then, for each distinct eigenvalue :math:`\lambda` of
-    :math:`T_{11}`, the smallest singular value of
-    :math:`[T_{11} - \lambda I;\ C U_1]` is compared with
-    ``PBH_RTOL * max(||A||_F, ||C||_F)``. Cost: one Schur decomposition
-    (:math:`O(d_x^3)`) plus a :math:`2k \times k` SVD per distinct unstable
-    eigenvalue (for :math:`k >` 96, simple eigenvalues use their eigenvectors,
-    :math:`O(k^3)` in all).
-
-    Parameters
-    ----------
-    A : (d_x, d_x) array_like
-        State matrix.
-    C : (d_y, d_x) array_like
-        Output matrix (``d_y = 0`` allowed: then every unstable mode is returned).
-    margin : float, optional
-        Also test modes with :math:`1 - \text{margin} \le |\lambda| < 1`
-        (nearly unstable). Eigenvalues within ``UNIT_CIRCLE_TOL`` (~1.5e-8)
-        below the threshold are included too, so marginal modes computed with
-        round-off are never missed.
-
-    Returns
-    -------
-    list of complex
-        The offending eigenvalues (one entry per distinct eigenvalue; complex
-        pairs appear as both members), largest modulus first; empty iff the
-        pair is detectable.
-    """
-    A_ = _square(A, "A")
-    C_ = V.matrix(C, "C", (None, A_.shape[0]))
-    if A_.shape[0] == 0:
-        return []
-    T, Z, sel = _schur_select(A_, 1.0 - float(margin) - UNIT_CIRCLE_TOL)
-    if not sel.any():
-        return []
-    return _modes_from_subspace(T, Z, sel, C_, _tol(A_, C_), left=False)
-
-
-def _stabilizability_modes(A_: FloatArray, Q_: FloatArray, margin: float = 0.0) -> list[complex]:
-    D = _psd_factor_rows(Q_)  # D' D = Q
-    if A_.shape[0] == 0:
-        return []
-    T, Z, sel = _schur_select(A_, 1.0 - float(margin) - UNIT_CIRCLE_TOL)
-    if not sel.any():
-        return []
-    return _modes_from_subspace(T, Z, sel, D, _tol(A_, D), left=True)
-
-
-def is_detectable(A: ArrayLike, C: ArrayLike) -> bool:
-    """True iff every eigenvalue of ``A`` with ``|lambda| >= 1`` is observable through ``C``.
-
-    See :func:`unstable_unobservable_modes` for the test.
-    """
-    return not unstable_unobservable_modes(A, C)
-
-
-def is_stabilizable(A: ArrayLike, Q: ArrayLike) -> bool:
-    r"""True iff :math:`(A, Q^{1/2})` is stabilizable (noise excites every unstable mode).
-
-    With :math:`D D^\top = Q`, :math:`(A, D)` is stabilizable iff
-    :math:`(A^\top, D^\top)` is detectable; and :math:`D^\top v = 0 \iff Q v = 0`
-    for :math:`Q \succeq 0`, so the test is :func:`unstable_unobservable_modes`
-    on :math:`(A^\top, D^\top)`, sharing one Schur decomposition of :math:`A`.
-    """
-    A_ = _square(A, "A")
-    Q_ = V.covariance(Q, "Q", A_.shape[0])
-    return not _stabilizability_modes(A_, Q_)
-
-
-def _fmt_modes(modes: list[complex]) -> str:
-    parts = []
-    for lam in modes:
-        if lam.imag == 0.0:
-            parts.append(f"{lam.real:.6g}")
-        else:
-            parts.append(f"{lam.real:.6g}{lam.imag:+.6g}j (|lambda|={abs(lam):.6g})")
-    return ", ".join(parts)
-
-
-def check_detectable(A: ArrayLike, C: ArrayLike, *, what: str = "(A, C)") -> None:
-    """Raise :class:`~teamkf.exceptions.DetectabilityError` unless ``(A, C)`` is detectable.
-
-    The message names the pair (``what``), lists the unstable eigenvalues that
-    the measurements cannot see, and suggests fixes.
-    """
-    modes = unstable_unobservable_modes(A, C)
-    if modes:
-        raise DetectabilityError(_detectability_message(what, modes))
-
-
-def _detectability_message(what: str, modes: list[complex]) -> str:
-    return (
-        f"{what} is not detectable: the unstable eigenvalue(s) {_fmt_modes(modes)} of A are invisible to C "
-        "(PBH rank test [A - lambda I; C] fails). Add a measurement of the mode (a row of C with a component "
-        "along its eigenvector), or stabilize it; a steady-state design needs assumption (A5) of the team-MMSE "
-        "paper -- use a finite horizon instead."
-    )
-
-
-def check_stabilizable(A: ArrayLike, Q: ArrayLike, *, what: str = "(A, Q^1/2)") -> None:
-    """Raise :class:`~teamkf.exceptions.DetectabilityError` unless ``(A, Q^1/2)`` is stabilizable."""
-    A_ = _square(A, "A")
-    Q_ = V.covariance(Q, "Q", A_.shape[0])
-    modes = _stabilizability_modes(A_, Q_)
-    if modes:
-        raise DetectabilityError(_stabilizability_message(what, modes))
-
-
-def _stabilizability_message(what: str, modes: list[complex]) -> str:
-    return (
-        f"{what} is not stabilizable: the process noise Q does not excite the unstable eigenvalue(s) "
-        f"{_fmt_modes(modes)} of A (PBH test on (A', Q^1/2) fails), so the steady-state Riccati solution is not "
-        "stabilizing. Add process noise along the mode (make Q positive definite there), or use a finite horizon "
-        "instead: a steady-state design needs assumption (A5) of the team-MMSE paper."
-    )
 
 
 def _check_pair(A_: FloatArray, C_: FloatArray, Q_: FloatArray) -> None:

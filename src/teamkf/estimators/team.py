@@ -311,7 +311,7 @@ class TeamDesign(Design):
             return self.steady_gains  # type: ignore[return-value]
         cache = self.info.setdefault("_warmup_gains", {})
         if k not in cache:
-            cache[k] = self.warmup(k)
+            cache[k] = self.warmup(k)  # type: ignore[misc]  # set for every steady-state design
         return cache[k]  # type: ignore[no-any-return]
 
     def K_at(self, m: int) -> FloatArray:
@@ -632,7 +632,9 @@ class TeamAgent:
                 y = np.concatenate([buf[(j, a)] for j in range(sys.n_agents)], axis=1)
             except KeyError as exc:
                 if not self.tolerant:
-                    raise ValueError(f"agent {self.index}: y_{exc.args[0][0]}({a}) is common at step {k} but was never delivered") from None
+                    raise InformationStructureError(
+                        f"agent {self.index}: y_{exc.args[0][0]}({a}) is common at step {k} but was never delivered"
+                    ) from None
                 # E[y_j(a) | x̂(a)] = C_j(a) x̂(a) for what never arrived
                 y = np.concatenate([buf[(j, a)] if (j, a) in buf else xhat @ sys.C_at(j, a).T for j in range(sys.n_agents)], axis=1)
                 missed |= {(j, a) for j in range(sys.n_agents) if (j, a) not in buf}
@@ -650,7 +652,7 @@ class TeamAgent:
                 innov = np.concatenate([buf[(j, s)] - preds[s - a] @ sys.C_at(j, s).T for (j, s) in pairs], axis=1)
             except KeyError as exc:
                 if not self.tolerant:
-                    raise ValueError(
+                    raise InformationStructureError(
                         f"agent {self.index}: local measurement y_{exc.args[0][0]}({exc.args[0][1]}) was not delivered by step {k}"
                     ) from None
                 n_rows = xhat.shape[0]

@@ -102,11 +102,13 @@ def _load() -> None:
 
 
 def names() -> list[str]:
+    """The names of the registered experiments (``teamkf reproduce --list``)."""
     _load()
     return sorted(_REGISTRY)
 
 
 def get(name: str) -> Experiment:
+    """The experiment registered as ``name``; a ScenarioError with the available names otherwise."""
     from ..exceptions import ScenarioError
 
     _load()

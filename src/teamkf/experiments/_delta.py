@@ -31,17 +31,17 @@ def delta_rows(
         t, m, c = design_mtmse(system, cost, graph, T), design_mmse(system, cost, graph, T), design_centralized(system, cost, horizon=T)
         kcf = {v: design_kcf(system, cost, graph, T, epsilon=EPSILON, variant=v) for v in ("honest", "ideal")}
         mc = monte_carlo({f"kcf-{v}": d for v, d in kcf.items()}, T, runs, rng=seed)
-        J = t.total_cost
+        J = t.require_cost()
         row = {
             **label,
             x_name: x_of(lam),
             "lambda": lam,
             "J* (MTMSE)": J,
-            "J mmse": m.total_cost,
-            "J centralized": c.total_cost,
+            "J mmse": m.require_cost(),
+            "J centralized": c.require_cost(),
             "J KCF honest (MC)": mc["kcf-honest"].total_mean,
             "J KCF ideal (MC)": mc["kcf-ideal"].total_mean,
-            "Delta mmse %": 100 * (m.total_cost - J) / J,
+            "Delta mmse %": 100 * (m.require_cost() - J) / J,
             "Delta KCF honest %": 100 * (mc["kcf-honest"].total_mean - J) / J,
             "Delta KCF ideal %": 100 * (mc["kcf-ideal"].total_mean - J) / J,
             "KCF ideal 95% CI half-width %": 100 * 1.96 * mc["kcf-ideal"].total_sem / J,

@@ -20,7 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from ..estimators.cikf import _blas_threads, design_cikf, tracking_capacity_upper_bound
+from .._blas import blas_threads
+from ..estimators.cikf import design_cikf, tracking_capacity_upper_bound
 from ..estimators.kalman import kalman_covariances, predictor_errors
 from ..models import TeamCost
 from ..study.random_field import random_field_instance
@@ -37,7 +38,7 @@ def _db(x: Any) -> Any:
 
 @register("cikf-fig4", "CIKF vs centralized KF on the Section VII-A random field: theory and 1000-run Monte Carlo (Das & Moura Fig. 4)")
 def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
-    with _blas_threads(1):  # many medium GEMMs: one BLAS thread is robust on a shared machine (docs/cikf.md)
+    with blas_threads(1):  # many medium GEMMs: one BLAS thread is robust on a shared machine (docs/cikf.md)
         return _run(out_dir, quick)
 
 

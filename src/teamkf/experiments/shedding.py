@@ -36,7 +36,7 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
     cands = hop_structures(graph, dy=system.dy)
     dims = [sum(h.structure.local_dims(system.dy)) for h in cands]
     links = [h.links() for h in cands]
-    J = [design_mtmse(system, cost, h.structure, horizon).total_cost for h in cands]
+    J = [design_mtmse(system, cost, h.structure, horizon).require_cost() for h in cands]
     front = set(pareto_front(dims, J))
     front3 = set(pareto_front_nd(list(zip(dims, links, J))))
     rows = []
@@ -94,4 +94,4 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
 
 def evaluate_structures(system: Any, cost: Any, structures: Sequence[HopWindows], horizon: int | None) -> list[float]:
     """MTMSE cost (total for a finite horizon, average otherwise) of each structure."""
-    return [design_mtmse(system, cost, h.structure, horizon).cost_value for h in structures]
+    return [design_mtmse(system, cost, h.structure, horizon).require_cost() for h in structures]

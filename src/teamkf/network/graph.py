@@ -82,7 +82,7 @@ def _delay(x: Any, name: str) -> int:
     fix = "delays are whole numbers of time steps and at least 1 (use delay=1 for the fastest link)"
     d = _as_int(x, name, "an integer delay >= 1", fix)
     if d < 1:
-        raise GraphError(f"{name}: expected an integer delay >= 1, found {d}; {fix}")
+        raise GraphError(f"{name}: expected an integer delay >= 1, found {d}; {fix}", argument=name)
     return d
 
 
@@ -91,7 +91,7 @@ def _agent(x: Any, name: str, n: int) -> int:
     fix = f"agents are numbered 0..{n - 1} (n_agents={n}); renumber the edge or raise n_agents"
     i = _as_int(x, name, expected, fix)
     if not 0 <= i < n:
-        raise GraphError(f"{name}: expected {expected}, found {i}; {fix}")
+        raise GraphError(f"{name}: expected {expected}, found {i}; {fix}", argument=name)
     return i
 
 

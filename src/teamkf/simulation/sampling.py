@@ -14,6 +14,7 @@ import numpy as np
 
 from .. import _validation as V
 from .._validation import FloatArray
+from ..exceptions import ArgumentError, ShapeError
 from ..models import LinearGaussianSystem
 
 __all__ = ["Paths", "sample", "sample_paths", "run_streams", "psd_sqrt"]
@@ -30,7 +31,7 @@ def run_streams(seed: int | np.random.SeedSequence | np.random.Generator | None,
     if isinstance(seed, np.random.Generator):
         seq = seed.bit_generator.seed_seq
         if not isinstance(seq, np.random.SeedSequence):
-            raise ValueError("rng: expected a seed or a Generator created from a seed")
+            raise ArgumentError("rng: expected a seed or a Generator created from a seed", argument="rng")
     elif isinstance(seed, np.random.SeedSequence):
         seq = seed
     else:
@@ -94,7 +95,7 @@ def sample_paths(
     system.require_horizon(T)
     seqs = list(streams) if streams is not None else run_streams(rng, R_)
     if len(seqs) != R_:
-        raise ValueError(f"streams: expected {R_} SeedSequences, found {len(seqs)}")
+        raise ShapeError(f"streams: expected {R_} SeedSequences, found {len(seqs)}", argument="streams")
     dx, dys = system.dx, system.dy
     dy = sum(dys)
     m = dx + (T - 1) * dx + T * dy

@@ -193,7 +193,7 @@ def random_field_instance(
     """
     import networkx as nx
 
-    from ..estimators.riccati import is_detectable
+    from .._linalg import is_detectable
     from ..network.graph import CommGraph
 
     M = V.positive_int(M, "M", minimum=3)

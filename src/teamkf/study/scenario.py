@@ -135,6 +135,7 @@ class Scenario:
     raw: dict[str, Any] = field(repr=False, default_factory=dict)
     source: str = "<dict>"
     options: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    families: Mapping[str, Any] = field(repr=False, default_factory=dict)
 
     @property
     def n_agents(self) -> int:
@@ -152,7 +153,7 @@ class Scenario:
         ``[<estimator>]`` table (defaults otherwise).
         """
         T = self.horizon if horizon == "scenario" else horizon
-        fam = _family(estimator, "estimator")
+        fam = self.families.get(estimator) or _family(estimator, "estimator")
         opts = self.options.get(estimator)
         if opts is None:
             opts = _family_options(fam, {})
@@ -190,7 +191,7 @@ class Scenario:
         d = self.raw
         for key, value in values.items():
             d = set_dotted(d, key, value)
-        return scenario_from_dict(d, source=self.source)
+        return scenario_from_dict(d, source=self.source, families=self.families)
 
 
 # ---------------------------------------------------------------------------
@@ -235,8 +236,13 @@ def read_data_file(p: Path) -> dict[str, Any]:
     return data
 
 
-def scenario_from_dict(d: Mapping[str, Any], source: str = "<dict>") -> Scenario:
-    """Validate plain data (as read from TOML or JSON) into a :class:`Scenario`."""
+def scenario_from_dict(d: Mapping[str, Any], source: str = "<dict>", *, families: Mapping[str, Any] | None = None) -> Scenario:
+    """Validate plain data (as read from TOML or JSON) into a :class:`Scenario`.
+
+    ``families`` adds family records to the registry's for this scenario (a
+    scenario carries the records of its estimators, so that a Dask worker
+    without the user's registrations can still design them).
+    """
     if not isinstance(d, Mapping):
         raise ScenarioError(f"scenario: expected a table of keys, found {type(d).__name__}")
     raw = copy.deepcopy(dict(d))
@@ -245,7 +251,7 @@ def scenario_from_dict(d: Mapping[str, Any], source: str = "<dict>") -> Scenario
 
         return population_from_dict(raw)  # type: ignore[return-value]
     _hoist_estimators(raw)
-    fams = _families()
+    fams = {**_families(), **(families or {})}
     _check_keys(raw, _BASE_KEYS + tuple(fams), "")
     for key in ("system", "agents", "graph", "cost", "estimators"):
         if key not in raw:
@@ -264,7 +270,7 @@ def scenario_from_dict(d: Mapping[str, Any], source: str = "<dict>") -> Scenario
     else:
         information = InformationStructure.from_graph(graph)
     _check_horizon(system, cost, horizon)
-    estimators = _estimators(raw["estimators"])
+    estimators = _estimators(raw["estimators"], fams)
     options = {name: _family_options(fam, raw[name]) for name, fam in fams.items() if name in raw}
     for k, est in enumerate(estimators):
         _check_requirements(fams[est], k, horizon, graph)
@@ -273,7 +279,8 @@ def scenario_from_dict(d: Mapping[str, Any], source: str = "<dict>") -> Scenario
         _control(raw["control"], system, horizon)
     if "network" in raw:  # unreliable links (teamkf.simulation.links), checked against the graph
         _links(raw["network"], graph)
-    return Scenario(name, horizon, system, cost, graph, information, estimators, raw, source, options)
+    used = {name: fams[name] for name in (*estimators, *options)}  # carried along, so Dask workers need no registry
+    return Scenario(name, horizon, system, cost, graph, information, estimators, raw, source, options, used)
 
 
 def _links(tab: Any, graph: CommGraph) -> Any:
@@ -400,8 +407,8 @@ def _numeric(x: Any, key: str, *, scalar_ok: bool = True) -> Any:
     return x
 
 
-# messages of the model constructors start with the argument name as the model calls it;
-# these rules turn it into the scenario's key path (the rest of the message is kept)
+# the model constructors name the offending argument (TeamkfError.argument) as they call it;
+# these rules map that name to the scenario's key path (the error's detail is kept as it is)
 _SYSTEM_RULES = [
     (re.compile(r"^R\[(\d+)\]"), r"agents[\1].R"),
     (re.compile(r"^C\[(\d+)\]"), r"agents[\1].C"),
@@ -427,16 +434,13 @@ _INFO_RULES = [
 
 
 def _rekey(exc: TeamkfError, section: str, rules: Sequence[tuple[re.Pattern[str], str]]) -> ScenarioError:
-    msg = str(exc)
-    head, sep, rest = msg.partition(": ")
-    if sep:
+    """The error as a ScenarioError whose key path comes from the error's ``argument`` field."""
+    arg = exc.argument
+    if arg:
         for pat, repl in rules:
-            if pat.search(head):
-                new_head = pat.sub(repl, head, count=1)
-                err = ScenarioError(f"{new_head}: {rest}")
-                err.key = new_head.split(" ")[0]  # type: ignore[attr-defined]
-                return err
-    return _fail(section, msg)
+            if pat.search(arg):
+                return _fail(pat.sub(repl, arg, count=1), exc.detail)
+    return _fail(section, str(exc))
 
 
 def _control(c_tab: Any, system: LinearGaussianSystem, horizon: int | None) -> Any:
@@ -631,10 +635,11 @@ def _check_horizon(system: LinearGaussianSystem, cost: TeamCost, horizon: int | 
         raise _rekey(exc, "horizon", _SYSTEM_RULES + _COST_RULES) from exc
 
 
-def _estimators(x: Any) -> tuple[str, ...]:
+def _estimators(x: Any, fams: Mapping[str, Any] | None = None) -> tuple[str, ...]:
+    fams = fams if fams is not None else _families()
     if not isinstance(x, list) or not x:
         raise _fail("estimators", f'expected a non-empty list of names such as ["mtmse", "mmse", "centralized"], found {_describe(x)}')
-    names = tuple(_family(e, f"estimators[{k}]").name for k, e in enumerate(x))
+    names = tuple(e if isinstance(e, str) and e in fams else _family(e, f"estimators[{k}]").name for k, e in enumerate(x))
     for k, e in enumerate(names):
         if e in names[:k]:
             raise _fail(f"estimators[{k}]", f"{e!r} is listed twice; list each estimator once")

@@ -111,14 +111,12 @@ Examples
 
 from __future__ import annotations
 
-import contextlib
 import copy
 import difflib
 import errno
 import hashlib
 import itertools
 import json
-import logging
 import os
 import sys
 import time
@@ -131,10 +129,12 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from .. import _validation as V
+from .._blas import single_thread_blas
 from ..exceptions import ScenarioError, TeamkfError
+from ..simulation.parallel import WORKER_ENV, _cpu_count, _open_client, local_cluster  # noqa: F401  (public here since 0.1)
 from .evaluate import evaluate_point, is_analytic  # noqa: F401  (evaluate_point is looked up by _module_evaluate)
 from .results import MANIFEST_NAME, SweepError, SweepResult, load_results
-from .scenario import Scenario, _describe, _estimators, load_packaged, load_scenario, packaged_scenarios, read_data_file
+from .scenario import Scenario, _describe, _estimators, _families, load_packaged, load_scenario, packaged_scenarios, read_data_file
 
 __all__ = [
     "SweepSpec",
@@ -154,8 +154,6 @@ __all__ = [
 #: the special grid key that multiplies the scenario's A by its value
 A_SCALE = "system.A_scale"
 
-#: environment of the worker processes of the embedded LocalCluster (one BLAS thread each)
-WORKER_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 _SWEEP_KEYS = ("scenario", "runs", "seed", "estimators", "grid", "name", "description")
 _FORMAT = "teamkf-sweep-results/1"
@@ -395,7 +393,7 @@ def sweep_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", source:
 
     scenario, base = _base_scenario(data["scenario"], Path(base_dir))
     if "estimators" in data:
-        estimators = _estimators(data["estimators"])
+        estimators = _estimators(data["estimators"], {**_families(), **base.families})
     else:
         estimators = tuple(base.estimators)
     if runs == 0:
@@ -717,97 +715,12 @@ def run_point(fn: PointFunction, scenario: Scenario, estimators: Sequence[str], 
 
 
 def _single_thread() -> Any:
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - threadpoolctl is in the dask extra
-        return contextlib.nullcontext()
-    return threadpool_limits(limits=1)
+    return single_thread_blas()
 
 
 def _module_evaluate() -> PointFunction:
     # looked up at call time, so that a replaced ``sweep.evaluate_point`` is used
     return globals()["evaluate_point"]  # type: ignore[no-any-return]
-
-
-def _cpu_count() -> int:
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # pragma: no cover - not on Linux
-        return max(1, os.cpu_count() or 1)
-
-
-def local_cluster(n_workers: int | None = None, **kwargs: Any) -> Any:
-    """The embedded Dask cluster of ``scheduler="local"``: a ``LocalCluster`` tuned for sweep points.
-
-    ``n_workers`` single-threaded worker processes (default: one per available
-    core), no dashboard, quiet logs; ``kwargs`` go to ``LocalCluster``. The
-    workers start with :data:`WORKER_ENV` (one BLAS / OpenMP thread each: the
-    points are the parallelism) and *without* ``MALLOC_TRIM_THRESHOLD_``,
-    which Dask sets to 65536 by default: a fixed glibc malloc threshold turns
-    off glibc's adaptive mmap threshold, and the many mid-sized numpy arrays
-    of designs and Monte Carlo runs then cost about 40 % more time per point.
-    (Workers restarted by their nanny get the same environment.) Close it
-    with ``.close()``.
-
-    Side effect: ``MALLOC_TRIM_THRESHOLD_`` is removed from this process's
-    environment (where an earlier Dask cluster may have put it), as a worker
-    restarted later inherits it from here.
-    """
-    distributed = V.require("distributed", "dask")
-    import dask
-
-    environ = {k: v for k, v in (dask.config.get("distributed.nanny.pre-spawn-environ", default={}) or {}).items() if k != "MALLOC_TRIM_THRESHOLD_"}
-    environ.update(WORKER_ENV)
-    # A nanny copies pre-spawn-environ into this process's environment before it spawns (or restarts) a
-    # worker, which inherits it; so a MALLOC_TRIM_THRESHOLD_ left here by an earlier Dask cluster would
-    # reach our workers: it is removed for good. The other variables are put back as they were.
-    saved = {k: os.environ.get(k) for k in environ}
-    os.environ.pop("MALLOC_TRIM_THRESHOLD_", None)
-    options = {
-        "threads_per_worker": 1,
-        "processes": True,
-        "dashboard_address": None,
-        "silence_logs": logging.ERROR,
-        "env": dict(WORKER_ENV),
-        **kwargs,
-    }
-    try:
-        with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
-            return distributed.LocalCluster(n_workers=n_workers or _cpu_count(), **options)
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
-
-
-def _open_client(scheduler: Any, n_workers: int | None) -> tuple[Any, list[Any]]:
-    """A Dask client for ``scheduler`` and the objects this run owns (closed at the end)."""
-    distributed = V.require("distributed", "dask")
-    if isinstance(scheduler, distributed.Client):
-        return scheduler, []
-    if not isinstance(scheduler, str):
-        if hasattr(scheduler, "scheduler_address"):
-            client = distributed.Client(scheduler)
-            return client, [client]
-        raise SweepError(f"scheduler: expected 'local', 'serial', a Dask scheduler address, a Client or a cluster, found {type(scheduler).__name__}")
-    if scheduler == "local":
-        cluster = local_cluster(n_workers)
-        try:
-            client = distributed.Client(cluster)
-        except BaseException:
-            cluster.close()
-            raise
-        return client, [client, cluster]
-    try:
-        client = distributed.Client(scheduler, timeout="10s")
-    except (OSError, TimeoutError, ValueError) as exc:
-        raise SweepError(
-            f"scheduler: cannot connect to a Dask scheduler at {scheduler!r} ({' '.join(str(exc).split())}); "
-            "give the address of a running scheduler (tcp://host:8786), or 'local' / 'serial'"
-        ) from None
-    return client, [client]
 
 
 def _check_out(spec: SweepSpec, out: Path, resume: bool) -> set[str]:
