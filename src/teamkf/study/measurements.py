@@ -848,7 +848,7 @@ def design_for_log(scenario: Any, name: str, log: MeasurementLog) -> Any:
         return scenario.design(name)
     from ..estimators.registry import get_family
 
-    fam = get_family(name, "estimators")
+    fam = (getattr(scenario, "families", None) or {}).get(name) or get_family(name, "estimators")
     if "finite" not in fam.horizons:
         raise _missing_error(name, log, "it has no finite-horizon (time-varying) design")
     sysm = masked_system(scenario.system, log.present)
