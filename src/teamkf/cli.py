@@ -216,7 +216,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     from . import _validation as V
     from .study.evaluate import DEFAULT_MC_RUNS
 
-    sc = _load(args.scenario)
+    sc = _apply_network_flags(_load(args.scenario), args)
     plot_to = _check_output(args.plot, "--plot", _PLOT_SUFFIXES) if args.plot else None
     if not hasattr(sc, "designs"):  # a [population] scenario: exact statistics, nothing simulated
         if args.monte_carlo:
@@ -255,7 +255,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         if seed is None:
             seed = int(np.random.SeedSequence().entropy % (2**32))  # type: ignore[operator]
         try:
-            mc = monte_carlo(simulate, sc.horizon, runs, rng=seed)
+            mc = monte_carlo(simulate, sc.horizon, runs, rng=seed, **sc.monte_carlo_options())  # [network]: unreliable links
         except ArgumentError as exc:
             raise (exc.rekeyed("--monte-carlo") if exc.argument == "n_runs" else exc) from None
     for name, d in designs.items():
@@ -606,6 +606,24 @@ def _filter_streamed(sc: Any, args: argparse.Namespace, names: list[str], out_pa
     return 0
 
 
+def _add_network_flags(p: argparse.ArgumentParser) -> None:
+    """--p-drop and --jitter: the common keys of a scenario's [network] table (unreliable links, Monte Carlo)."""
+    p.add_argument("--p-drop", type=float, metavar="P", help="packet-drop probability on every edge (sets network.p_drop; Monte Carlo)")
+    p.add_argument("--jitter", type=int, metavar="J", help="extra delay of 0..J steps on every edge (sets network.jitter; Monte Carlo)")
+
+
+def _apply_network_flags(sc: Any, args: argparse.Namespace) -> Any:
+    """The scenario with --p-drop / --jitter written into its [network] table (validated like the file)."""
+    vals = {k: v for k, v in (("network.p_drop", getattr(args, "p_drop", None)), ("network.jitter", getattr(args, "jitter", None))) if v is not None}
+    if not vals:
+        return sc
+    if not hasattr(sc, "updated") or not hasattr(sc, "monte_carlo_options"):
+        raise ArgumentError("--p-drop/--jitter: unreliable links need a scenario with a graph, found a population scenario", argument="--p-drop")
+    if not getattr(args, "monte_carlo", None):
+        _warn("--p-drop/--jitter act on the simulated agents; add --monte-carlo RUNS (analytic costs assume reliable links)")
+    return sc.updated(vals)
+
+
 def _add_filter_parser(add: Any) -> None:
     p = add("filter", "filter recorded measurements with every estimator of a scenario (CSV, Parquet or NPZ in; CSV or Parquet out)")
     p.add_argument("scenario", metavar="SCENARIO")
@@ -809,6 +827,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--monte-carlo", type=_positive_int, metavar="RUNS", help="also simulate RUNS runs of the online agents (finite horizon)")
     p.add_argument("--seed", type=_seed, metavar="S", help="seed of the Monte Carlo runs (default: fresh, printed)")
     p.add_argument("--plot", metavar="OUT.png", help="plot the stage costs of every estimator (needs matplotlib)")
+    _add_network_flags(p)
     p.set_defaults(func=_cmd_evaluate)
 
     p = add("design", "compute the gains of every estimator of a scenario")

@@ -717,9 +717,13 @@ class CIKFAgent:
     returns L_n x̂^n_{k|k} (or L_n x̂^n_{k|k-1}) and sends ŷ^n_{k+1|k}.
     """
 
-    def __init__(self, design: CIKFDesign, index: int):
+    def __init__(self, design: CIKFDesign, index: int, *, tolerant: bool = False):
         self.design = design
         self.index = index
+        #: on unreliable links (teamkf.simulation.links): the consensus term uses the neighbours whose
+        #: step-(k-1) prediction arrived; a missing neighbour's difference ŷ^l - ŷ^n is taken as zero
+        #: (its block of B^{nl} is dropped, the others are not renormalized)
+        self.tolerant = tolerant
 
     def init_state(self, n_runs: int) -> dict[str, FloatArray]:
         d = self.design
@@ -735,7 +739,7 @@ class CIKFAgent:
         yh, xh = state["y"], state["x"]
         nb = d.neighbors[n]
         got = {j: p for (j, s, p) in inbox if s == k - 1}
-        if k > 0 and sorted(got) != list(nb):
+        if k > 0 and sorted(got) != list(nb) and not self.tolerant:
             raise InformationStructureError(
                 f"CIKF agent {n} at step {k}: expected the step-{k - 1} predictions of its neighbours {list(nb)}, "
                 f"found messages from {sorted(got)}; run it on the graph it was designed for (unit delays)"
@@ -743,7 +747,7 @@ class CIKFAgent:
         u = np.asarray(own, dtype=float) - yh @ m.C_tilde[n].T
         yf = yh + u @ d.B_innov[k][n].T
         if nb and k > 0:
-            diff = np.concatenate([np.asarray(got[l], dtype=float) @ m.U - yh for l in nb], axis=1)
+            diff = np.concatenate([np.asarray(got[l], dtype=float) @ m.U - yh if l in got else np.zeros_like(yh) for l in nb], axis=1)
             yf = yf + diff @ d.B_cons[k][n].T
         xf = xh + (yf - xh @ m.G_r.T) @ d.K[k, n].T
         z = (xf if d.form == "filter" else xh) @ d.cost.L_block(n, k).T

@@ -390,11 +390,15 @@ class KCFAgent:
     (u_i(k), k, x̄_i(k)) — U_i(k) is the deterministic schedule entry of step k.
     """
 
-    def __init__(self, design: KCFDesign, index: int):
+    def __init__(self, design: KCFDesign, index: int, *, tolerant: bool = False):
         self.design = design
         self.index = index
         self.system: LinearGaussianSystem = design.system
         self.cost: TeamCost = design.cost
+        #: on unreliable links (teamkf.simulation.links): fuse the messages that did arrive, whatever step
+        #: they were sent at, with S_i = U_i + Σ_delivered U_j, M_i = P_i (I + S_i P_i)^-1 and
+        #: γ_i = ε / (1 + ||M_i||_F) recomputed, and P_i(k+1) = A M_i A' + Q propagated in the state
+        self.tolerant = tolerant
 
     def init_state(self, n_runs: int) -> dict[str, FloatArray]:
         return {"xbar": np.zeros((n_runs, self.system.dx))}
@@ -405,6 +409,8 @@ class KCFAgent:
         d, i = self.design, self.index
         if k >= d.horizon:  # type: ignore[operator]
             raise ShapeError(f"k: the KCF was designed for horizon = {d.horizon} steps, found step {k}; design a longer horizon")
+        if self.tolerant:
+            return self._step_tolerant(state, k, own, inbox)
         src = d.sources[i][k]
         got = {(j, s): p for (j, s, p) in inbox}
         if sorted(got) != sorted(src):
@@ -421,6 +427,28 @@ class KCFAgent:
         z = xh @ self.cost.L_block(i, k).T
         nxt = xh @ self.system.A_at(k).T if k + 1 < d.horizon else xh  # type: ignore[operator]
         return {"xbar": nxt}, z, KCFMessage(u_i, k, xbar)
+
+    def _step_tolerant(
+        self, state: dict[str, FloatArray], k: int, own: FloatArray, inbox: Sequence[Any]
+    ) -> tuple[dict[str, FloatArray], FloatArray, KCFMessage]:
+        """The KCF update with the neighbours whose messages arrived (see ``tolerant``)."""
+        d, i, sys = self.design, self.index, self.system
+        xbar = state["xbar"]
+        P = state.get("P", sys.Sigma_x)
+        u_i = np.asarray(own, dtype=float) @ d.G_at(i, k).T
+        s_i, S = u_i, d.U_at(i, k)
+        for j, _, msg in inbox:
+            s_i = s_i + msg.u
+            S = S + d.U_at(j, msg.step)
+        M = np.linalg.solve((np.eye(sys.dx) + S @ P).T, P.T).T  # P (I + S P)^-1 = (P^-1 + S)^-1
+        M = 0.5 * (M + M.T)
+        gamma = d.epsilon / (1.0 + float(np.linalg.norm(M)))
+        xh = _update(xbar, s_i, S, M, gamma, [msg.xbar for _, _, msg in inbox])
+        z = xh @ self.cost.L_block(i, k).T
+        last = k + 1 >= d.horizon  # type: ignore[operator]
+        A = sys.A_at(k) if not last else np.eye(sys.dx)
+        Pn = A @ M @ A.T + (sys.Q_at(k) if not last else 0.0)
+        return {"xbar": xh @ A.T, "P": 0.5 * (Pn + Pn.T)}, z, KCFMessage(u_i, k, xbar)
 
 
 def _epsilon(epsilon: Any, name: str = "epsilon") -> float:

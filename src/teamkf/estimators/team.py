@@ -638,11 +638,15 @@ class TeamAgent:
     x^(anchor).
     """
 
-    def __init__(self, design: TeamDesign, index: int):
+    def __init__(self, design: TeamDesign, index: int, *, tolerant: bool = False):
         self.design = design
         self.index = index
         self.system: LinearGaussianSystem = design.system
         self.structure: InformationStructure = design.structure
+        #: on unreliable links (teamkf.simulation.links): a measurement that has not arrived when it is
+        #: needed is replaced by its conditional expectation given the agent's common estimate,
+        #: C_j(s) Φ(s, a) x̂(a) (a zero innovation), instead of raising; the state counts the misses
+        self.tolerant = tolerant
 
     def arrival_lag(self, j: int) -> int:
         return self.structure.arrival_lag(self.index, j)
@@ -656,13 +660,18 @@ class TeamAgent:
         for j, s, v in received:
             buf[(j, s)] = np.asarray(v)
         xhat, a = state["xhat"], state["anchor"]
+        missed = set(state.get("missed_keys", ()))
         while a < k - c + 1:  # fold the newly common y(a) into the predictor (eq. 20)
             try:
                 y = np.concatenate([buf[(j, a)] for j in range(sys.n_agents)], axis=1)
             except KeyError as exc:
-                raise InformationStructureError(
-                    f"agent {self.index}: y_{exc.args[0][0]}({a}) is common at step {k} but was never delivered"
-                ) from None
+                if not self.tolerant:
+                    raise InformationStructureError(
+                        f"agent {self.index}: y_{exc.args[0][0]}({a}) is common at step {k} but was never delivered"
+                    ) from None
+                # E[y_j(a) | x̂(a)] = C_j(a) x̂(a) for what never arrived
+                y = np.concatenate([buf[(j, a)] if (j, a) in buf else xhat @ sys.C_at(j, a).T for j in range(sys.n_agents)], axis=1)
+                missed |= {(j, a) for j in range(sys.n_agents) if (j, a) not in buf}
             xhat = (xhat + (y - xhat @ sys.C_stack(a).T) @ d.K_at(a).T) @ sys.A_at(a).T
             a += 1
             buf = {key: v for key, v in buf.items() if key[1] >= a}
@@ -676,11 +685,21 @@ class TeamAgent:
             try:
                 innov = np.concatenate([buf[(j, s)] - preds[s - a] @ sys.C_at(j, s).T for (j, s) in pairs], axis=1)
             except KeyError as exc:
-                raise InformationStructureError(
-                    f"agent {self.index}: local measurement y_{exc.args[0][0]}({exc.args[0][1]}) was not delivered by step {k}"
-                ) from None
+                if not self.tolerant:
+                    raise InformationStructureError(
+                        f"agent {self.index}: local measurement y_{exc.args[0][0]}({exc.args[0][1]}) was not delivered by step {k}"
+                    ) from None
+                n_rows = xhat.shape[0]
+                innov = np.concatenate(
+                    [buf[(j, s)] - preds[s - a] @ sys.C_at(j, s).T if (j, s) in buf else np.zeros((n_rows, sys.dy[j])) for (j, s) in pairs], axis=1
+                )
+                missed |= {(j, s) for (j, s) in pairs if (j, s) not in buf}
             z = z + innov @ d.gain_at(k)[self.index].T
-        return {"xhat": xhat, "anchor": a, "buf": buf}, z
+        out = {"xhat": xhat, "anchor": a, "buf": buf}
+        if self.tolerant:
+            out["missed_keys"] = missed
+            out["missed"] = len(missed)
+        return out, z
 
 
 FAMILY_MTMSE = _register_builtin(

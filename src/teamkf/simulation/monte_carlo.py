@@ -53,6 +53,8 @@ class MonteCarloResult:
     total_mean: float
     total_sem: float
     path: str = "errors"
+    #: per-edge packet counts on unreliable links (:class:`~teamkf.simulation.links.LinkStats`), or None
+    links: Any = None
 
     @property
     def ci95(self) -> tuple[float, float]:
@@ -124,22 +126,27 @@ class MonteCarloResult:
         return ax
 
 
-def runtime_estimates(design: Any, y: Any, graph: Any = None) -> FloatArray:
+def runtime_estimates(design: Any, y: Any, graph: Any = None, *, links: Any = None, streams: Any = None, stats: Any = None) -> FloatArray:
     """Every agent's estimate from the online agents: message passing over ``graph`` (default: the
     design's own graph), or delivery by the information structure. ``y``: list over agents of
-    (n_runs, T, d_y^i). What ``path="runtime"`` and ``teamkf filter`` run."""
+    (n_runs, T, d_y^i). What ``path="runtime"`` and ``teamkf filter`` run. ``links``/``streams``/``stats``:
+    unreliable links (:func:`teamkf.simulation.runtime.run_graph`)."""
     graph = graph if graph is not None else getattr(design, "graph", None)
     if graph is not None:
         from .runtime import graph_agents, run_graph
 
-        return run_graph(graph_agents(design), graph, y)
+        return run_graph(graph_agents(design), graph, y, links=links, streams=streams, stats=stats)
+    if links is not None and not links.trivial:
+        raise ArgumentError(
+            f"links: the {design.estimator!r} design has no graph of its own; pass graph= (the network the links belong to)", argument="links"
+        )
     return run_online(design.agents(), y)
 
 
-def _team_errors(design: Any, paths: Any, path: str, graph: Any) -> FloatArray:
+def _team_errors(design: Any, paths: Any, path: str, graph: Any, links: Any = None, streams: Any = None, stats: Any = None) -> FloatArray:
     if path == "errors":
         return design.errors(paths)  # type: ignore[no-any-return]
-    z = runtime_estimates(design, paths.y, graph)
+    z = runtime_estimates(design, paths.y, graph, links=links, streams=streams, stats=stats)
     cost = design.cost
     return np.stack([paths.x[:, k] @ cost.L_at(k).T - z[:, k] for k in range(paths.n_steps)], axis=1)
 
@@ -182,6 +189,7 @@ def monte_carlo(
     batch: int = 1000,
     path: Literal["errors", "runtime"] = "errors",
     graph: Any = None,
+    links: Any = None,
 ) -> dict[str, MonteCarloResult]:
     """Evaluate every design on the same ``n_runs`` sampled paths.
 
@@ -195,6 +203,10 @@ def monte_carlo(
     path : "errors" (cancellation-free recursions) or "runtime" (agents on measurements)
     graph : with path="runtime", run the agents over this graph (message passing)
         instead of the structure-driven delivery
+    links : :class:`~teamkf.simulation.links.LinkModel` (unreliable links; needs path="runtime").
+        Run r's link events come from its own stream (seeded by ``rng``), so
+        the numbers do not depend on the batch size or the worker; the
+        per-edge packet counts are in each result's ``links`` field.
     """
     T = V.positive_int(n_steps, "n_steps")
     R_ = V.positive_int(n_runs, "n_runs", minimum=2)
@@ -215,14 +227,26 @@ def monte_carlo(
         raise ArgumentError(f"n_steps: expected at most the designs' horizon {horizon}, found {T}; design a longer horizon", argument="n_steps")
     batch = V.positive_int(batch, "batch")
     _check_memory(designs, system, T, R_, batch)
+    lossy = links is not None and not links.trivial
+    if lossy and path != "runtime":
+        raise ArgumentError('links: unreliable links act on the online agents; use path="runtime"', argument="links")
     streams = run_streams(rng, R_)
+    lstreams = None
+    if links is not None:
+        from .links import LinkStats, link_streams
+
+        lstreams = link_streams(rng, R_) if not isinstance(rng, np.random.Generator) else link_streams(rng.bit_generator.seed_seq, R_)
+        lstats = {name: LinkStats() for name in designs}
     costs = {name: np.empty((R_, T)) for name in designs}
     for start in range(0, R_, batch):
         stop = min(R_, start + batch)
         paths = sample_paths(system, T, stop - start, rng=None, streams=streams[start:stop])
         for name, d in designs.items():
             with np.errstate(over="ignore", invalid="ignore"):  # a diverging estimator: reported as not finite, below
-                e = _team_errors(d, paths, path, graph)
+                if links is not None:
+                    e = _team_errors(d, paths, path, graph, links, lstreams[start:stop], lstats[name])  # type: ignore[index]
+                else:
+                    e = _team_errors(d, paths, path, graph)
                 for k in range(T):
                     costs[name][start:stop, k] = np.einsum("ra,ab,rb->r", e[:, k], d.cost.S_at(k), e[:, k])
     out = {}
@@ -233,4 +257,6 @@ def monte_carlo(
         out[name] = MonteCarloResult(
             name, R_, c.mean(axis=0), c.std(axis=0, ddof=1) / np.sqrt(R_), float(tot.mean()), float(tot.std(ddof=1) / np.sqrt(R_)), path
         )
+        if links is not None:
+            object.__setattr__(out[name], "links", lstats[name])
     return out

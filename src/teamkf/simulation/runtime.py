@@ -29,8 +29,27 @@ from ..network.graph import CommGraph
 __all__ = ["GraphAgent", "Message", "MeasurementRelay", "run_graph", "graph_agents"]
 
 
-def run_graph(agents: Sequence[Any], graph: CommGraph, y: Sequence[FloatArray]) -> FloatArray:
+def run_graph(
+    agents: Sequence[Any],
+    graph: CommGraph,
+    y: Sequence[FloatArray],
+    *,
+    links: Any = None,
+    rng: Any = None,
+    streams: Sequence[Any] | None = None,
+    stats: Any = None,
+) -> FloatArray:
     """Run graph agents over the horizon of ``y`` (list over agents of (n_runs, T, d_y^i)).
+
+    Parameters
+    ----------
+    links : :class:`~teamkf.simulation.links.LinkModel` or None
+        Unreliable links (drops, jitter, outages, failures). None, or one with
+        p_drop = 0 and jitter = 0 and no outage or failure, is exactly the
+        reliable runtime (the same code, bit for bit).
+    rng : seed of the link events (run r uses :func:`~teamkf.simulation.links.link_streams` ``(rng, n_runs)[r]``)
+    streams : explicit per-run link streams (instead of ``rng``)
+    stats : a :class:`~teamkf.simulation.links.LinkStats` that receives the per-edge counts
 
     Returns the estimates, (n_runs, T, sum of estimate widths), agent-major.
     """
@@ -39,7 +58,24 @@ def run_graph(agents: Sequence[Any], graph: CommGraph, y: Sequence[FloatArray]) 
     if not isinstance(graph, CommGraph):
         raise GraphError(f"graph: expected a CommGraph, found {type(graph).__name__}", argument="graph")
     inner = [getattr(a, "inner", a) for a in agents]
-    return pass_messages(agents, graph, _batched(inner, y))
+    ys = _batched(inner, y)
+    if links is None or links.trivial:
+        if stats is not None:  # count the packets of the reliable runtime too
+            _count_reliable(graph, agents, ys[0].shape[0], ys[0].shape[1], stats)
+        return pass_messages(agents, graph, ys)
+    from .links import link_streams, pass_messages_lossy
+
+    if streams is None:
+        streams = link_streams(rng, ys[0].shape[0])
+    return pass_messages_lossy(agents, graph, ys, links, streams, stats)
+
+
+def _count_reliable(graph: CommGraph, agents: Sequence[Any], n_runs: int, T: int, stats: Any) -> None:
+    for a, b, _ in graph.edges:
+        if getattr(agents[a], "omniscient", False):
+            continue
+        stats.add((a, b), "sent", n_runs * T)
+        stats.add((a, b), "delivered", n_runs * T)
 
 
 def graph_agents(design: Any) -> list[Any]:

@@ -52,7 +52,8 @@ def evaluate_point(scenario: Any, estimators: Sequence[str] | None = None, runs:
     key = "total_cost" if scenario.horizon is not None else "average_cost"
     analytic = {n for n, d in designs.items() if d.has_analytic_cost}
     mc_runs = runs or (DEFAULT_MC_RUNS if len(analytic) < len(designs) else 0)
-    mc = monte_carlo(designs, scenario.horizon, mc_runs, rng=seed) if (mc_runs and scenario.horizon is not None) else {}
+    mc_opts = scenario.monte_carlo_options() if hasattr(scenario, "monte_carlo_options") else {}  # [network]: unreliable links
+    mc = monte_carlo(designs, scenario.horizon, mc_runs, rng=seed, **mc_opts) if (mc_runs and scenario.horizon is not None) else {}
     rows: list[dict[str, Any]] = []
     for name, d in designs.items():
         row: dict[str, Any] = {"estimator": name, "runs": int(runs), "seed": int(seed)}

@@ -328,9 +328,9 @@ def _validate_rows(
             f"duplicated (step, agent) = ({int(step[r2])}, {int(agent[r2])}), first at row {r1 + 1 + row0}; keep one row per agent and step",
         )
     vals = df[[f"y{c}" for c in range(m)]].to_numpy(dtype=float)
-    bad = np.argwhere(np.isinf(vals))
-    if bad.size:
-        r, c = (int(v) for v in bad[0])
+    cells = np.argwhere(np.isinf(vals))
+    if cells.size:
+        r, c = (int(v) for v in cells[0])
         raise _fmt_err(p, _where(r, f"y{c}", csv), f"expected a finite number or an empty cell (missing), found {vals[r, c]}")
     for i in range(n):
         if dys[i] < m:
@@ -470,9 +470,9 @@ def read_truth(path: str | Path, dx: int, n_steps: int) -> FloatArray:
         x = x.astype(float)
         if x.ndim != 2 or x.shape != (n_steps, dx):
             raise _fmt_err(p, "key 'x'", f"expected shape ({n_steps}, {dx}) (steps of the measurements, d_x), found {x.shape}")
-        bad = np.argwhere(~np.isfinite(x))
-        if bad.size:
-            r, c = (int(v) for v in bad[0])
+        cells = np.argwhere(~np.isfinite(x))
+        if cells.size:
+            r, c = (int(v) for v in cells[0])
             raise _fmt_err(p, f"step {r}, column x{c}", f"expected a finite number, found {x[r, c]}")
         return x
     csv = suffix == ".csv"
@@ -486,9 +486,9 @@ def read_truth(path: str | Path, dx: int, n_steps: int) -> FloatArray:
             raise _fmt_err(p, f"column {col!r}", f"missing; expected {', '.join(want)} (d_x = {dx})")
     step = _int_column(df, "step", p, csv)
     vals = df[want[1:]].to_numpy(dtype=float)
-    bad = np.argwhere(~np.isfinite(vals))
-    if bad.size:
-        r, c = (int(v) for v in bad[0])
+    cells = np.argwhere(~np.isfinite(vals))
+    if cells.size:
+        r, c = (int(v) for v in cells[0])
         raise _fmt_err(p, _where(r, f"x{c}", csv), f"expected a finite number, found {df[f'x{c}'].iloc[r]!r}")
     bad = np.flatnonzero((step < 0) | (step >= n_steps))
     if bad.size:
@@ -520,7 +520,10 @@ def write_measurements(path: str | Path | Any, y: Sequence[Any], *, fmt: str | N
     ys = [np.asarray(a, dtype=float) for a in y]
     uu = None if u is None else np.asarray(u, dtype=float).reshape(ys[0].shape[0], -1)
     if suffix == ".npz":
-        np.savez(path, **{f"agent{i}": a for i, a in enumerate(ys)}, **({} if uu is None else {"u": uu}))
+        arrays: dict[str, Any] = {f"agent{i}": a for i, a in enumerate(ys)}
+        if uu is not None:
+            arrays["u"] = uu
+        np.savez(path, **arrays)
         return
     pd = _pandas()
     m = max(a.shape[1] for a in ys)
@@ -845,7 +848,7 @@ def design_for_log(scenario: Any, name: str, log: MeasurementLog) -> Any:
         return scenario.design(name)
     from ..estimators.registry import get_family
 
-    fam = get_family(name, "estimators")
+    fam = (getattr(scenario, "families", None) or {}).get(name) or get_family(name, "estimators")
     if "finite" not in fam.horizons:
         raise _missing_error(name, log, "it has no finite-horizon (time-varying) design")
     sysm = masked_system(scenario.system, log.present)

@@ -78,7 +78,7 @@ def __getattr__(name: str) -> Any:  # 0.1 names: the estimators come from the re
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-_BASE_KEYS = ("name", "horizon", "description", "system", "agents", "graph", "cost", "information", "estimators", "control")
+_BASE_KEYS = ("name", "horizon", "description", "system", "agents", "graph", "cost", "information", "estimators", "control", "network")
 _SYSTEM_KEYS = ("A", "Q", "Sigma_x")
 _AGENT_KEYS = ("C", "R")
 #: optional known means (prior mean, inputs, offsets), read by teamkf.study.measurements.known_inputs
@@ -176,6 +176,16 @@ class Scenario:
         """The decentralized LQG problem of a ``[control]`` table (B, Q_x, R_u), or None."""
         return _control(self.raw["control"], self.system, self.horizon) if "control" in self.raw else None
 
+    @property
+    def links(self) -> Any:
+        """The ``[network]`` table as a :class:`~teamkf.simulation.links.LinkModel`, or None (reliable links)."""
+        return _links(self.raw["network"], self.graph) if "network" in self.raw else None
+
+    def monte_carlo_options(self) -> dict[str, Any]:
+        """Keywords for ``monte_carlo``: with unreliable links, the runtime path over the scenario's graph."""
+        lm = self.links
+        return {} if lm is None or lm.trivial else {"path": "runtime", "graph": self.graph, "links": lm}
+
     def updated(self, values: Mapping[str, Any]) -> "Scenario":
         """A new scenario with dotted keys replaced, e.g. ``{"cost.lambda": 10.0, "graph.delay": 2}``."""
         d = self.raw
@@ -267,8 +277,19 @@ def scenario_from_dict(d: Mapping[str, Any], source: str = "<dict>", *, families
         options.setdefault(est, _family_options(fams[est], {}))
     if "control" in raw:
         _control(raw["control"], system, horizon)
+    if "network" in raw:  # unreliable links (teamkf.simulation.links), checked against the graph
+        _links(raw["network"], graph)
     used = {name: fams[name] for name in (*estimators, *options)}  # carried along, so Dask workers need no registry
     return Scenario(name, horizon, system, cost, graph, information, estimators, raw, source, options, used)
+
+
+def _links(tab: Any, graph: CommGraph) -> Any:
+    from ..simulation.links import LinkModel
+
+    try:
+        return LinkModel.from_dict(tab, graph, "network")
+    except TeamkfError as exc:
+        raise _fail(exc.argument or "network", exc.detail) from exc
 
 
 def _families() -> dict[str, Any]:

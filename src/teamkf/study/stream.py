@@ -62,14 +62,19 @@ def _raw_chunks(p: Path, suffix: str, chunk_rows: int) -> Iterator[Any]:
         except pd.errors.ParserError as exc:
             raise _fmt_err(p, "", f"not a valid CSV file ({' '.join(str(exc).split())})") from None
     else:
+        import pyarrow as pa
         import pyarrow.parquet as pq
 
         try:
-            pf = pq.ParquetFile(p)
+            pf = pq.ParquetFile(p, pre_buffer=False)
         except Exception as exc:  # pyarrow's own error types
             raise _fmt_err(p, "", f"not a readable Parquet file ({type(exc).__name__}: {' '.join(str(exc).split())[:200]})") from None
+        pool = pa.default_memory_pool()
         for batch in pf.iter_batches(batch_size=chunk_rows):
-            yield batch.to_pandas()
+            df = batch.to_pandas()
+            del batch
+            pool.release_unused()  # Arrow's allocator keeps freed chunks otherwise: memory would grow with the file
+            yield df
 
 
 def iter_blocks(
@@ -242,7 +247,7 @@ class SteadyStream:
             self.x = _linear_recurrence(f.M, U, self.x, X)  # type: ignore[arg-type]
         return X
 
-    def block(self, k0: int, Y: FloatArray, X_cache: dict[bytes, FloatArray]) -> FloatArray:
+    def block(self, k0: int, Y: FloatArray, X_cache: dict[bytes, Any]) -> FloatArray:
         """Estimates (B, n d_z) of the steps k0 .. k0+B-1."""
         f = self.form
         c = f.lag
@@ -338,7 +343,8 @@ class _Writer:
     """Long-form estimates (and per-step costs) appended block by block, CSV or Parquet (pyarrow)."""
 
     def __init__(self, fh: Any, fmt: str, columns: Sequence[str]):
-        self.fh, self.fmt, self.columns, self.w = fh, fmt, list(columns), None
+        self.fh, self.fmt, self.columns = fh, fmt, list(columns)
+        self.w: Any = None
 
     def write(self, cols: dict[str, Any]) -> None:
         import pyarrow as pa
@@ -439,7 +445,7 @@ def stream_filter(
                 )
             rows_in += Y.shape[0] * n
             if known is not None:
-                Y, m_block, m_next = _centre(known, system, k0, Y, U, m_next)
+                Y, m_block, m_next = _centre(known, system, k0, Y, U, m_next)  # type: ignore[arg-type]
             elif U is not None:
                 raise MeasurementFileError(
                     f"{measurements}: u columns: the scenario has no input matrix (system.B or agents[i].D) to use them", argument="u"
@@ -464,6 +470,7 @@ def stream_filter(
                 Z = Z + (m_block @ L.T)[:, None, :]
             _write_block(writer, names, k0, Z, n, dz)
             rows_out += B * n * len(names)
+            _release_arrow()
             if costs_tot is not None:
                 if x_true is None:
                     x_true = _TruthStream(truth, system.dx, max(1, chunk_rows // n))
@@ -549,6 +556,12 @@ def _write_block(writer: _Writer, names: Sequence[str], k0: int, Z: FloatArray, 
     }
     cols.update({f"z{c}": zz[:, c] for c in range(dz)})
     writer.write(cols)
+
+
+def _release_arrow() -> None:
+    import pyarrow as pa
+
+    pa.default_memory_pool().release_unused()
 
 
 def _names_column(names: Sequence[str], repeats: int) -> Any:
