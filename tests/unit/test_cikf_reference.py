@@ -101,10 +101,11 @@ def test_fixed_gains_match_reference(field_singular):
 
 
 @pytest.mark.parametrize("form", ["filter", "predictor"])
-def test_errors_and_simulate_match_reference(field12, field_singular, form):
+@pytest.mark.parametrize("threads", [1, 2])
+def test_errors_and_simulate_match_reference(field12, field_singular, form, threads):
     for sysm, graph in (field12, field_singular):
         T = 10
-        d = design_cikf(sysm, graph, T, form=form)
+        d = design_cikf(sysm, graph, T, form=form, threads=threads)
         paths = sample_paths(sysm, T, 37, rng=5)
         want_e = recursion_impl(d, paths.v, paths.x[:, 0], paths.w, paths.n_runs, T, form)
         _close(d.errors(paths), want_e, "errors")
