@@ -2,7 +2,7 @@
 
 ::
 
-    teamkf evaluate SCENARIO [--json] [--monte-carlo RUNS] [--seed S] [--plot OUT.png]
+    teamkf evaluate SCENARIO [--json] [--monte-carlo RUNS] [--seed S] [--scheduler WHERE] [--plot OUT.png]
     teamkf design   SCENARIO [--json] [--out GAINS.npz]
     teamkf demo     [--out DIR] [--quick]
     teamkf reproduce ...      (a later version)
@@ -183,7 +183,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
         if seed is None:
             seed = int(np.random.SeedSequence().entropy % (2**32))  # type: ignore[operator]
-        mc = monte_carlo(simulate, sc.horizon, runs, rng=seed)
+        mc = monte_carlo(simulate, sc.horizon, runs, rng=seed, scheduler=args.scheduler)
 
     notes: list[str] = []
     if args.plot:
@@ -194,6 +194,10 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         out: dict[str, Any] = {"scenario": sc.name, "horizon": sc.horizon, "estimators": {}}
         if control:
             out["control"] = control
+        if mc:  # what repeats the Monte Carlo: seed, runs, block and chunk sizes, teamkf version
+            out["monte_carlo"] = {
+                k: v for k, v in next(iter(mc.values())).summary().items() if k in ("runs", "seed", "batch", "chunk", "teamkf_version")
+            }
         for name, d in designs.items():
             if name in mc_only:
                 out["estimators"][name] = {**mc[name].summary(), **({"variant": d.info["variant"]} if "variant" in d.info else {})}
@@ -518,6 +522,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON object (scenario, horizon, estimators)")
     p.add_argument("--monte-carlo", type=_positive_int, metavar="RUNS", help="also simulate RUNS runs of the online agents (finite horizon)")
     p.add_argument("--seed", type=_seed, metavar="S", help="seed of the Monte Carlo runs (default: fresh, printed)")
+    p.add_argument(
+        "--scheduler",
+        metavar="WHERE",
+        default=None,
+        help="where the Monte Carlo chunks run: serial (default), local (an embedded Dask cluster) or a Dask scheduler address",
+    )
     p.add_argument("--plot", metavar="OUT.png", help="plot the stage costs of every estimator (needs matplotlib)")
     p.set_defaults(func=_cmd_evaluate)
 

@@ -13,7 +13,8 @@ to draw 2^130 numbers to reach the next run's counter).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
+from functools import cached_property
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -123,12 +124,12 @@ class Paths:
     def n_steps(self) -> int:
         return int(self.x.shape[1])
 
-    @property
+    @cached_property
     def y_stack(self) -> FloatArray:
         """(n_runs, T, d_y) all agents' measurements."""
         return np.concatenate(self.y, axis=2)
 
-    @property
+    @cached_property
     def v_stack(self) -> FloatArray:
         return np.concatenate(self.v, axis=2)
 
@@ -174,14 +175,14 @@ def sample_paths(
     x = np.empty((R_, T, dx))
     x[:, 0] = z0 @ psd_sqrt(system.Sigma_x).T
     w = np.empty((R_, max(T - 1, 0), dx))
-    memo: dict[int, tuple[FloatArray, FloatArray]] = {}  # factor once per distinct matrix (time-invariant systems)
+    memo: dict[tuple[Any, ...], FloatArray] = {}  # factor once per distinct matrix (time-invariant systems)
 
     def factor(M: FloatArray, how: str) -> FloatArray:
-        hit = memo.get(id(M))
-        if hit is None or hit[0] is not M:
-            hit = (M, psd_sqrt(M) if how == "sqrt" else np.linalg.cholesky(M))
-            memo[id(M)] = hit
-        return hit[1]
+        key = (how, M.__array_interface__["data"][0], M.shape, M.strides)  # the same stored matrix (a view of it)
+        hit = memo.get(key)
+        if hit is None:
+            hit = memo[key] = psd_sqrt(M) if how == "sqrt" else np.linalg.cholesky(M)
+        return hit
 
     for k in range(T - 1):
         w[:, k] = zw[:, k] @ factor(system.Q_at(k), "sqrt").T
