@@ -1135,8 +1135,11 @@ def _iterate(
         # --- (41): Γ' = M Π' ;  (42): P_f = M P M' + B^I D̄_H B^I' ---
         Gt = ops.m_left(rows, Pt)  # Γ' = E[e_{k|k} ε_{k|k-1}'], (Nr x NM)
         Z = ops.m_left(rows, P)  # M P; P M' = Z' (P symmetric)
-        Pf = ops.m_sandwich(rows, np.ascontiguousarray(Z.T))  # M P M', symmetric by construction
+        del P  # (the big matrices are released as soon as they are used: peak memory)
+        Zt = np.ascontiguousarray(Z.T)
         del Z
+        Pf = ops.m_sandwich(rows, Zt)  # M P M', symmetric by construction
+        del Zt
         for n in range(N):
             nz = Bu_k[n] @ Rn[n] @ Bu_k[n].T
             Pf[n * r : (n + 1) * r, n * r : (n + 1) * r] += 0.5 * (nz + nz.T)
@@ -1158,12 +1161,14 @@ def _iterate(
         Pft = ops.bd_right(Gt, F)
         ops.add(Pft, ops.bd_right(Pf, Kk))
         L1 = ops.bd_left(F, Sig)
+        del Sig
         ops.add(L1, ops.bd_left(Kk, Pt if p43 else Gt))  # F Σ + K Γ'
         if p43:  # the extracted (43): Π_{k|k-1} in both cross terms
             Sf = ops.bd_right(L1, F) + ops.bd_left(Kk, ops.bd_right(Pt, F) + ops.bd_right(Pf, Kk))
         else:  # exact: L1 F' + Π_f K' = L1 F' + (K Π_f')'
             Sf = ops.bd_right(L1, F)
             ops.add(Sf, ops.bd_left(Kk, Pft))
+        del L1, Gt, Pt
         ops.sym(Sf)
         Sf_all[k] = _diag_blocks(Sf, N, M)
         if form == "filter":
@@ -1181,11 +1186,14 @@ def _iterate(
             if not p45:
                 P += 2.0 * chk.right(ops, Yx) + chk.right(ops, AcS)
             ops.add(Yx, AcS)
+        del Pf
         ops.sym(P)
         ops.add_tiled(P, GVG1)
         Pt = ops.bd_right(Yx, A)
+        del Yx, Pft
         ops.add_tiled(Pt, GV1)
         Sig = ops.bd_right(ops.bd_left(A, Sf), A)  # symmetric to round-off (Σ_f is symmetrized)
+        del Sf
         ops.add_tiled(Sig, VV1)
         if not (np.isfinite(P[0, 0]) and np.isfinite(Sig[0, 0])):
             raise FloatingPointError(
