@@ -203,9 +203,7 @@ def main() -> None:
     if args.json:
         print(json.dumps(res, indent=1))
         return
-    print(
-        f"CIKF at M = N = {args.size}, T = {args.steps}, {args.runs} runs ({res['cpus']} CPUs); load {res['load_before']} -> {res['load_after']}"
-    )
+    print(f"CIKF at M = N = {args.size}, T = {args.steps}, {args.runs} runs ({res['cpus']} CPUs); load {res['load_before']} -> {res['load_after']}")
     print(
         f"  gain design (structured, {args.threads} threads): {res['design_s']:.1f} s  ({res['design_per_step_s']:.2f} s/step; "
         f"1 thread: {res.get('design_1thread_per_step_s', float('nan')):.2f} s/step); peak RSS {res['design_peak_rss_MiB']:.0f} MiB"

@@ -543,6 +543,44 @@ class _Structured:
         self._par(work, self.N)
         return out
 
+    def bd_left_add(self, out: FloatArray, B: FloatArray, X: FloatArray) -> FloatArray:
+        """out += blockdiag(B) X, block row by block row (no full-size temporary)."""
+        b, C = B.shape[-1], X.shape[1]
+        X3 = np.ascontiguousarray(X).reshape(self.N, b, C)
+        a = B.shape[-2]
+        o3 = out.reshape(self.N, a, C)
+
+        def work(lo: int, hi: int) -> None:
+            for n in range(lo, hi):
+                o3[n] += (B if B.ndim == 2 else B[n]) @ X3[n]
+
+        self._par(work, self.N)
+        return out
+
+    def bd_right_add(self, out: FloatArray, X: FloatArray, B: FloatArray) -> FloatArray:
+        """out += X blockdiag(B)' for a per-agent B (N, a, b), column block by column block."""
+        a, b = B.shape[1], B.shape[2]
+
+        def work(lo: int, hi: int) -> None:
+            for n in range(lo, hi):
+                out[:, n * a : (n + 1) * a] += X[:, n * b : (n + 1) * b] @ B[n].T
+
+        self._par(work, self.N)
+        return out
+
+    def add_check(self, P: FloatArray, Y1: FloatArray, Y2: FloatArray, Aw: FloatArray) -> FloatArray:
+        """P += 2 Y1 blockdiag(Aw)' + Y2 blockdiag(Aw)' by row ranges (Y1, Y2 thin: N (M - r) columns)."""
+        q, a = Aw.shape[1], Aw.shape[0]
+        Y1, Y2 = np.ascontiguousarray(Y1), np.ascontiguousarray(Y2)
+
+        def work(lo: int, hi: int) -> None:
+            T1 = (Y1[lo:hi].reshape(-1, q) @ Aw.T).reshape(hi - lo, -1)
+            T2 = (Y2[lo:hi].reshape(-1, q) @ Aw.T).reshape(hi - lo, -1)
+            P[lo:hi] += 2.0 * T1 + T2
+
+        self._par(work, P.shape[0])
+        return P
+
     def add(self, X: FloatArray, Y: FloatArray) -> FloatArray:
         """X += Y by row ranges."""
 
@@ -1134,6 +1172,8 @@ def _iterate(
         B_innov.append(tuple(Bu_k))
         # --- (41): Γ' = M Π' ;  (42): P_f = M P M' + B^I D̄_H B^I' ---
         Gt = ops.m_left(rows, Pt)  # Γ' = E[e_{k|k} ε_{k|k-1}'], (Nr x NM)
+        if not p43:
+            del Pt
         Z = ops.m_left(rows, P)  # M P; P M' = Z' (P symmetric)
         del P  # (the big matrices are released as soon as they are used: peak memory)
         Zt = np.ascontiguousarray(Z.T)
@@ -1159,16 +1199,19 @@ def _iterate(
         F = eyeM - Kk @ Gr  # (N, M, M)
         # --- (44): Π_f' = Γ' F' + P_f K' ;  (43)*: Σ_f = F Σ F' + F Γ K' + K Γ' F' + K P_f K' ---
         Pft = ops.bd_right(Gt, F)
-        ops.add(Pft, ops.bd_right(Pf, Kk))
+        ops.bd_right_add(Pft, Pf, Kk)
         L1 = ops.bd_left(F, Sig)
         del Sig
-        ops.add(L1, ops.bd_left(Kk, Pt if p43 else Gt))  # F Σ + K Γ'
+        ops.bd_left_add(L1, Kk, Pt if p43 else Gt)  # F Σ + K Γ'
+        del Gt
         if p43:  # the extracted (43): Π_{k|k-1} in both cross terms
             Sf = ops.bd_right(L1, F) + ops.bd_left(Kk, ops.bd_right(Pt, F) + ops.bd_right(Pf, Kk))
         else:  # exact: L1 F' + Π_f K' = L1 F' + (K Π_f')'
             Sf = ops.bd_right(L1, F)
-            ops.add(Sf, ops.bd_left(Kk, Pft))
-        del L1, Gt, Pt
+            ops.bd_left_add(Sf, Kk, Pft)
+        del L1
+        if p43:
+            del Pt
         ops.sym(Sf)
         Sf_all[k] = _diag_blocks(Sf, N, M)
         if form == "filter":
@@ -1178,15 +1221,16 @@ def _iterate(
         # --- (45)*: P' = Ã P_f Ã' + 2 sym(Ã Π_f' Ǎ') + Ǎ Σ_f Ǎ' ; (47): Π'' = (Ã Π_f' + Ǎ Σ_f) A' ; (46) ---
         Yx = ops.bd_left(At, Pft)  # Ã Π_f'   (Nr x NM)
         P = ops.bd_right(ops.bd_left(At, Pf), At)
+        del Pf
         if p45:  # the extracted (45): Ã (acting on x-quantities: Ã_r U') in every term
             Ax = At @ model.U.T
             P += 2.0 * ops.bd_right(Yx, Ax) + ops.bd_right(ops.bd_left(Ax, Sf), Ax)
         if not chk.zero:
             AcS = chk.left(ops, Sf)  # Ǎ Σ_f
-            if not p45:
-                P += 2.0 * chk.right(ops, Yx) + chk.right(ops, AcS)
+            if not p45:  # P += 2 Yx Ǎ' + Ǎ Σ_f Ǎ' (rank M - r factors; row ranges, no full-size temporaries)
+                ops.add_check(P, ops.bd_right(Yx, chk.Wt), ops.bd_right(AcS, chk.Wt), chk.Aw)
             ops.add(Yx, AcS)
-        del Pf
+            del AcS
         ops.sym(P)
         ops.add_tiled(P, GVG1)
         Pt = ops.bd_right(Yx, A)
