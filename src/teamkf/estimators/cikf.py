@@ -570,7 +570,7 @@ class _Structured:
 
     def add_check(self, P: FloatArray, Y1: FloatArray, Y2: FloatArray, Aw: FloatArray) -> FloatArray:
         """P += 2 Y1 blockdiag(Aw)' + Y2 blockdiag(Aw)' by row ranges (Y1, Y2 thin: N (M - r) columns)."""
-        q, a = Aw.shape[1], Aw.shape[0]
+        q = Aw.shape[1]
         Y1, Y2 = np.ascontiguousarray(Y1), np.ascontiguousarray(Y2)
 
         def work(lo: int, hi: int) -> None:
