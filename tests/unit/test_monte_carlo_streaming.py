@@ -90,7 +90,7 @@ def test_seed_is_recorded_and_reproduces(platoon):
     b = monte_carlo(platoon, 10, 300, rng=np.random.SeedSequence(seed["entropy"]), batch=100)
     _same(a, b)
     s = a["mtmse"].summary()
-    assert s["seed"] == seed and s["batch"] == 100 and s["chunk"] == 1600 and "teamkf_version" in s
+    assert s["seed"] == seed and s["batch"] == 100 and s["chunk"] % 100 == 0 and "teamkf_version" in s
     c = monte_carlo(platoon, 10, 300, rng=7, batch=100)
     assert c["mtmse"].seed == {"entropy": 7, "spawn_key": []}
     assert RunStreams(7).key.tolist() == RunStreams(np.random.default_rng(7)).key.tolist()
@@ -99,6 +99,7 @@ def test_seed_is_recorded_and_reproduces(platoon):
 def test_memory_does_not_grow_with_runs(platoon):
     """Peak traced memory for 3 000 and 30 000 runs (batch 256): the same to within a few per cent."""
     d = {"mtmse": platoon["mtmse"]}
+    monte_carlo(d, 10, 600, rng=1, batch=256)  # one-time allocations (imports, caches) out of the way
     peaks = []
     for runs in (3000, 30000):
         tracemalloc.start()

@@ -53,7 +53,7 @@ __all__ = ["MonteCarloResult", "monte_carlo", "Z95", "ExactSums", "DEFAULT_BATCH
 Z95 = 1.959963984540054
 #: default runs per computation block (memory: one block's paths and errors per worker)
 DEFAULT_BATCH = 1024
-#: default blocks per chunk (one chunk = one task)
+#: most blocks per chunk by default (one chunk = one task)
 DEFAULT_BLOCKS_PER_CHUNK = 16
 _SHIFT = 1126  # 2^-1126 is below the smallest subnormal times 2^-52: every double is an integer multiple of it
 _MAX_RUNS = 2**63  # run indices are Philox counter words (uint64)
@@ -271,6 +271,8 @@ def _run_chunk(spec: _Spec, first_block: int, last_block: int) -> dict[str, list
                 s1.add(c.sum(axis=0))
                 s2.add((c * c).sum(axis=0))
                 st.add(np.array([tot.sum(), (tot * tot).sum()]))
+                del c, tot
+            del paths  # one block alive at a time (else the next block is drawn while this one is held)
     return {name: [s1.acc, s2.acc, st.acc] for name, (s1, s2, st) in acc.items()}
 
 
@@ -343,8 +345,9 @@ def monte_carlo(
     path : "errors" (cancellation-free recursions) or "runtime" (agents on measurements)
     graph : with path="runtime", run the agents over this graph (message passing)
         instead of the structure-driven delivery
-    chunk : runs per task (rounded up to a multiple of ``batch``; default 16 blocks). The result does not
-        depend on it, bit for bit
+    chunk : runs per task (rounded up to a multiple of ``batch``; default: at most 16 blocks, and about 32
+        tasks when there are enough blocks, so that workers stay busy). The result does not depend on it,
+        bit for bit
     scheduler : None or "serial" (this process), "local" (an embedded Dask LocalCluster, one
         single-threaded worker per core), a Dask scheduler address, a ``distributed.Client`` or a cluster.
         One chunk per task, retried (3 times) when a worker is lost; bit-for-bit the serial result
@@ -378,9 +381,12 @@ def monte_carlo(
         if d.system is not system and d.system.n_agents != system.n_agents:
             raise ShapeError(f"designs[{name!r}]: every design must be for the same system")
     system.require_horizon(T)
-    per_chunk = DEFAULT_BLOCKS_PER_CHUNK if chunk is None else -(-V.positive_int(chunk, "chunk") // B)
-    streams = RunStreams(rng)
     n_blocks = -(-R_ // B)
+    if chunk is None:  # at most 16 blocks a task, and some 32 tasks when there are enough blocks (balance)
+        per_chunk = max(1, min(DEFAULT_BLOCKS_PER_CHUNK, -(-n_blocks // 32)))
+    else:
+        per_chunk = -(-V.positive_int(chunk, "chunk") // B)
+    streams = RunStreams(rng)
     chunks = _chunks(n_blocks, per_chunk)
     spec = _Spec(dict(designs), system, T, R_, streams, B, path, graph)
     tot = {name: (ExactSums(T), ExactSums(T), ExactSums(2)) for name in designs}
