@@ -22,7 +22,7 @@ import numpy as np
 from teamkf import CommGraph, LinearGaussianSystem, TeamCost, design_kcf, design_mmse, design_mtmse
 from teamkf.simulation.monte_carlo import monte_carlo
 from teamkf.simulation.runtime import graph_agents, run_graph
-from teamkf.simulation.sampling import run_streams, sample_paths
+from teamkf.simulation.sampling import sample_paths
 
 
 def main() -> None:
@@ -44,11 +44,10 @@ def main() -> None:
     t2 = time.perf_counter()
     vec = t2 - t1
 
-    streams = run_streams(1, a.runs)[: a.loop_runs]
     t3 = time.perf_counter()
     loop_costs = {name: [] for name in designs}
     for r in range(a.loop_runs):  # one run at a time, every step in Python, batch of 1
-        p = sample_paths(system, T, 1, rng=None, streams=[streams[r]])
+        p = sample_paths(system, T, 1, rng=1, first_run=r)  # run r of the Monte Carlo's seed, alone
         for name, d in designs.items():
             z = run_graph(graph_agents(d), graph, p.y)
             c = sum(float(cost.value(p.x[0, k], z[0, k], k)) for k in range(T))
@@ -69,7 +68,7 @@ def main() -> None:
             + (f"  analytic {designs[name].total_cost:.6g}" if designs[name].stage_costs is not None else "")
         )
     # same runs, early steps (before the cancellation matters): both paths agree
-    p = sample_paths(system, 10, 3, rng=None, streams=streams[:3])
+    p = sample_paths(system, 10, 3, rng=1)
     for name, d in designs.items():
         z = run_graph(graph_agents(d), graph, p.y)
         e_loop = np.stack([p.x[:, k] @ cost.L_at(k).T - z[:, k] for k in range(10)], axis=1)

@@ -2,7 +2,7 @@
 
 ::
 
-    teamkf evaluate SCENARIO [--json] [--monte-carlo RUNS] [--seed S] [--plot OUT.png]
+    teamkf evaluate SCENARIO [--json] [--monte-carlo RUNS] [--seed S] [--scheduler WHERE] [--plot OUT.png]
     teamkf design   SCENARIO [--json] [--out GAINS.npz]
     teamkf demo     [--out DIR] [--quick]
     teamkf reproduce ...      (a later version)
@@ -255,7 +255,11 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         if seed is None:
             seed = int(np.random.SeedSequence().entropy % (2**32))  # type: ignore[operator]
         try:
-            mc = monte_carlo(simulate, sc.horizon, runs, rng=seed, **sc.monte_carlo_options())  # [network]: unreliable links
+            if args.scheduler not in (None, "serial", "local"):
+                _check_scheduler(args.scheduler)
+            mc = monte_carlo(
+                simulate, sc.horizon, runs, rng=seed, scheduler=args.scheduler, **sc.monte_carlo_options()
+            )  # [network]: unreliable links
         except ArgumentError as exc:
             raise (exc.rekeyed("--monte-carlo") if exc.argument == "n_runs" else exc) from None
     for name, d in designs.items():
@@ -269,10 +273,11 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     control = _control_summary(sc, runs, seed)
     if args.json:
         out: dict[str, Any] = {"scenario": sc.name, "horizon": sc.horizon, "teamkf_version": _version(), "estimators": {}}
-        if runs is not None:
-            out["monte_carlo"] = {"runs": runs, "seed": seed}
         if control:
             out["control"] = control
+        if mc:  # what repeats the Monte Carlo: seed, runs, block and chunk sizes, teamkf version
+            out["monte_carlo"] = {k: v for k, v in next(iter(mc.values())).summary().items() if k in ("runs", "batch", "chunk", "teamkf_version")}
+            out["monte_carlo"]["seed"] = seed  # the --seed given (or drawn and printed): it repeats the run
         for name, d in designs.items():
             if name in mc_only:
                 entry = {**mc[name].summary(), **({"variant": d.info["variant"]} if "variant" in d.info else {})}
@@ -826,6 +831,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON object (scenario, horizon, estimators)")
     p.add_argument("--monte-carlo", type=_positive_int, metavar="RUNS", help="also simulate RUNS runs of the online agents (finite horizon)")
     p.add_argument("--seed", type=_seed, metavar="S", help="seed of the Monte Carlo runs (default: fresh, printed)")
+    p.add_argument(
+        "--scheduler",
+        metavar="WHERE",
+        default=None,
+        help="where the Monte Carlo chunks run: serial (default), local (an embedded Dask cluster) or a Dask scheduler address",
+    )
     p.add_argument("--plot", metavar="OUT.png", help="plot the stage costs of every estimator (needs matplotlib)")
     _add_network_flags(p)
     p.set_defaults(func=_cmd_evaluate)

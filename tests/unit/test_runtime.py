@@ -109,10 +109,20 @@ def test_monte_carlo_does_not_depend_on_batching():
 def test_sampling_streams_per_run():
     system = LinearGaussianSystem.platoon(4)
     full = sample_paths(system, 8, 10, rng=3)
-    from teamkf.simulation.sampling import run_streams
+    from teamkf.simulation.sampling import RunStreams, run_streams
 
-    part = sample_paths(system, 8, 4, rng=None, streams=run_streams(3, 10)[6:])
+    part = sample_paths(system, 8, 4, rng=3, first_run=6)  # runs 6..9 of seed 3, drawn alone
     np.testing.assert_array_equal(full.x[6:], part.x)
+    one = sample_paths(system, 8, 1, rng=None, streams=RunStreams(3), first_run=8)
+    np.testing.assert_allclose(full.y[1][8], one.y[1][0], rtol=1e-13)  # same draws; a 1-run product may round differently
+    # run r's stream is Philox(key(seed), counter (0, 0, r, 0)), built on demand
+    m = system.dx * 8 + 8 * sum(system.dy)
+    np.testing.assert_array_equal(RunStreams(3).normals(2, 3, m)[0], RunStreams(3).generator(2).standard_normal(m))
+    # explicit SeedSequences per run still work
+    seqs = run_streams(3, 10)
+    a = sample_paths(system, 8, 4, rng=None, streams=seqs[6:])
+    b = sample_paths(system, 8, 10, rng=None, streams=seqs)
+    np.testing.assert_array_equal(a.x, b.x[6:])
     for a, b in zip(full.y, part.y):
         np.testing.assert_array_equal(a[6:], b)
     # x and y are consistent with the primitive noises

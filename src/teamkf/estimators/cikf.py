@@ -337,6 +337,29 @@ def _psd_solve(S_xy: FloatArray, S_yy: FloatArray, rcond: float, how: str = "cho
     return ((S_xy @ Qk) / w[keep]) @ Qk.T  # type: ignore[no-any-return]
 
 
+class _worker_pool:
+    """A thread pool of ``n`` workers for the block products (None when ``n`` is None or 1).
+
+    numpy releases the GIL inside BLAS calls and ufunc loops, so ``n`` Python threads each running
+    single-threaded BLAS on its own range of agents use ``n`` cores without OpenBLAS's spinning threads.
+    """
+
+    def __init__(self, n: int | None):
+        self.n = n
+        self.pool: Any = None
+
+    def __enter__(self) -> Any:
+        if self.n is not None and self.n > 1:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self.pool = ThreadPoolExecutor(max_workers=self.n, thread_name_prefix="teamkf-cikf")
+        return self.pool
+
+    def __exit__(self, *exc: Any) -> None:
+        if self.pool is not None:
+            self.pool.shutdown(wait=True)
+
+
 def _sym(X: FloatArray) -> FloatArray:
     X += X.T
     X *= 0.5
@@ -344,56 +367,199 @@ def _sym(X: FloatArray) -> FloatArray:
 
 
 class _Structured:
-    """Block products that never form an NM x NM operator: M_k by closed neighbourhoods, the rest block-diagonally."""
+    """Block products that never form an NM x NM operator: M_k by closed neighbourhoods, the rest block-diagonally.
 
-    def __init__(self, N: int, r: int, hoods: Sequence[np.ndarray], r_idx: Sequence[np.ndarray]):
+    Every block of a result is computed by one BLAS call whose shape does not depend on ``pool``; with a
+    thread pool (one BLAS thread per worker) the calls are spread over the workers in contiguous ranges of
+    agents, so the numbers are the same with one worker or several.
+    """
+
+    def __init__(self, N: int, r: int, hoods: Sequence[np.ndarray], r_idx: Sequence[np.ndarray], pool: Any = None, workers: int = 1):
         self.N, self.r, self.hoods, self.r_idx = N, r, hoods, r_idx
+        self.pool, self.workers = pool, max(1, int(workers))
+
+    def _par(self, fn: Any, n: int) -> None:
+        """fn(lo, hi) over ``workers`` contiguous ranges of range(n) (in the pool when there is one)."""
+        if self.pool is None or self.workers == 1 or n < 2:
+            fn(0, n)
+            return
+        cuts = np.linspace(0, n, min(self.workers, n) + 1).round().astype(int)
+        futs = [self.pool.submit(fn, int(a), int(b)) for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
+        for f in futs:
+            f.result()
 
     def m_right(self, X: FloatArray, rows: Sequence[FloatArray]) -> FloatArray:
         """X M' (M given by its block rows over closed neighbourhoods)."""
         r = self.r
         out = np.empty((X.shape[0], self.N * r))
-        for n, row in enumerate(rows):
-            out[:, n * r : (n + 1) * r] = X[:, self.r_idx[n]] @ row.T
+
+        def work(lo: int, hi: int) -> None:
+            for n in range(lo, hi):
+                out[:, n * r : (n + 1) * r] = X[:, self.r_idx[n]] @ rows[n].T
+
+        self._par(work, self.N)
         return out
 
     def m_left(self, rows: Sequence[FloatArray], X: FloatArray) -> FloatArray:
         """M X."""
         r = self.r
         out = np.empty((self.N * r, X.shape[1]))
-        for n, row in enumerate(rows):
-            out[n * r : (n + 1) * r] = row @ X[self.r_idx[n]]
+
+        def work(lo: int, hi: int) -> None:
+            for n in range(lo, hi):
+                np.matmul(rows[n], np.take(X, self.r_idx[n], axis=0), out=out[n * r : (n + 1) * r])
+
+        self._par(work, self.N)
         return out
 
     def m_sandwich(self, rows: Sequence[FloatArray], Zt: FloatArray) -> FloatArray:
         """M Z' given Z' (symmetric result M P M' with Z = M P): the upper block triangle, mirrored."""
-        r = self.r
-        out = np.empty((self.N * r, Zt.shape[1]))
-        for n, row in enumerate(rows):
-            out[n * r : (n + 1) * r, n * r :] = row @ Zt[self.r_idx[n], n * r :]
-        for n in range(1, self.N):
-            out[n * r : (n + 1) * r, : n * r] = out[: n * r, n * r : (n + 1) * r].T
+        r, N = self.r, self.N
+        out = np.empty((N * r, Zt.shape[1]))
+
+        def upper(lo: int, hi: int) -> None:
+            for n in range(lo, hi):
+                np.matmul(rows[n], Zt[self.r_idx[n], n * r :], out=out[n * r : (n + 1) * r, n * r :])
+
+        # balance the triangle: agent n's row costs ~ (N - n) blocks
+        self._par_tri(upper, N)
+
+        def mirror(lo: int, hi: int) -> None:
+            for n in range(max(lo, 1), hi):
+                out[n * r : (n + 1) * r, : n * r] = out[: n * r, n * r : (n + 1) * r].T
+
+        self._par(mirror, N)
         return out
+
+    def _par_tri(self, fn: Any, n: int) -> None:
+        """Like _par, with ranges of equal work for rows whose cost falls linearly (upper triangles)."""
+        if self.pool is None or self.workers == 1 or n < 2:
+            fn(0, n)
+            return
+        w = np.arange(n, 0, -1, dtype=float)
+        c = np.concatenate([[0.0], np.cumsum(w)])
+        cuts = [0] + [int(np.searchsorted(c, c[-1] * j / self.workers)) for j in range(1, self.workers)] + [n]
+        futs = [self.pool.submit(fn, a, b) for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
+        for f in futs:
+            f.result()
 
     def bd_left(self, B: FloatArray, X: FloatArray) -> FloatArray:
         """blockdiag(B) X; B is (N, a, b) or one shared (a, b)."""
         b = B.shape[-1]
+        a = B.shape[-2]
         C = X.shape[1]
         X3 = np.ascontiguousarray(X).reshape(self.N, b, C)
-        return np.matmul(B, X3).reshape(-1, C)  # type: ignore[no-any-return]
+        out = np.empty((self.N, a, C))
+
+        def work(lo: int, hi: int) -> None:
+            np.matmul(B if B.ndim == 2 else B[lo:hi], X3[lo:hi], out=out[lo:hi])
+
+        self._par(work, self.N)
+        return out.reshape(-1, C)
 
     def bd_right(self, X: FloatArray, B: FloatArray) -> FloatArray:
         """X blockdiag(B)'; B is (N, a, b) or one shared (a, b)."""
         Rr = X.shape[0]
         b = B.shape[-1]
-        X3 = np.ascontiguousarray(X).reshape(Rr, self.N, b)
         if B.ndim == 2:
-            return (X3.reshape(-1, b) @ B.T).reshape(Rr, -1)  # type: ignore[no-any-return]
+            X3 = np.ascontiguousarray(X).reshape(Rr, self.N, b)
+            out2 = np.empty((Rr, self.N * B.shape[0]))
+
+            def work2(lo: int, hi: int) -> None:  # row ranges: the one GEMM split by rows
+                np.matmul(X3[lo:hi].reshape(-1, b), B.T, out=out2[lo:hi].reshape(-1, B.shape[0]))
+
+            self._par(work2, Rr)
+            return out2
         a = B.shape[1]
         out = np.empty((Rr, self.N * a))
-        for n in range(self.N):  # strided column blocks go to BLAS without copies
-            out[:, n * a : (n + 1) * a] = X[:, n * b : (n + 1) * b] @ B[n].T
+
+        def work(lo: int, hi: int) -> None:
+            for n in range(lo, hi):  # strided column blocks go to BLAS without copies
+                np.matmul(X[:, n * b : (n + 1) * b], B[n].T, out=out[:, n * a : (n + 1) * a])
+
+        self._par(work, self.N)
         return out
+
+    def bd_left_add(self, out: FloatArray, B: FloatArray, X: FloatArray) -> FloatArray:
+        """out += blockdiag(B) X, block row by block row (no full-size temporary)."""
+        b, C = B.shape[-1], X.shape[1]
+        X3 = np.ascontiguousarray(X).reshape(self.N, b, C)
+        a = B.shape[-2]
+        o3 = out.reshape(self.N, a, C)
+
+        def work(lo: int, hi: int) -> None:
+            for n in range(lo, hi):
+                o3[n] += (B if B.ndim == 2 else B[n]) @ X3[n]
+
+        self._par(work, self.N)
+        return out
+
+    def bd_right_add(self, out: FloatArray, X: FloatArray, B: FloatArray) -> FloatArray:
+        """out += X blockdiag(B)' for a per-agent B (N, a, b), column block by column block."""
+        a, b = B.shape[1], B.shape[2]
+
+        def work(lo: int, hi: int) -> None:
+            for n in range(lo, hi):
+                out[:, n * a : (n + 1) * a] += X[:, n * b : (n + 1) * b] @ B[n].T
+
+        self._par(work, self.N)
+        return out
+
+    def add_check(self, P: FloatArray, Y1: FloatArray, Y2: FloatArray, Aw: FloatArray) -> FloatArray:
+        """P += 2 Y1 blockdiag(Aw)' + Y2 blockdiag(Aw)' by row ranges (Y1, Y2 thin: N (M - r) columns)."""
+        q = Aw.shape[1]
+        Y1, Y2 = np.ascontiguousarray(Y1), np.ascontiguousarray(Y2)
+
+        def work(lo: int, hi: int) -> None:
+            T1 = (Y1[lo:hi].reshape(-1, q) @ Aw.T).reshape(hi - lo, -1)
+            T2 = (Y2[lo:hi].reshape(-1, q) @ Aw.T).reshape(hi - lo, -1)
+            P[lo:hi] += 2.0 * T1 + T2
+
+        self._par(work, P.shape[0])
+        return P
+
+    def add(self, X: FloatArray, Y: FloatArray) -> FloatArray:
+        """X += Y by row ranges."""
+
+        def work(lo: int, hi: int) -> None:
+            X[lo:hi] += Y[lo:hi]
+
+        self._par(work, X.shape[0])
+        return X
+
+    def add_tiled(self, X: FloatArray, B: FloatArray) -> FloatArray:
+        """X += (1 1') ⊗ B (every a x b block of X gets B), without forming the tiled matrix."""
+        a, b = B.shape
+        X4 = X.reshape(X.shape[0] // a, a, X.shape[1] // b, b)
+
+        def work(lo: int, hi: int) -> None:
+            X4[lo:hi] += B[None, :, None, :]
+
+        self._par(work, X4.shape[0])
+        return X
+
+    def sym(self, X: FloatArray) -> FloatArray:
+        """X <- (X + X') / 2 in place, by block rows (upper block triangle computed, then mirrored)."""
+        n = X.shape[0]
+        nb = max(1, min(self.N, n))
+        edges = np.linspace(0, n, nb + 1).round().astype(int)
+
+        def upper(lo: int, hi: int) -> None:
+            for i in range(lo, hi):
+                a, b = edges[i], edges[i + 1]
+                blk = X[a:b, a:]
+                blk += X[a:, a:b].T
+                blk *= 0.5
+
+        self._par_tri(upper, nb)
+
+        def mirror(lo: int, hi: int) -> None:
+            for i in range(max(lo, 1), hi):
+                a, b = edges[i], edges[i + 1]
+                X[a:b, :a] = X[:a, a:b].T
+
+        self._par(mirror, nb)
+        return X
 
 
 class _Dense(_Structured):
@@ -432,6 +598,24 @@ def _diag_blocks(X: FloatArray, N: int, a: int) -> FloatArray:
     """The N diagonal a x a blocks of an Na x Na matrix, (N, a, a)."""
     X4 = X.reshape(N, a, N, a)
     return np.ascontiguousarray(X4[np.arange(N), :, np.arange(N), :])
+
+
+def _agent_groups(neighbors: Sequence[Sequence[int]], m_sizes: Sequence[int], parts: int = 1) -> list[list[tuple[np.ndarray, np.ndarray]]]:
+    """Agents batched by (neighbourhood size, measurement size), each batch split into ``parts`` shares.
+
+    Returns ``parts`` lists of (agents, closed neighbourhoods (g, d+1)) with about equal numbers of agents
+    of each size, so that ``parts`` workers get equal work.
+    """
+    keyed: dict[tuple[int, int], list[int]] = {}
+    for n, nb in enumerate(neighbors):
+        keyed.setdefault((len(nb), int(m_sizes[n])), []).append(n)
+    out: list[list[tuple[np.ndarray, np.ndarray]]] = [[] for _ in range(max(1, parts))]
+    for (d, _), agents in sorted(keyed.items()):
+        for j, share in enumerate(np.array_split(np.asarray(agents, dtype=np.intp), len(out))):
+            if share.size:
+                hood = np.asarray([[n, *neighbors[n]] for n in share], dtype=np.intp).reshape(share.size, d + 1)
+                out[j].append((share, hood))
+    return [p for p in out if p]
 
 
 # ---------------------------------------------------------------------------
@@ -571,7 +755,8 @@ class CIKFDesign(Design):
         return ys, n_runs, T
 
     def _recursion(self, ys: Sequence[FloatArray] | None, x0: FloatArray | None, w: FloatArray | None, n_runs: int, T: int, form: str) -> FloatArray:
-        with blas_threads(self.info.get("threads", 1)):
+        threads = self.info.get("threads", 1)
+        with blas_threads(None if threads is None else 1):
             return self._recursion_impl(ys, x0, w, n_runs, T, form)
 
     def _recursion_impl(
@@ -579,68 +764,108 @@ class CIKFDesign(Design):
     ) -> FloatArray:
         """Algorithm 1 on data (``ys``) or its error recursion (30)-(33) on the primitive noises (x0, w, ys = v).
 
-        Agent-major layout (N, n_runs, .) so that every per-agent product is a contiguous GEMM.
+        Runs-last layout (N, dim, n_runs): agent n's closed neighbourhood is a gather along the first axis
+        that is already the (d + 1) r x n_runs operand of one GEMM with its block row of M_k, and agents
+        with the same neighbourhood size and measurement size are batched into one ``matmul``:
+
+            ŷ^n_{k|k} = [M_k]_{n, hood(n)} ŷ_{hood(n)} + B_u^n y_n(k)        (data; M_k = I - B^C - B^I D̃_H)
+            e^n_{k|k} = [M_k]_{n, hood(n)} e_{hood(n)} - B_u^n v_n(k)        (errors)
         """
         m, sys, cost = self.model, self.system, self.cost
         N, M, r = self.n_agents, sys.dx, m.rank
         A = sys.A_at(0)
         errors = x0 is not None
+        R_ = n_runs
         if errors:
-            yh = np.repeat((x0 @ m.G_r.T)[None], N, axis=0)  # type: ignore[index,operator]  # e^n_{0|-1} = G_r (x0 - x̄0)
-            xh = np.repeat(x0[None], N, axis=0)  # type: ignore[index]  # ε^n_{0|-1}
+            yh = np.repeat((m.G_r @ x0.T)[None], N, axis=0)  # type: ignore[union-attr]  # e^n_{0|-1} = G_r (x0 - x̄0)
+            xh = np.repeat(np.ascontiguousarray(x0.T)[None], N, axis=0)  # type: ignore[union-attr]  # ε^n_{0|-1}
         else:
-            yh = np.zeros((N, n_runs, r))  # ŷ^n_{0|-1} = G_r x̄_0 = 0
-            xh = np.zeros((N, n_runs, M))
+            yh = np.zeros((N, r, R_))  # ŷ^n_{0|-1} = G_r x̄_0 = 0
+            xh = np.zeros((N, M, R_))
         dz = cost.dz
         identity_L = dz == M and all(
             np.array_equal(cost.L_block(n, k), np.eye(M)) for n in range(N) for k in range(min(T, 1 if not cost.is_time_varying else T))
         )
+        threads = self.info.get("threads", 1) or 1
+        groups = _agent_groups(self.neighbors, [c.shape[0] for c in m.C_tilde], parts=threads)
+        offs = np.concatenate([[0], np.cumsum([c.shape[0] for c in m.C_tilde])])
+        ystack = np.concatenate([np.asarray(y, dtype=float) for y in ys], axis=2)  # type: ignore[union-attr]  # (R, T, sum M_n)
         out = np.empty((n_runs, T, N * dz))
-        sign = -1.0 if errors else 1.0
-        for k in range(T):
-            Bc_k, Bu_k = self.B_cons[k], self.B_innov[k]
-            yf = np.empty_like(yh)
-            for n in range(N):
-                nb = self.neighbors[n]
-                own = yh[n]
-                # innovation u^n = y_n - C̃_n ŷ^n (data)  |  C̃_n e^n + v_n (errors)
-                if errors:
-                    u = own @ m.C_tilde[n].T + ys[n][:, k]  # type: ignore[index]
+        Gr, Atr = m.G_r, m.A_tilde_r
+        chk = _CheckA(m, A)  # Ǎ_r = Aw Wt (rank M - r)
+        Lb = None if identity_L else [np.stack([cost.L_block(n, k) for n in range(N)]) for k in range(T)]
+        yf = np.empty((N, r, R_))
+        xf = np.empty((N, M, R_))
+        cuts = np.linspace(0, N, min(threads, N) + 1).round().astype(int)
+        with _worker_pool(threads if threads > 1 else None) as pool:
+
+            def run(tasks: Sequence[Any]) -> None:
+                if pool is None:
+                    for f in tasks:
+                        f()
                 else:
-                    u = ys[n][:, k] - own @ m.C_tilde[n].T  # type: ignore[index]
-                acc = u @ Bu_k[n].T
-                if sign < 0:
-                    np.negative(acc, out=acc)
-                acc += own
-                if nb:
-                    # consensus + Σ_l B^{nl} (ŷ^l - ŷ^n) on data, + Σ_l B^{nl} (e^l - e^n) on errors (same sign)
-                    Bc = Bc_k[n]
-                    acc -= own @ Bc.reshape(r, len(nb), r).sum(axis=1).T
-                    for q, l in enumerate(nb):
-                        acc += yh[l] @ Bc[:, q * r : (q + 1) * r].T
-                yf[n] = acc
-            # ν = ŷ_f - G_r x̂ (data) | G_r ε - e_f (errors);  x̂_f = x̂ + K ν | ε_f = ε - K ν
-            nu = xh @ m.G_r.T
-            if errors:
-                nu -= yf
-            else:
-                np.subtract(yf, nu, out=nu)
-            corr = np.matmul(nu, self.K[k].transpose(0, 2, 1))  # (N, R, M)
-            xf = xh - corr if errors else xh + corr
-            src = xf if form == "filter" else xh
-            if identity_L:
-                out[:, k] = src.transpose(1, 0, 2).reshape(n_runs, N * M)
-            else:
-                for n in range(N):
-                    out[:, k, n * dz : (n + 1) * dz] = src[n] @ cost.L_block(n, k).T
-            if k + 1 < T:
-                yh = yf @ m.A_tilde_r.T
-                if m.rank < M:
-                    yh += xf @ m.A_check_r.T
-                xh = xf @ A.T
-                if errors:
-                    yh += w[:, k] @ m.G_r.T  # type: ignore[index]
-                    xh += w[:, k]  # type: ignore[index]
+                    for fut in [pool.submit(f) for f in tasks]:
+                        fut.result()
+
+            for k in range(T):
+                Bu_k = self.B_innov[k]
+                rows_k = self.m_rows(k)
+                yk = np.ascontiguousarray(ystack[:, k].T)  # (sum M_n, R)
+                wk = np.ascontiguousarray(w[:, k].T) if errors and k + 1 < T else None  # type: ignore[index]  # (M, R)
+                yh_next = np.empty_like(yh)
+                xh_next = np.empty_like(xh)
+
+                def consensus(
+                    part: Sequence[tuple[np.ndarray, np.ndarray]], yh: FloatArray = yh, rows_k: Any = rows_k, Bu_k: Any = Bu_k, yk: FloatArray = yk
+                ) -> None:
+                    tmp = np.empty((r, R_))
+                    for agents, hood in part:
+                        for n, h in zip(agents, hood):  # M_k's block row over the closed neighbourhood, block by block
+                            row = rows_k[n]
+                            np.matmul(row[:, :r], yh[n], out=yf[n])
+                            for q in range(1, h.size):
+                                np.matmul(row[:, q * r : (q + 1) * r], yh[h[q]], out=tmp)
+                                yf[n] += tmp
+                        mn = offs[agents[0] + 1] - offs[agents[0]]
+                        if mn:
+                            Bu = np.stack([Bu_k[n] for n in agents])
+                            Yv = np.stack([yk[offs[n] : offs[n] + mn] for n in agents])
+                            if errors:
+                                yf[agents] -= np.matmul(Bu, Yv)  # - B_u^n v_n
+                            else:
+                                yf[agents] += np.matmul(Bu, Yv)  # + B_u^n y_n
+
+                def update(
+                    lo: int, hi: int, k: int = k, xh: FloatArray = xh, yh_next: FloatArray = yh_next, xh_next: FloatArray = xh_next, wk: Any = wk
+                ) -> None:
+                    # ν = ŷ_f - G_r x̂ (data) | G_r ε - e_f (errors);  x̂_f = x̂ + K ν | ε_f = ε - K ν
+                    nu = np.matmul(Gr, xh[lo:hi])
+                    if errors:
+                        nu -= yf[lo:hi]
+                        np.subtract(xh[lo:hi], np.matmul(self.K[k, lo:hi], nu), out=xf[lo:hi])
+                    else:
+                        np.subtract(yf[lo:hi], nu, out=nu)
+                        np.add(xh[lo:hi], np.matmul(self.K[k, lo:hi], nu), out=xf[lo:hi])
+                    src = xf[lo:hi] if form == "filter" else xh[lo:hi]
+                    if Lb is not None:
+                        src = np.matmul(Lb[k][lo:hi], src)
+                    # transposed into the run-major output in column blocks (cache-friendly)
+                    s2 = src.reshape(-1, R_)
+                    for j in range(0, s2.shape[0], 128):
+                        j2 = min(j + 128, s2.shape[0])
+                        out[:, k, lo * dz + j : lo * dz + j2] = s2[j:j2].T
+                    if k + 1 < T:
+                        np.matmul(Atr, yf[lo:hi], out=yh_next[lo:hi])
+                        if not chk.zero:
+                            yh_next[lo:hi] += np.matmul(chk.Aw, np.matmul(chk.Wt, xf[lo:hi]))
+                        np.matmul(A, xf[lo:hi], out=xh_next[lo:hi])
+                        if wk is not None:
+                            yh_next[lo:hi] += (Gr @ wk)[None]
+                            xh_next[lo:hi] += wk[None]
+
+                run([lambda p=p: consensus(p) for p in groups])
+                run([lambda a=a, b=b: update(a, b) for a, b in zip(cuts[:-1], cuts[1:]) if b > a])
+                yh, xh = yh_next, xh_next
         return out
 
     def simulate(self, y: Any, *, form: Form | None = None) -> FloatArray:
@@ -799,15 +1024,21 @@ def _theorem4_pseudo(
     Snu = np.empty((dr + mn, dr + mn))
     Sey = np.empty((r, dr + mn))
     if d:
-        li = np.concatenate([np.arange(l * r, (l + 1) * r) for l in nb])
-        Pnl = P[n * r : (n + 1) * r, li]  # [P^{n l_1} ... P^{n l_d}]; P^{l n} = (P^{n l})' (P symmetric)
-        Pll = P[np.ix_(li, li)]
+        N = P.shape[0] // r
+        P4 = P.reshape(N, r, N, r)
+        nba = np.asarray(nb, dtype=np.intp)
+        Pnl4 = P4[n][:, nba, :]  # (r, d, r): [P^{n l_1} ... P^{n l_d}]; P^{l n} = (P^{n l})' (P symmetric)
+        PlnT = Pnl4.transpose(1, 2, 0)  # (d, r, r): P^{l_q n}
+        Pll4 = P4[nba][:, :, nba, :]  # (d, r, d, r)
         # [Σ_ν̃]_{qs} = P^{nn} - P^{n l_s} - P^{l_q n} + P^{l_q l_s}
-        Snu[:dr, :dr] = np.tile(Pnn, (d, d)) - np.tile(Pnl, (d, 1)) - np.tile(Pnl.T, (1, d)) + Pll
+        S4 = Snu[:dr, :dr].reshape(d, r, d, r)
+        np.subtract(Pnn[None, :, None, :], Pnl4[None], out=S4)
+        S4 -= PlnT[:, :, None, :]
+        S4 += Pll4
         # [Σ_ν̃]_{q,u} = (P^{nn} - P^{l_q n}) C̃_n'
-        Snu[:dr, dr:] = (np.tile(Pnn, (d, 1)) - Pnl.T) @ Ct.T
+        Snu[:dr, dr:] = (Pnn[None] - PlnT).reshape(dr, r) @ Ct.T
         Snu[dr:, :dr] = Snu[:dr, dr:].T
-        Sey[:, :dr] = np.tile(Pnn, (1, d)) - Pnl  # E[e^n (e^n - e^{l_q})'] = P^{nn} - P^{n l_q}
+        Sey[:, :dr] = (Pnn[:, None, :] - Pnl4).reshape(r, dr)  # E[e^n (e^n - e^{l_q})'] = P^{nn} - P^{n l_q}
     Snu[dr:, dr:] = Ct @ Pnn @ Ct.T + Rn  # C̃ P^{nn} C̃' + R_n
     Sey[:, dr:] = Pnn @ Ct.T  # E[e^n u^n'] = P^{nn} C̃_n'
     Bhat = _psd_solve(Sey, Snu, rcond, how)
@@ -865,7 +1096,7 @@ def _iterate(
     P = np.tile(Gr @ S0 @ Gr.T, (N, N))
     Pt = np.tile(Gr @ S0, (N, N))
     Sig = np.tile(S0, (N, N))
-    GVG, GV, VV = np.tile(Gr @ Vq @ Gr.T, (N, N)), np.tile(Gr @ Vq, (N, N)), np.tile(Vq, (N, N))
+    GVG1, GV1, VV1 = Gr @ Vq @ Gr.T, Gr @ Vq, Vq  # the noise terms (1 1') ⊗ (.), added block by block
     eyeM, eyer = np.eye(M), np.eye(r)
     diag_r = np.arange(N)
     B_cons, B_innov = [], []
@@ -898,9 +1129,14 @@ def _iterate(
         B_innov.append(tuple(Bu_k))
         # --- (41): Γ' = M Π' ;  (42): P_f = M P M' + B^I D̄_H B^I' ---
         Gt = ops.m_left(rows, Pt)  # Γ' = E[e_{k|k} ε_{k|k-1}'], (Nr x NM)
+        if not p43:
+            del Pt
         Z = ops.m_left(rows, P)  # M P; P M' = Z' (P symmetric)
-        Pf = ops.m_sandwich(rows, np.ascontiguousarray(Z.T))  # M P M', symmetric by construction
+        del P  # (the big matrices are released as soon as they are used: peak memory)
+        Zt = np.ascontiguousarray(Z.T)
         del Z
+        Pf = ops.m_sandwich(rows, Zt)  # M P M', symmetric by construction
+        del Zt
         for n in range(N):
             nz = Bu_k[n] @ Rn[n] @ Bu_k[n].T
             Pf[n * r : (n + 1) * r, n * r : (n + 1) * r] += 0.5 * (nz + nz.T)
@@ -920,15 +1156,20 @@ def _iterate(
         F = eyeM - Kk @ Gr  # (N, M, M)
         # --- (44): Π_f' = Γ' F' + P_f K' ;  (43)*: Σ_f = F Σ F' + F Γ K' + K Γ' F' + K P_f K' ---
         Pft = ops.bd_right(Gt, F)
-        Pft += ops.bd_right(Pf, Kk)
+        ops.bd_right_add(Pft, Pf, Kk)
         L1 = ops.bd_left(F, Sig)
-        L1 += ops.bd_left(Kk, Pt if p43 else Gt)  # F Σ + K Γ'
+        del Sig
+        ops.bd_left_add(L1, Kk, Pt if p43 else Gt)  # F Σ + K Γ'
+        del Gt
         if p43:  # the extracted (43): Π_{k|k-1} in both cross terms
             Sf = ops.bd_right(L1, F) + ops.bd_left(Kk, ops.bd_right(Pt, F) + ops.bd_right(Pf, Kk))
         else:  # exact: L1 F' + Π_f K' = L1 F' + (K Π_f')'
             Sf = ops.bd_right(L1, F)
-            Sf += ops.bd_left(Kk, Pft)
-        _sym(Sf)
+            ops.bd_left_add(Sf, Kk, Pft)
+        del L1
+        if p43:
+            del Pt
+        ops.sym(Sf)
         Sf_all[k] = _diag_blocks(Sf, N, M)
         if form == "filter":
             stage[k] = _stage_cost(cost, k, Sf, Sf_all[k], mse_like, ops)
@@ -937,20 +1178,24 @@ def _iterate(
         # --- (45)*: P' = Ã P_f Ã' + 2 sym(Ã Π_f' Ǎ') + Ǎ Σ_f Ǎ' ; (47): Π'' = (Ã Π_f' + Ǎ Σ_f) A' ; (46) ---
         Yx = ops.bd_left(At, Pft)  # Ã Π_f'   (Nr x NM)
         P = ops.bd_right(ops.bd_left(At, Pf), At)
+        del Pf
         if p45:  # the extracted (45): Ã (acting on x-quantities: Ã_r U') in every term
             Ax = At @ model.U.T
             P += 2.0 * ops.bd_right(Yx, Ax) + ops.bd_right(ops.bd_left(Ax, Sf), Ax)
         if not chk.zero:
             AcS = chk.left(ops, Sf)  # Ǎ Σ_f
-            if not p45:
-                P += 2.0 * chk.right(ops, Yx) + chk.right(ops, AcS)
-            Yx += AcS
-        _sym(P)
-        P += GVG
+            if not p45:  # P += 2 Yx Ǎ' + Ǎ Σ_f Ǎ' (rank M - r factors; row ranges, no full-size temporaries)
+                ops.add_check(P, ops.bd_right(Yx, chk.Wt), ops.bd_right(AcS, chk.Wt), chk.Aw)
+            ops.add(Yx, AcS)
+            del AcS
+        ops.sym(P)
+        ops.add_tiled(P, GVG1)
         Pt = ops.bd_right(Yx, A)
-        Pt += GV
+        del Yx, Pft
+        ops.add_tiled(Pt, GV1)
         Sig = ops.bd_right(ops.bd_left(A, Sf), A)  # symmetric to round-off (Σ_f is symmetrized)
-        Sig += VV
+        del Sf
+        ops.add_tiled(Sig, VV1)
         if not (np.isfinite(P[0, 0]) and np.isfinite(Sig[0, 0])):
             raise DivergenceError(
                 f"CIKF gain design: the error covariances overflowed at step {k + 1}; the error dynamics diverge (see tracking_capacity)"
@@ -1022,8 +1267,12 @@ def design_cikf(
         whose conditional variance is below ``rcond`` times the largest variance (fast), or the truncated
         eigen pseudo-inverse (directions below ``rcond * lambda_max``). They agree to ~1e-4 dB (tested).
     threads : int or None
-        BLAS threads during the design and the design's Monte Carlo methods (default 1: robust on shared
-        machines, see ``docs/cikf.md``); None leaves the BLAS setting alone.
+        Worker threads for the design's block products and the design's Monte Carlo methods, each with a
+        single-threaded BLAS (default 1; 2 on an otherwise idle 2-core machine). The products are split
+        over contiguous ranges of agents and every block is one BLAS call of the same shape whatever the
+        number of threads, so the numbers do not depend on it (tested). Python threads do not spin like
+        OpenBLAS's own threads, which can make a shared machine ten times slower (``docs/cikf.md``).
+        None leaves the BLAS setting alone and uses no pool.
 
     Examples
     --------
@@ -1090,12 +1339,12 @@ def design_cikf(
     hoods = [np.array([n, *nbrs[n]], dtype=int) for n in range(N)]
     r_idx = [np.concatenate([np.arange(l * r, (l + 1) * r) for l in h]) for h in hoods]
     Ops = _Structured if method == "structured" else _Dense
-    ops = Ops(N, r, hoods, r_idx)
     if pinv not in ("cholesky", "eigh"):
         raise ShapeError(f"pinv: expected 'cholesky' or 'eigh', found {pinv!r}")
     if threads is not None:
         threads = V.positive_int(threads, "threads")
-    with blas_threads(threads):
+    with blas_threads(None if threads is None else 1), _worker_pool(threads) as pool:
+        ops = Ops(N, r, hoods, r_idx, pool, threads or 1)
         res = _iterate(system, model, nbrs, cost, T, rcond, form, ops, gains, equations, pinv)
     info = {
         "rank_G": r,

@@ -1,4 +1,4 @@
-"""Monte Carlo of estimators: team cost per step and in total, with 95 % confidence intervals.
+"""Monte Carlo of estimators: team cost per step and in total, with 95 % confidence intervals, streamed.
 
 All estimators are evaluated on the same sampled paths (common random
 numbers), vectorized over runs. Two ways to get each estimator's errors:
@@ -12,14 +12,33 @@ numbers), vectorized over runs. Two ways to get each estimator's errors:
   the honest check of the information discipline, accurate for stable
   systems only.
 
-Runs are drawn in batches from per-run streams (``SeedSequence(seed).spawn``)
-so the numbers do not depend on the batch size.
+Streaming
+---------
+Runs are processed in *blocks* of ``batch`` runs (block j holds runs
+j·batch .. (j+1)·batch - 1) and blocks are grouped into *chunks* (one task
+each, serially or on Dask workers). Nothing per run is kept: run r's random
+numbers come from a counter-based stream built on demand from (seed, r)
+(:class:`~teamkf.simulation.sampling.RunStreams`), a block's costs are reduced
+at once to its per-step sums Σ c and Σ c² and the sums Σ C and Σ C² of the
+run totals C = Σ_k c(k), and these block sums are added *exactly* (as
+integers, in units of 2^-1126, :class:`ExactSums`), so the merged sums are
+the exact sums of the block sums whatever the order. A block is always
+computed alone with the same array shapes and one BLAS thread, so its sums do
+not depend on the chunk it is in or the worker that runs it: the result for a
+seed and a ``batch`` is bit-for-bit the same for every ``chunk`` and
+scheduler (serial, a local Dask cluster, a remote one). Peak memory is that
+of one block per worker, whatever ``n_runs``.
+
+From the exact sums S1 = Σ c, S2 = Σ c², the mean is S1/n and the sample
+variance (n S2 - S1²) / (n (n - 1)), evaluated exactly and rounded once.
 """
 
 from __future__ import annotations
 
+import math
+import sys
 from dataclasses import dataclass
-from typing import Any, Literal, Mapping
+from typing import Any, Iterator, Literal, Mapping, Sequence
 
 import numpy as np
 
@@ -27,11 +46,74 @@ from .. import _validation as V
 from .._validation import FloatArray
 from ..exceptions import ArgumentError, ShapeError
 from .online import run_online
-from .sampling import run_streams, sample_paths
+from .sampling import RunStreams, sample_paths
 
-__all__ = ["MonteCarloResult", "monte_carlo", "runtime_estimates", "Z95"]
+__all__ = ["MonteCarloResult", "monte_carlo", "runtime_estimates", "Z95", "ExactSums", "DEFAULT_BATCH"]
 
 Z95 = 1.959963984540054
+#: default runs per computation block (memory: one block's paths and errors per worker)
+DEFAULT_BATCH = 1024
+#: most blocks per chunk by default (one chunk = one task)
+DEFAULT_BLOCKS_PER_CHUNK = 16
+_SHIFT = 1126  # 2^-1126 is below the smallest subnormal times 2^-52: every double is an integer multiple of it
+_MAX_RUNS = 2**63  # run indices are Philox counter words (uint64)
+
+
+class ExactSums:
+    r"""Exact, order-independent sums of float vectors (Python integers in units of 2^-1126).
+
+    Every finite double is m 2^e with an integer m (|m| < 2^53) and e >= -1126 + 53 (``np.frexp``), so
+    it is the integer m 2^(e + 1126) in units of 2^-1126; sums of such integers are exact, so the result
+    does not depend on the order of the additions or on how they were split. ``value()`` rounds once.
+
+    Examples
+    --------
+    >>> a, b = ExactSums(1), ExactSums(1)
+    >>> for x in (1e16, 1.0, -1e16): a.add(np.array([x]))
+    >>> for x in (-1e16, 1e16, 1.0): b.add(np.array([x]))
+    >>> float(a.value()[0]), a.acc == b.acc
+    (1.0, True)
+    """
+
+    def __init__(self, n: int, acc: Sequence[int] | None = None):
+        self.acc = list(acc) if acc is not None else [0] * int(n)
+
+    def add(self, x: FloatArray) -> None:
+        x = np.asarray(x, dtype=float).ravel()
+        if x.size != len(self.acc):
+            raise ShapeError(f"x: expected {len(self.acc)} values, found {x.size}")
+        bad = ~np.isfinite(x)
+        if bad.any():  # a diverging estimator: those entries are infinite for good (reported, flagged, never an error)
+            for i in np.flatnonzero(bad).tolist():
+                self.acc[i] = math.inf
+            x = np.where(bad, 0.0, x)
+        m, e = np.frexp(x)
+        mi = (m * 9007199254740992.0).astype(np.int64)  # m 2^53: exact (53 significant bits)
+        sh = e.astype(np.int64) + (_SHIFT - 53)
+        acc = self.acc
+        for i, (a, b) in enumerate(zip(mi.tolist(), sh.tolist())):
+            if a:
+                acc[i] += a << b if b >= 0 else a >> -b  # b < 0 only below 2^-1126: never for doubles
+        return None
+
+    def merge(self, other: "ExactSums") -> None:
+        self.acc = [a + b for a, b in zip(self.acc, other.acc)]
+
+    def value(self) -> FloatArray:
+        """The sums, each rounded once to the nearest double."""
+        return np.array([a if isinstance(a, float) else a / (1 << _SHIFT) for a in self.acc])
+
+
+def _mean_sem(s1: int, s2: int, n: int) -> tuple[float, float]:
+    """Mean and standard error of the mean from exact sums (units 2^-1126 and 2^-2252), rounded once each."""
+    from fractions import Fraction
+
+    if isinstance(s1, float) or isinstance(s2, float):  # infinite (a diverging estimator)
+        return math.inf, math.inf
+    mean = Fraction(s1, 1 << _SHIFT) / n
+    var = (Fraction(n * s2, 1 << _SHIFT) - Fraction(s1 * s1, 1 << (2 * _SHIFT))) / (n * (n - 1))
+    var = max(var, Fraction(0))
+    return float(mean), math.sqrt(float(var / n))
 
 
 @dataclass(frozen=True, eq=False)
@@ -44,6 +126,9 @@ class MonteCarloResult:
     total_mean, total_sem : mean and standard error of sum_k c(x(k), z(k))
     n_runs : int
     path : "errors" or "runtime"
+    seed : dict or None       {"entropy": ..., "spawn_key": [...]}: ``SeedSequence(entropy, spawn_key=spawn_key)``
+                              reproduces the run streams (recorded also when ``rng=None`` drew fresh entropy)
+    batch, chunk : int        runs per computation block and per task (see :func:`monte_carlo`)
     """
 
     estimator: str
@@ -53,8 +138,16 @@ class MonteCarloResult:
     total_mean: float
     total_sem: float
     path: str = "errors"
+    seed: Any = None
+    batch: int | None = None
+    chunk: int | None = None
     #: per-edge packet counts on unreliable links (:class:`~teamkf.simulation.links.LinkStats`), or None
     links: Any = None
+
+    @property
+    def diverged(self) -> bool:
+        """True when the simulated cost is not finite (the estimator diverges on this system)."""
+        return not bool(np.isfinite(self.total_mean))
 
     @property
     def ci95(self) -> tuple[float, float]:
@@ -64,13 +157,9 @@ class MonteCarloResult:
     def stage_ci95(self) -> tuple[FloatArray, FloatArray]:
         return (self.stage_mean - Z95 * self.stage_sem, self.stage_mean + Z95 * self.stage_sem)
 
-    @property
-    def diverged(self) -> bool:
-        """True when the simulated cost is not finite (the estimator diverges on this system)."""
-        return not bool(np.isfinite(self.total_mean))
-
     def summary(self) -> dict[str, Any]:
-        """JSON-ready (strict: non-finite values are null, with ``"diverged": true``)."""
+        """JSON-ready and strict (non-finite values are null, with ``"diverged": true``); records what repeats the run."""
+        from .. import __version__
         from ..estimators.base import json_float
 
         lo, hi = self.ci95
@@ -80,27 +169,14 @@ class MonteCarloResult:
             "total_cost": json_float(self.total_mean),
             "ci95": [json_float(lo), json_float(hi)],
             "stage_costs": [json_float(c) for c in self.stage_mean],
+            "seed": self.seed,
+            "batch": self.batch,
+            "chunk": self.chunk,
+            "teamkf_version": __version__,
         }
         if self.diverged:
             out["diverged"] = True
         return out
-
-    def _repr_html_(self) -> str:
-        from .._repr import html_table
-
-        lo, hi = self.ci95
-        rows = [
-            {
-                "estimator": self.estimator,
-                "runs": self.n_runs,
-                "steps": len(self.stage_mean),
-                "J_T (mean)": self.total_mean,
-                "95 % low": lo,
-                "95 % high": hi,
-                "path": self.path,
-            }
-        ]
-        return html_table(list(rows[0]), rows, caption="teamkf Monte Carlo result")
 
     def to_pandas(self) -> Any:
         pd = V.require("pandas", "dask")
@@ -151,6 +227,140 @@ def _team_errors(design: Any, paths: Any, path: str, graph: Any, links: Any = No
     return np.stack([paths.x[:, k] @ cost.L_at(k).T - z[:, k] for k in range(paths.n_steps)], axis=1)
 
 
+def _cost_kind(S: FloatArray) -> str:
+    if np.array_equal(S, np.eye(S.shape[0])):
+        return "identity"
+    if np.array_equal(S, np.diag(np.diag(S))):
+        return "diagonal"
+    return "dense"
+
+
+def _block_costs(design: Any, paths: Any, path: str, graph: Any, links: Any = None, streams: Any = None, stats: Any = None) -> FloatArray:
+    """(n, T) team costs c(x(k), ẑ(k)) = e' S_k e of one block of runs."""
+    e = _team_errors(design, paths, path, graph, links, streams, stats)  # (n, T, d)
+    n, T, d = e.shape
+    cost = design.cost
+    out = np.empty((n, T))
+    steps = range(T) if cost.is_time_varying else (None,)
+    for k in steps:
+        S = cost.S_at(0 if k is None else k)
+        ek = e if k is None else e[:, k : k + 1]
+        kind = _cost_kind(S)
+        if kind == "identity":
+            c = np.einsum("rka,rka->rk", ek, ek)
+        elif kind == "diagonal":
+            c = (ek * ek) @ np.diag(S)
+        else:
+            c = np.einsum("rka,rka->rk", ek.reshape(-1, d).dot(S).reshape(ek.shape), ek)
+        if k is None:
+            out[:] = c
+        else:
+            out[:, k] = c[:, 0]
+    return out
+
+
+@dataclass(frozen=True)
+class _Spec:
+    """What a chunk task needs (shipped once to each worker)."""
+
+    designs: dict
+    system: Any
+    n_steps: int
+    n_runs: int
+    streams: RunStreams
+    batch: int
+    path: str
+    graph: Any
+    links: Any = None
+
+
+def _limit_blas() -> Any:
+    try:
+        from threadpoolctl import threadpool_limits
+
+        return threadpool_limits(1)
+    except Exception:  # pragma: no cover - threadpoolctl missing: BLAS as configured
+        import contextlib
+
+        return contextlib.nullcontext()
+
+
+def _run_chunk(spec: _Spec, first_block: int, last_block: int) -> dict[str, Any]:
+    """Exact sums of blocks first_block .. last_block - 1: per design [Σc (T), Σc² (T), [ΣC, ΣC²]] (+ link counts)."""
+    T = spec.n_steps
+    acc = {name: (ExactSums(T), ExactSums(T), ExactSums(2)) for name in spec.designs}
+    lstats: dict[str, Any] = {}
+    if spec.links is not None:
+        from .links import LinkStats
+
+        lstats = {name: LinkStats() for name in spec.designs}
+    with _limit_blas(), np.errstate(over="ignore", invalid="ignore"):  # a diverging estimator: inf, flagged later
+        for j in range(first_block, last_block):
+            a, b = j * spec.batch, min((j + 1) * spec.batch, spec.n_runs)
+            paths = sample_paths(spec.system, T, b - a, rng=None, streams=spec.streams, first_run=a)
+            lstreams = None
+            if spec.links is not None:  # run r's link events: its own stream (the block does not matter)
+                from .links import link_streams
+
+                seq = np.random.SeedSequence(spec.streams.entropy, spawn_key=spec.streams.spawn_key)
+                lstreams = link_streams(seq, b)[a:b]
+            for name, d in spec.designs.items():
+                c = _block_costs(d, paths, spec.path, spec.graph, spec.links, lstreams, lstats.get(name))
+                tot = c.sum(axis=1)
+                s1, s2, st = acc[name]
+                s1.add(c.sum(axis=0))
+                s2.add((c * c).sum(axis=0))
+                st.add(np.array([tot.sum(), (tot * tot).sum()]))
+                del c, tot
+            del paths  # one block alive at a time (else the next block is drawn while this one is held)
+    out: dict[str, Any] = {name: [s1.acc, s2.acc, st.acc] for name, (s1, s2, st) in acc.items()}
+    if lstats:
+        out["__links__"] = lstats
+    return out
+
+
+def _chunks(n_blocks: int, per_chunk: int) -> list[tuple[int, int]]:
+    return [(a, min(a + per_chunk, n_blocks)) for a in range(0, n_blocks, per_chunk)]
+
+
+def _progress(total: int, enabled: bool | None) -> Any:
+    """A tqdm bar over runs (silent when stderr is not a terminal or tqdm is missing)."""
+    if enabled is False:
+        return None
+    try:
+        from tqdm.auto import tqdm
+    except ImportError:  # pragma: no cover
+        return None
+    return tqdm(total=total, unit="run", unit_scale=True, desc="Monte Carlo", disable=None if enabled is None else not enabled, file=sys.stderr)
+
+
+def _serial(spec: _Spec, chunks: list[tuple[int, int]], bar: Any) -> Iterator[dict[str, list[list[int]]]]:
+    for a, b in chunks:
+        part = _run_chunk(spec, a, b)
+        if bar is not None:
+            bar.update(min(b * spec.batch, spec.n_runs) - a * spec.batch)
+        yield part
+
+
+def _dask(spec: _Spec, chunks: list[tuple[int, int]], bar: Any, scheduler: Any) -> Iterator[dict[str, list[list[int]]]]:
+    from .parallel import _open_client  # the Dask clients (LocalCluster tuned: one BLAS thread per worker)
+
+    distributed = V.require("distributed", "dask")
+    client, owned = _open_client(scheduler, None)
+    try:
+        [fspec] = client.scatter([spec], broadcast=True)
+        futs = {client.submit(_run_chunk, fspec, a, b, pure=False, retries=3): (a, b) for a, b in chunks}
+        for fut in distributed.as_completed(futs):
+            a, b = futs[fut]
+            part = fut.result()
+            if bar is not None:
+                bar.update(min(b * spec.batch, spec.n_runs) - a * spec.batch)
+            yield part
+    finally:
+        for obj in owned:
+            obj.close()
+
+
 def _same_system(a: Any, b: Any) -> bool:
     """Equal models: same sizes and equal matrices (designs built separately for one system agree)."""
     if a.dx != b.dx or list(a.dy) != list(b.dy):
@@ -159,61 +369,67 @@ def _same_system(a: Any, b: Any) -> bool:
     return all(np.shape(x) == np.shape(y) and np.array_equal(x, y) for x, y in pairs)
 
 
-#: bytes per run held for the whole Monte Carlo: its SeedSequence (measured: ~380) and a margin
-_BYTES_PER_STREAM = 512
-
-
-def _check_memory(designs: Mapping[str, Any], system: Any, T: int, R_: int, batch: int) -> None:
-    """Refuse up front (with the estimate) a Monte Carlo whose memory exceeds what the machine has."""
-    from .._resources import check_memory
-
-    b = min(batch, R_)
-    per_batch = (
-        8.0 * b * T * (3 * system.dx + 3 * sum(system.dy) + 2 * len(designs) * max(getattr(d.cost, "dz", system.dx) for d in designs.values()))
-    )
-    estimate = R_ * (_BYTES_PER_STREAM + 8.0 * T * len(designs)) + per_batch
-    check_memory(
-        estimate,
-        f"a Monte Carlo of {R_:,} runs x {T} steps x {len(designs)} estimators (one seed stream and {T} stage costs per run and estimator)",
-        argument="n_runs",
-        fix="use fewer runs (the 95 % interval only shrinks like 1/sqrt(runs)), or a shorter horizon",
-    )
-
-
 def monte_carlo(
     designs: Mapping[str, Any],
     n_steps: int,
     n_runs: int,
     *,
     rng: int | np.random.SeedSequence | np.random.Generator | None,
-    batch: int = 1000,
+    batch: int = DEFAULT_BATCH,
     path: Literal["errors", "runtime"] = "errors",
     graph: Any = None,
+    chunk: int | None = None,
+    scheduler: Any = None,
+    progress: bool | None = None,
     links: Any = None,
 ) -> dict[str, MonteCarloResult]:
-    """Evaluate every design on the same ``n_runs`` sampled paths.
+    """Evaluate every design on the same ``n_runs`` sampled paths, streamed in blocks (module docstring).
 
     Parameters
     ----------
     designs : mapping name -> design (with ``.system``, ``.cost`` and ``.errors`` / ``.agents``)
     n_steps : horizon simulated
-    n_runs : number of independent runs (>= 2)
-    rng : seed (or SeedSequence / Generator); run r uses ``SeedSequence(seed).spawn(n_runs)[r]``
-    batch : runs per batch (memory); results do not depend on it
+    n_runs : number of independent runs (>= 2; any number: memory does not grow with it)
+    rng : seed (or SeedSequence / Generator created from one; None: fresh entropy, recorded in the result);
+        run r uses the counter-based stream ``RunStreams(rng).generator(r)``
+    batch : runs per computation block (memory per worker ~ one block's paths and errors). Results for a
+        seed agree to rounding whatever the batch, and bit for bit for a given batch
     path : "errors" (cancellation-free recursions) or "runtime" (agents on measurements)
     graph : with path="runtime", run the agents over this graph (message passing)
         instead of the structure-driven delivery
+    chunk : runs per task (rounded up to a multiple of ``batch``; default: at most 16 blocks, and about 32
+        tasks when there are enough blocks, so that workers stay busy). The result does not depend on it,
+        bit for bit
+    scheduler : None or "serial" (this process), "local" (an embedded Dask LocalCluster, one
+        single-threaded worker per core), a Dask scheduler address, a ``distributed.Client`` or a cluster.
+        One chunk per task, retried (3 times) when a worker is lost; bit-for-bit the serial result
+    progress : a progress bar on stderr (None: only when stderr is a terminal)
     links : :class:`~teamkf.simulation.links.LinkModel` (unreliable links; needs path="runtime").
         Run r's link events come from its own stream (seeded by ``rng``), so
-        the numbers do not depend on the batch size or the worker; the
+        the numbers do not depend on the batch, the chunk or the worker; the
         per-edge packet counts are in each result's ``links`` field.
+
+    Examples
+    --------
+    >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph
+    >>> from teamkf.estimators.kalman import design_centralized
+    >>> sys_ = LinearGaussianSystem.platoon(3)
+    >>> d = design_centralized(sys_, TeamCost.platoon(3, 1.0), 5)
+    >>> a = monte_carlo({"kf": d}, 5, 300, rng=1, batch=100, chunk=100)["kf"]
+    >>> b = monte_carlo({"kf": d}, 5, 300, rng=1, batch=100, chunk=300)["kf"]
+    >>> a.total_mean == b.total_mean and a.total_sem == b.total_sem
+    True
     """
     T = V.positive_int(n_steps, "n_steps")
     R_ = V.positive_int(n_runs, "n_runs", minimum=2)
+    if R_ > _MAX_RUNS:
+        raise ArgumentError(
+            f"n_runs: expected at most 2^63 runs (run indices are 64-bit Philox counter words), found {R_}; split the study over seeds"
+        )
+    B = V.positive_int(batch, "batch")
     if not designs:
-        raise ShapeError("designs: expected at least one design")
-    if path not in ("errors", "runtime"):
-        raise ShapeError(f"path: expected 'errors' or 'runtime', found {path!r}")
+        raise ArgumentError("designs: expected at least one design", argument="designs")
+    V.choice(path, "path", ("errors", "runtime"))
     first_name, first = next(iter(designs.items()))
     system = first.system
     for name, d in designs.items():
@@ -223,40 +439,48 @@ def monte_carlo(
                 f"designs[{first_name!r}]'s; run monte_carlo once per system",
                 argument=f"designs[{name!r}]",
             )
-    if (horizon := getattr(first, "horizon", None)) is not None and T > horizon:
-        raise ArgumentError(f"n_steps: expected at most the designs' horizon {horizon}, found {T}; design a longer horizon", argument="n_steps")
-    batch = V.positive_int(batch, "batch")
-    _check_memory(designs, system, T, R_, batch)
-    lossy = links is not None and not links.trivial
-    if lossy and path != "runtime":
+        if (horizon := getattr(d, "horizon", None)) is not None and T > horizon:
+            raise ArgumentError(
+                f"n_steps: expected at most the horizon {horizon} of designs[{name!r}], found {T}; design a longer horizon", argument="n_steps"
+            )
+    system.require_horizon(T)
+    if links is not None and links.trivial:
+        links = None
+    if links is not None and path != "runtime":
         raise ArgumentError('links: unreliable links act on the online agents; use path="runtime"', argument="links")
-    streams = run_streams(rng, R_)
-    lstreams = None
-    if links is not None:
-        from .links import LinkStats, link_streams
-
-        lstreams = link_streams(rng, R_) if not isinstance(rng, np.random.Generator) else link_streams(rng.bit_generator.seed_seq, R_)
-        lstats = {name: LinkStats() for name in designs}
-    costs = {name: np.empty((R_, T)) for name in designs}
-    for start in range(0, R_, batch):
-        stop = min(R_, start + batch)
-        paths = sample_paths(system, T, stop - start, rng=None, streams=streams[start:stop])
-        for name, d in designs.items():
-            with np.errstate(over="ignore", invalid="ignore"):  # a diverging estimator: reported as not finite, below
-                if links is not None:
-                    e = _team_errors(d, paths, path, graph, links, lstreams[start:stop], lstats[name])  # type: ignore[index]
+    n_blocks = -(-R_ // B)
+    if chunk is None:  # at most 16 blocks a task, and some 32 tasks when there are enough blocks (balance)
+        per_chunk = max(1, min(DEFAULT_BLOCKS_PER_CHUNK, -(-n_blocks // 32)))
+    else:
+        per_chunk = -(-V.positive_int(chunk, "chunk") // B)
+    streams = RunStreams(rng)
+    chunks = _chunks(n_blocks, per_chunk)
+    spec = _Spec(dict(designs), system, T, R_, streams, B, path, graph, links)
+    link_totals: dict[str, Any] = {}
+    tot = {name: (ExactSums(T), ExactSums(T), ExactSums(2)) for name in designs}
+    bar = _progress(R_, progress)
+    try:
+        parts = _serial(spec, chunks, bar) if scheduler in (None, "serial") else _dask(spec, chunks, bar, scheduler)
+        for part in parts:  # exact sums: the order in which chunks come back does not matter
+            for name, ls in part.pop("__links__", {}).items():
+                if name in link_totals:
+                    link_totals[name].merge(ls)
                 else:
-                    e = _team_errors(d, paths, path, graph)
-                for k in range(T):
-                    costs[name][start:stop, k] = np.einsum("ra,ab,rb->r", e[:, k], d.cost.S_at(k), e[:, k])
+                    link_totals[name] = ls
+            for name, (a1, a2, at) in part.items():
+                s1, s2, st = tot[name]
+                s1.merge(ExactSums(T, a1))
+                s2.merge(ExactSums(T, a2))
+                st.merge(ExactSums(2, at))
+    finally:
+        if bar is not None:
+            bar.close()
+    seed = {"entropy": streams.entropy, "spawn_key": list(streams.spawn_key)}
     out = {}
-    for name, c in costs.items():
-        if not np.all(np.isfinite(c)):  # diverged: keep the steps that are finite, mark the rest inf
-            c = np.where(np.isfinite(c), c, np.inf)
-        tot = c.sum(axis=1)
+    for name, (s1, s2, st) in tot.items():
+        ms = [_mean_sem(a, b, R_) for a, b in zip(s1.acc, s2.acc)]
+        tm, ts = _mean_sem(st.acc[0], st.acc[1], R_)
         out[name] = MonteCarloResult(
-            name, R_, c.mean(axis=0), c.std(axis=0, ddof=1) / np.sqrt(R_), float(tot.mean()), float(tot.std(ddof=1) / np.sqrt(R_)), path
+            name, R_, np.array([m for m, _ in ms]), np.array([e for _, e in ms]), tm, ts, path, seed, B, per_chunk * B, link_totals.get(name)
         )
-        if links is not None:
-            object.__setattr__(out[name], "links", lstats[name])
     return out

@@ -101,6 +101,8 @@ def local_cluster(n_workers: int | None = None, **kwargs: Any) -> Any:
         "dashboard_address": None,
         "silence_logs": logging.ERROR,
         "env": dict(WORKER_ENV),
+        # workers import teamkf's numerical stack while the cluster starts, not in their first task
+        "preload": ["teamkf.study.evaluate"],
         **kwargs,
     }
     try:

@@ -1,14 +1,20 @@
 """Sample trajectories of a :class:`~teamkf.LinearGaussianSystem`, batched over runs (run axis first).
 
 Every run draws its primitive variables (x(0), w(0:T-2), v(0:T-1)) from its
-own stream, spawned from one ``np.random.SeedSequence``: run r gets the same
-numbers whether it is drawn alone, in a batch, or on another worker.
+own counter-based stream: run r of seed s uses the Philox-4x64 generator with
+key ``SeedSequence(s).generate_state(2, uint64)`` and counter ``(0, 0, r, 0)``
+(:class:`RunStreams`). Run r's stream is built on demand from (seed, r), so it
+gets the same numbers whether it is drawn alone, in a chunk, or on another
+worker, and no per-run object is kept: a chunk of runs resets one generator's
+counter run by run. Streams of different runs never overlap (a run would have
+to draw 2^130 numbers to reach the next run's counter).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
+from functools import cached_property
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -17,7 +23,7 @@ from .._validation import FloatArray
 from ..exceptions import ArgumentError, ShapeError
 from ..models import LinearGaussianSystem
 
-__all__ = ["Paths", "sample", "sample_paths", "run_streams", "psd_sqrt"]
+__all__ = ["Paths", "RunStreams", "sample", "sample_paths", "run_streams", "psd_sqrt", "seed_sequence"]
 
 
 def psd_sqrt(M: FloatArray) -> FloatArray:
@@ -28,17 +34,70 @@ def psd_sqrt(M: FloatArray) -> FloatArray:
 
 def run_streams(seed: int | np.random.SeedSequence | np.random.Generator | None, n_runs: int) -> list[np.random.SeedSequence]:
     """One SeedSequence per run, spawned from ``seed`` (SciPy SPEC 7)."""
+    return seed_sequence(seed).spawn(n_runs)
+
+
+def seed_sequence(seed: int | np.random.SeedSequence | np.random.Generator | None) -> np.random.SeedSequence:
+    """The SeedSequence behind ``seed`` (an int, a SeedSequence, a Generator created from a seed, or None: fresh entropy)."""
     if isinstance(seed, np.random.Generator):
         seq = seed.bit_generator.seed_seq
         if not isinstance(seq, np.random.SeedSequence):
             raise ArgumentError("rng: expected a seed or a Generator created from a seed", argument="rng")
-    elif isinstance(seed, np.random.SeedSequence):
-        seq = seed
-    else:
-        if seed is not None:  # SeedSequence's own messages do not name the argument
-            seed = V.integer(seed, "rng", minimum=0, what="an integer seed (or a SeedSequence, a Generator, None)")
-        seq = np.random.SeedSequence(seed)
-    return seq.spawn(n_runs)
+        return seq
+    if isinstance(seed, np.random.SeedSequence):
+        return seed
+    if seed is not None:  # SeedSequence's own messages do not name the argument
+        seed = V.integer(seed, "rng", minimum=0, what="an integer seed (or a SeedSequence, a Generator, None)")
+    return np.random.SeedSequence(None if seed is None else int(seed))
+
+
+class RunStreams:
+    """Counter-based per-run random streams: run r of a seed is Philox(key(seed), counter (0, 0, r, 0)).
+
+    Parameters
+    ----------
+    seed : int, SeedSequence, Generator (created from a seed) or None (fresh entropy, see ``entropy``)
+
+    Attributes
+    ----------
+    key : (2,) uint64, the Philox key, ``seed_sequence(seed).generate_state(2, np.uint64)``
+    entropy, spawn_key : what reproduces the streams (``RunStreams(SeedSequence(entropy, spawn_key=spawn_key))``)
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> s = RunStreams(7)
+    >>> a = s.normals(3, 5, 4)             # runs 3 and 4, 4 numbers each
+    >>> b = s.generator(4).standard_normal(4)
+    >>> bool(np.array_equal(a[1], b))
+    True
+    """
+
+    def __init__(self, seed: int | np.random.SeedSequence | np.random.Generator | None):
+        seq = seed_sequence(seed)
+        self.entropy = seq.entropy
+        self.spawn_key = tuple(int(k) for k in seq.spawn_key)
+        self.key = seq.generate_state(2, dtype=np.uint64)
+
+    def generator(self, run: int) -> np.random.Generator:
+        """Run ``run``'s generator, built from (key, run)."""
+        return np.random.Generator(np.random.Philox(key=self.key, counter=[0, 0, int(run), 0]))
+
+    def normals(self, start: int, stop: int, m: int) -> FloatArray:
+        """(stop - start, m) standard normals: row i is the first m draws of run start + i."""
+        if not 0 <= start <= stop:
+            raise ArgumentError(f"runs: expected 0 <= start <= stop, found {start}, {stop}", argument="runs")
+        bg = np.random.Philox(key=self.key)
+        gen = np.random.Generator(bg)
+        st = bg.state
+        Z = np.empty((stop - start, m))
+        for i, r in enumerate(range(start, stop)):  # reset the counter run by run: the same as generator(r)
+            st["state"]["counter"][:] = (0, 0, r, 0)
+            st["buffer_pos"] = 4
+            st["has_uint32"] = 0
+            bg.state = st
+            gen.standard_normal(out=Z[i])
+        return Z
 
 
 @dataclass(frozen=True, eq=False)
@@ -66,12 +125,12 @@ class Paths:
     def n_steps(self) -> int:
         return int(self.x.shape[1])
 
-    @property
+    @cached_property
     def y_stack(self) -> FloatArray:
         """(n_runs, T, d_y) all agents' measurements."""
         return np.concatenate(self.y, axis=2)
 
-    @property
+    @cached_property
     def v_stack(self) -> FloatArray:
         return np.concatenate(self.v, axis=2)
 
@@ -82,36 +141,52 @@ def sample_paths(
     n_runs: int,
     *,
     rng: int | np.random.SeedSequence | np.random.Generator | None,
-    streams: Sequence[np.random.SeedSequence] | None = None,
+    streams: Sequence[np.random.SeedSequence] | RunStreams | None = None,
+    first_run: int = 0,
 ) -> Paths:
-    """Draw ``n_runs`` independent runs of ``n_steps`` steps.
+    """Draw runs ``first_run .. first_run + n_runs - 1`` of ``n_steps`` steps.
 
     Parameters
     ----------
-    rng : seed, SeedSequence or Generator; run r uses stream ``spawn(n_runs)[r]``
-    streams : explicit per-run SeedSequences (overrides ``rng``; used to draw a
-        slice of a larger set of runs with identical numbers)
+    rng : seed, SeedSequence or Generator; run r uses the counter-based stream ``RunStreams(rng).generator(r)``
+    streams : a :class:`RunStreams` (overrides ``rng``), or explicit per-run SeedSequences (one per run drawn)
+    first_run : index of the first run drawn (with ``rng`` or a RunStreams): drawing runs a..b of a seed
+        gives the numbers of those runs in any larger draw
     """
     T = V.positive_int(n_steps, "n_steps")
     R_ = V.positive_int(n_runs, "n_runs")
+    first = V.positive_int(first_run, "first_run", minimum=0)
     system.require_horizon(T)
-    seqs = list(streams) if streams is not None else run_streams(rng, R_)
-    if len(seqs) != R_:
-        raise ShapeError(f"streams: expected {R_} SeedSequences, found {len(seqs)}", argument="streams")
     dx, dys = system.dx, system.dy
     dy = sum(dys)
     m = dx + (T - 1) * dx + T * dy
-    Z = np.empty((R_, m))
-    for r, s in enumerate(seqs):  # each run from its own stream
-        Z[r] = np.random.default_rng(s).standard_normal(m)
+    if streams is None or isinstance(streams, RunStreams):
+        rs = streams if streams is not None else RunStreams(rng)
+        Z = rs.normals(first, first + R_, m)
+    else:
+        seqs = list(streams)
+        if len(seqs) != R_:
+            raise ShapeError(f"streams: expected {R_} SeedSequences, found {len(seqs)}", argument="streams")
+        Z = np.empty((R_, m))
+        for r, s in enumerate(seqs):  # each run from its own stream
+            Z[r] = np.random.default_rng(s).standard_normal(m)
     z0 = Z[:, :dx]
     zw = Z[:, dx : dx + (T - 1) * dx].reshape(R_, T - 1, dx)
     zv = Z[:, dx + (T - 1) * dx :].reshape(R_, T, dy)
     x = np.empty((R_, T, dx))
     x[:, 0] = z0 @ psd_sqrt(system.Sigma_x).T
     w = np.empty((R_, max(T - 1, 0), dx))
+    memo: dict[tuple[Any, ...], FloatArray] = {}  # factor once per distinct matrix (time-invariant systems)
+
+    def factor(M: FloatArray, how: str) -> FloatArray:
+        key = (how, M.__array_interface__["data"][0], M.shape, M.strides)  # the same stored matrix (a view of it)
+        hit = memo.get(key)
+        if hit is None:
+            hit = memo[key] = psd_sqrt(M) if how == "sqrt" else np.linalg.cholesky(M)
+        return hit
+
     for k in range(T - 1):
-        w[:, k] = zw[:, k] @ psd_sqrt(system.Q_at(k)).T
+        w[:, k] = zw[:, k] @ factor(system.Q_at(k), "sqrt").T
         x[:, k + 1] = x[:, k] @ system.A_at(k).T + w[:, k]
     offs = system.offsets
     v, y = [], []
@@ -119,7 +194,7 @@ def sample_paths(
         vi = np.empty((R_, T, dys[i]))
         yi = np.empty((R_, T, dys[i]))
         for k in range(T):
-            vi[:, k] = zv[:, k, offs[i] : offs[i + 1]] @ np.linalg.cholesky(system.R_at(i, k)).T
+            vi[:, k] = zv[:, k, offs[i] : offs[i + 1]] @ factor(system.R_at(i, k), "chol").T
             yi[:, k] = x[:, k] @ system.C_at(i, k).T + vi[:, k]
         v.append(vi)
         y.append(yi)

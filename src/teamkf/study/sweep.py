@@ -91,8 +91,10 @@ an address (``"tcp://host:8786"``), a ``Client`` or a cluster object
 ``"serial"``
     in-process, no Dask.
 
-On Dask every point is one task (``client.submit(evaluate_point, scenario,
-estimators, runs, seed, pure=False, retries=3)``), collected with
+On Dask the validated sweep spec is scattered to every worker once and every
+point is one task (``client.submit(_run_spec_point, evaluate_point, spec,
+index, pure=False, retries=3)``: the worker builds the point's scenario from
+the spec, so the client ships a point index, not a scenario), collected with
 ``as_completed``: if a worker dies, the scheduler runs its tasks again
 elsewhere, and the driver, not the workers, writes the results.
 
@@ -669,14 +671,15 @@ def run_sweep(
                 start()
                 token = uuid.uuid4().hex[:8]
                 by_key: dict[Any, SweepPoint] = {}
+                # the validated spec goes to every worker once; a task is (spec, point index): the worker
+                # builds the point's scenario, the client neither rebuilds nor ships one per point
+                [fspec] = client.scatter([spec], broadcast=True, hash=False)
                 for p in todo:
                     f = client.submit(
-                        run_point,
+                        _run_spec_point,
                         fn,
-                        spec.scenario_for(p),
-                        spec.estimators,
-                        spec.runs,
-                        p.seed,
+                        fspec,
+                        p.index,
                         pure=False,
                         retries=retries,
                         key=f"teamkf-sweep-{p.point_id}-{token}",
@@ -720,6 +723,12 @@ def run_point(fn: PointFunction, scenario: Scenario, estimators: Sequence[str], 
     """
     with _single_thread():
         return fn(scenario, estimators, runs, seed)
+
+
+def _run_spec_point(fn: PointFunction, spec: SweepSpec, index: int) -> list[dict[str, Any]]:
+    """The Dask task of grid point ``index``: its scenario is built on the worker from the shared spec."""
+    p = spec.points[index]
+    return run_point(fn, spec.scenario_for(p), spec.estimators, spec.runs, p.seed)
 
 
 def _single_thread() -> Any:
