@@ -52,7 +52,12 @@ def ci_weights(infos: list[FloatArray]) -> FloatArray:
     traces = np.array([np.trace(np.linalg.inv(Y)) for Y in infos])
     w0 = np.full(m, 1.0 / m)
     res = sopt.minimize(
-        f, w0, jac=True, method="SLSQP", bounds=[(0.0, 1.0)] * m, constraints=({"type": "eq", "fun": lambda w: np.sum(w) - 1.0, "jac": lambda w: np.ones(m)},),
+        f,
+        w0,
+        jac=True,
+        method="SLSQP",
+        bounds=[(0.0, 1.0)] * m,
+        constraints=({"type": "eq", "fun": lambda w: np.sum(w) - 1.0, "jac": lambda w: np.ones(m)},),
         options={"ftol": 1e-12, "maxiter": 200},
     )
     w = np.clip(res.x, 0.0, None)
@@ -116,7 +121,9 @@ class CIAlgorithm(DiffusionAlgorithm):
         return [{"xloc": xl[(i, k)], "xhat": self._fused(i, k, xl)} for i in range(n)]
 
 
-def design_ci(system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, horizon: int | None = None, *, variant: str = "honest") -> LinearTeamDesign:
+def design_ci(
+    system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, horizon: int | None = None, *, variant: str = "honest"
+) -> LinearTeamDesign:
     """Design local Kalman filters with covariance-intersection fusion, with the exact team cost.
 
     Examples

@@ -191,7 +191,7 @@ def build_steps(alg: Algorithm) -> list[LinearStep]:
         def zero(d: int, nb: int = nb) -> FloatArray:
             return np.zeros((d, nb))
 
-        def get(key: tuple) -> FloatArray:
+        def get(key: tuple, index: dict = index) -> FloatArray:
             pos, s = index[key]
             return sel(pos, s.dim)
 
@@ -459,3 +459,18 @@ def compensated_measurement(system: LinearGaussianSystem, j: int, s: int, k: int
         ) from exc
     Rt = R + Ct @ process_noise(system, k, s) @ Ct.T
     return Ct, 0.5 * (Rt + Rt.T)
+
+
+def compensate_information(system: LinearGaussianSystem, Y: FloatArray, s: int, k: int) -> tuple[FloatArray, FloatArray]:
+    r"""An information pair (Y, Y x̃) about x(s) through the prediction with process noise to step k.
+
+    Returns (Y', T) with Y' = (Φ Y⁻¹ Φᵀ + Q(k, s))⁻¹ and T = Y' Φ, so that the
+    compensated pair is (Y', T x̃) (x̃ = Y⁻¹ y the pair's estimate of x(s)).
+    """
+    if s == k:
+        return Y, Y
+    Phi = system.transition(k, s)
+    P = Phi @ np.linalg.inv(Y) @ Phi.T + process_noise(system, k, s)
+    Yn = np.linalg.inv(0.5 * (P + P.T))
+    Yn = 0.5 * (Yn + Yn.T)
+    return Yn, Yn @ Phi

@@ -21,7 +21,7 @@ Examples
 >>> sorted(teamkf.families())[:3]
 ['centralized', 'cikf', 'kcf']
 >>> teamkf.get_family("kcf").analytic_cost
-False
+True
 """
 
 from __future__ import annotations
