@@ -19,7 +19,7 @@ Examples
 --------
 >>> import teamkf
 >>> sorted(teamkf.families())[:3]
-['centralized', 'cikf', 'kcf']
+['centralized', 'ci', 'cikf']
 >>> teamkf.get_family("kcf").analytic_cost
 True
 """
