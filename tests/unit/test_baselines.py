@@ -409,3 +409,42 @@ def test_biased_description_is_detected():
 
     with pytest.raises(TeamkfError, match="biased"):
         build_steps(Biased(sys_, cost, g, 8, np.eye(3), honest=True))
+
+
+def test_families_in_scenarios():
+    """Scenario tables pick the families up from the registry; bad options name the scenario key."""
+    from teamkf.exceptions import ScenarioError
+    from teamkf.study.scenario import scenario_from_dict
+    from tests.unit.test_scenario import base_dict
+
+    d = base_dict()
+    d["estimators"] = ["mtmse", "local", "diffusion", "ci", "kcf", "icf", "hcmci"]
+    d["diffusion"] = {"weights": "uniform", "variant": "ideal"}
+    d["icf"] = {"iterations": 3, "epsilon": 0.4}
+    sc = scenario_from_dict(d)
+    dd = sc.design("diffusion")
+    assert dd.label == "diffusion [ideal]" and dd.info["weights"] == "uniform"
+    J = sc.design("mtmse").total_cost
+    for name in ("local", "ci", "kcf", "icf", "hcmci"):
+        des = sc.design(name)
+        assert des.info["variant"] == "honest" and des.total_cost >= J
+    for table, bad, prefix in [
+        ("diffusion", {"weights": [[1.0, 0.5], [0.0, 0.5]]}, "diffusion.weights: expected a 4×4 matrix"),
+        (
+            "diffusion",
+            {"weights": [[0, 0, 0, 0], [0, 1, 0, 0], [1, 0, 1, 0], [0, 0, 0, 1]]},
+            "diffusion.weights: expected weights only on the graph's edges",
+        ),
+        ("icf", {"epsilon": 0.7}, "icf.epsilon: expected a consensus rate 0 < epsilon < 1/Delta_max = 0.5"),
+        ("diffusion", {"weights": "metro"}, "diffusion.weights: expected a weight rule"),
+        ("icf", {"iterations": 0}, "icf.iterations: expected a number of consensus iterations >= 1"),
+        ("hcmci", {"iterations": 1.5}, "hcmci.iterations: expected a number of consensus iterations"),
+        ("ci", {"variant": "fair"}, "ci.variant: expected one of 'honest', 'ideal'"),
+        ("local", {"weights": "uniform"}, "local.weights: unknown option of the 'local' family"),
+    ]:
+        d2 = base_dict()
+        d2["estimators"] = [table]
+        d2[table] = bad
+        with pytest.raises((ScenarioError, ArgumentError)) as ei:
+            scenario_from_dict(d2).design(table)
+        assert str(ei.value).startswith(prefix), str(ei.value)

@@ -233,7 +233,7 @@ def design_diffusion(
     T = _horizon(horizon, "diffusion")
     system.require_horizon(T)
     cost.require_horizon(T)
-    c = diffusion_weights(graph, weights)
+    c = diffusion_weights(graph, weights, key="diffusion.weights")
     alg = DiffusionAlgorithm(system, cost, graph, T, c, honest=(variant == "honest"))
     return finish_design("diffusion", alg, variant, {"weights": weights if isinstance(weights, str) else "explicit"})
 

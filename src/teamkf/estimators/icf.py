@@ -168,7 +168,7 @@ def design_icf(
     check_graph(graph, system.n_agents)
     variant = check_variant(variant, "variant")
     K = check_iterations(iterations, "iterations")
-    eps = consensus_rate(graph, epsilon)
+    eps = consensus_rate(graph, epsilon, key="icf.epsilon")
     T = _horizon(horizon, "icf")
     system.require_horizon(T)
     cost.require_horizon(T)
