@@ -137,7 +137,7 @@ class DiffusionAlgorithm(Algorithm):
         """The graph whose in-neighbours' data is fused (None: no communication)."""
         return self.graph
 
-    def __init__(self, system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, horizon: int, c: FloatArray, honest: bool):
+    def __init__(self, system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph | None, horizon: int, c: FloatArray, honest: bool):
         super().__init__(system, cost, graph, horizon)
         self.honest, self.c = honest, c
         n, dx, T = system.n_agents, system.dx, horizon

@@ -479,7 +479,7 @@ def compensated_measurement(system: LinearGaussianSystem, j: int, s: int, k: int
             argument="system.A",
         ) from exc
     Rt = R + Ct @ process_noise(system, k, s) @ Ct.T
-    return Ct, 0.5 * (Rt + Rt.T)
+    return Ct, np.asarray(0.5 * (Rt + Rt.T), dtype=float)
 
 
 def compensate_information(system: LinearGaussianSystem, Y: FloatArray, s: int, k: int) -> tuple[FloatArray, FloatArray]:
@@ -494,4 +494,4 @@ def compensate_information(system: LinearGaussianSystem, Y: FloatArray, s: int, 
     P = Phi @ np.linalg.inv(Y) @ Phi.T + process_noise(system, k, s)
     Yn = np.linalg.inv(0.5 * (P + P.T))
     Yn = 0.5 * (Yn + Yn.T)
-    return Yn, Yn @ Phi
+    return Yn, np.asarray(Yn @ Phi, dtype=float)
