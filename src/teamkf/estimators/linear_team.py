@@ -469,7 +469,7 @@ def compensated_measurement(system: LinearGaussianSystem, j: int, s: int, k: int
         return C, R
     Phi = system.transition(k, s)
     try:
-        Ct = np.linalg.solve(Phi.T, C.T).T
+        Ct: FloatArray = np.asarray(np.linalg.solve(Phi.T, C.T).T, dtype=float)
     except np.linalg.LinAlgError as exc:
         from ..exceptions import ArgumentError
 
