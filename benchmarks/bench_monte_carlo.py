@@ -29,7 +29,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--runs", type=int, default=1000)
     ap.add_argument("--loop-runs", type=int, default=50)
-    ap.add_argument("--variant", default="honest", choices=["honest", "ideal"])
+    ap.add_argument("--variant", default="honest", choices=["honest", "ideal", "stale"])
     a = ap.parse_args()
     n, T = 10, 100
     system, cost, graph = LinearGaussianSystem.uav_formation(n), TeamCost.average_tracking(n, 10.0 * n * n), CommGraph.complete(n, 2)

@@ -11,6 +11,8 @@ designs, runs and evaluates four families from three papers, plus baselines:
 ``centralized``  the centralized Kalman filter, the lower bound: :func:`design_centralized`
 ``kcf``          Kalman-consensus filter (Olfati-Saber 2007): :func:`design_kcf`
 ``cikf``         Consensus+Innovations KF with optimized gains (Das & Moura 2016): :func:`design_cikf`
+baselines        ``local``, ``diffusion``, ``ci``, ``icf``, ``hcmci`` (and ``kcf``): ideal and delay-compensated
+                 honest variants with exact costs (docs/baselines.md, ``teamkf reproduce leaderboard``)
 bulk filter      interference-coupled populations (Abedinpour Fallah et al. 2017):
                  :mod:`teamkf.estimators.bulk`, ``[population]`` scenarios
 LQG              decentralized LQG through MTMSE (Appendix D): :mod:`teamkf.control.lqg`
@@ -32,18 +34,24 @@ True
 
 from importlib.metadata import PackageNotFoundError, version
 
-from .estimators import (
+from .estimators import (  # baselines
     CentralizedDesign,
     CIKFDesign,
     Design,
     Family,
     KCFDesign,
+    LinearTeamDesign,
     Option,
     StaticTeamEstimate,
     TeamDesign,
     design_centralized,
+    design_ci,
     design_cikf,
+    design_diffusion,
+    design_hcmci,
+    design_icf,
     design_kcf,
+    design_local,
     design_mmse,
     design_mtmse,
     families,
@@ -91,6 +99,12 @@ __all__ = [
     "design_cikf",
     "static_team_estimate",
     "kalman_covariances",
+    "LinearTeamDesign",
+    "design_local",
+    "design_diffusion",
+    "design_ci",
+    "design_icf",
+    "design_hcmci",
     "sample",
     "run_online",
     "run_graph",

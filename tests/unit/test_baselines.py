@@ -12,6 +12,8 @@ import pytest
 from teamkf import CommGraph, LinearGaussianSystem, TeamCost, design_centralized
 from teamkf.estimators.ci import ci_weights, design_ci
 from teamkf.estimators.diffusion import design_diffusion, diffusion_weights
+from teamkf.estimators.hcmci import design_hcmci
+from teamkf.estimators.icf import design_icf
 from teamkf.estimators.kcf import design_kcf, kcf_schedules
 from teamkf.estimators.local import design_local
 from teamkf.estimators.registry import get_family
@@ -121,11 +123,97 @@ def direct(family, sys_, cost, g, y, honest, c=None, eps=0.1):
     return z
 
 
-FAMILIES = ("local", "diffusion", "ci", "kcf")
+FAMILIES = ("local", "diffusion", "ci", "kcf", "icf", "hcmci")
+DESIGNS = {"local": design_local, "diffusion": design_diffusion, "ci": design_ci, "kcf": design_kcf, "icf": design_icf, "hcmci": design_hcmci}
 
 
 def design(family, sys_, cost, g, T, variant, **kw):
-    return {"local": design_local, "diffusion": design_diffusion, "ci": design_ci, "kcf": design_kcf}[family](sys_, cost, g, T, variant=variant, **kw)
+    return DESIGNS[family](sys_, cost, g, T, variant=variant, **kw)
+
+
+def direct_consensus(family, sys_, cost, g, y, K, eps=None, honest=False):
+    """ICF (Kamal et al. 2013, Algorithm 1) and HCMCI (Battistelli et al. 2015, Table I), run per agent with explicit inverses.
+
+    honest: one iteration per step on the in-neighbours' messages sent at k - τ_ji, delay-compensated
+    (information pairs through the prediction with process noise, novelties of y_j(s) as measurements of x(k)).
+    """
+    n, T, dx = sys_.n_agents, y[0].shape[1], sys_.dx
+    runs = y[0].shape[0]
+    A, Q = sys_.A_at(0), sys_.Q_at(0)
+    U = [sys_.C_at(i, 0).T @ inv(sys_.R_at(i, 0)) @ sys_.C_at(i, 0) for i in range(n)]
+    Gm = [sys_.C_at(i, 0).T @ inv(sys_.R_at(i, 0)) for i in range(n)]
+    ins = [list(g.in_neighbors(i)) for i in range(n)]
+    pi = diffusion_weights(g).T
+    Jb = [inv(sys_.Sigma_x)] * n
+    xb = [np.zeros((runs, dx))] * n
+    z = np.zeros((runs, T, n * cost.dz))
+    hist = {}
+
+    def predict_pair(Y, m):
+        Phi = np.linalg.matrix_power(A, m)
+        Qm = sum((np.linalg.matrix_power(A, r) @ Q @ np.linalg.matrix_power(A, r).T for r in range(m)), np.zeros_like(Q))
+        Yn = inv(Phi @ inv(Y) @ Phi.T + Qm)
+        return Yn, Yn @ Phi
+
+    for k in range(T):
+        if family == "icf":
+            V = [Jb[i] / n + U[i] for i in range(n)]
+            v = [xb[i] @ (Jb[i] / n).T + y[i][:, k] @ Gm[i].T for i in range(n)]
+            if honest:
+                V2, v2 = [], []
+                for i in range(n):
+                    Vi, vi = V[i].copy(), v[i].copy()
+                    for j, s in _sources(g, i, k, True):
+                        Yn, Tm = predict_pair(hist[(j, s)][0], k - s)
+                        Vi += eps * (Yn - V[i])
+                        vi += eps * (hist[(j, s)][1] @ Tm.T - v[i])
+                    V2.append(Vi)
+                    v2.append(vi)
+                V, v = V2, v2
+            else:
+                for _ in range(K):
+                    V = [V[i] + eps * sum((V[j] - V[i] for j in ins[i]), np.zeros((dx, dx))) for i in range(n)]
+                    v = [v[i] + eps * sum((v[j] - v[i] for j in ins[i]), np.zeros((runs, dx))) for i in range(n)]
+            xh = [v[i] @ inv(V[i]).T for i in range(n)]
+            for i in range(n):
+                hist[(i, k)] = (V[i], xh[i])
+            Jb = [inv(A @ inv(n * V[i]) @ A.T + Q) for i in range(n)]
+        else:
+            O = [Jb[i] for i in range(n)]
+            q = [xb[i] @ Jb[i].T for i in range(n)]
+            dO = list(U)
+            dq = [y[i][:, k] @ Gm[i].T for i in range(n)]
+            if honest:
+                O2, q2, dO2, dq2 = [], [], [], []
+                for i in range(n):
+                    heard = _sources(g, i, k, True)
+                    w = pi[i, i] + sum(pi[i, j] for j in ins[i] if j not in [a for a, _ in heard])
+                    a, b, c, d = w * O[i], w * q[i], w * dO[i], w * dq[i]
+                    for j, s in heard:
+                        Yn, Tm = predict_pair(hist[(j, s)][0], k - s)
+                        Ct, Rt = _comp(sys_, j, k - s)
+                        a, b = a + pi[i, j] * Yn, b + pi[i, j] * hist[(j, s)][1] @ Tm.T
+                        c, d = c + pi[i, j] * Ct.T @ inv(Rt) @ Ct, d + pi[i, j] * y[j][:, s] @ (Ct.T @ inv(Rt)).T
+                    O2.append(a)
+                    q2.append(b)
+                    dO2.append(c)
+                    dq2.append(d)
+                for i in range(n):
+                    hist[(i, k)] = (O[i], xb[i])
+                O, q, dO, dq = O2, q2, dO2, dq2
+            else:
+                for _ in range(K):
+                    O = [pi[i, i] * O[i] + sum(pi[i, j] * O[j] for j in ins[i]) for i in range(n)]
+                    q = [pi[i, i] * q[i] + sum(pi[i, j] * q[j] for j in ins[i]) for i in range(n)]
+                    dO = [pi[i, i] * dO[i] + sum(pi[i, j] * dO[j] for j in ins[i]) for i in range(n)]
+                    dq = [pi[i, i] * dq[i] + sum(pi[i, j] * dq[j] for j in ins[i]) for i in range(n)]
+            Om = [O[i] + n * dO[i] for i in range(n)]
+            xh = [(q[i] + n * dq[i]) @ inv(Om[i]).T for i in range(n)]
+            Jb = [inv(A @ inv(Om[i]) @ A.T + Q) for i in range(n)]
+        for i in range(n):
+            z[:, k, i * cost.dz : (i + 1) * cost.dz] = xh[i] @ cost.L_block(i, k).T
+        xb = [xh[i] @ A.T for i in range(n)]
+    return z
 
 
 @pytest.mark.parametrize("family", FAMILIES)
@@ -134,9 +222,13 @@ def test_matches_direct_implementation(family, variant):
     sys_, cost, g = instance(1)
     T = 9
     p = sample_paths(sys_, T, 4, rng=7)
-    d = design(family, sys_, cost, g, T, variant)
-    c = diffusion_weights(g) if family == "diffusion" else np.eye(3)
-    ref = direct(family, sys_, cost, g, p.y, variant == "honest", c=c)
+    if family in ("icf", "hcmci"):
+        d = design(family, sys_, cost, g, T, variant, iterations=3)
+        ref = direct_consensus(family, sys_, cost, g, p.y, 3, eps=d.info.get("epsilon"), honest=variant == "honest")
+    else:
+        d = design(family, sys_, cost, g, T, variant)
+        c = diffusion_weights(g) if family == "diffusion" else np.eye(3)
+        ref = direct(family, sys_, cost, g, p.y, variant == "honest", c=c)
     z = d.filter(p.y)
     np.testing.assert_allclose(z, ref, rtol=1e-10, atol=1e-10 * np.abs(ref).max())
     # errors(paths) is the same linear map applied to the noises
@@ -187,7 +279,7 @@ def test_honest_runtime_discipline(family):
             np.testing.assert_array_equal(z0[:, : s + lag, i * dz : (i + 1) * dz], z1[:, : s + lag, i * dz : (i + 1) * dz])
 
 
-@pytest.mark.parametrize("family", ("diffusion", "ci", "kcf"))
+@pytest.mark.parametrize("family", ("diffusion", "ci", "kcf", "icf", "hcmci"))
 def test_ideal_has_no_graph_agents(family):
     sys_, cost, g = instance(5)
     with pytest.raises(UnsupportedOperationError):
@@ -232,6 +324,25 @@ def test_ideal_diffusion_on_a_complete_graph_is_centralized():
     np.testing.assert_allclose(d.stage_costs, c.stage_costs, rtol=1e-9)
 
 
+@pytest.mark.parametrize("family", ("icf", "hcmci"))
+def test_many_iterations_on_a_complete_graph_approach_centralized(family):
+    rng = np.random.default_rng(12)
+    n = 4
+    sys_ = pd_system(rng, n, 3, [1, 1, 2, 1])
+    cost = pd_cost(rng, n, 3)
+    T = 10
+    c = design_centralized(sys_, cost, horizon=T).stage_costs
+    # complete graph: ICF with a small rate converges with K; HCMCI's Metropolis weights (1/n) average exactly in one iteration
+    for g, kw in ((CommGraph.complete(n), {"epsilon": 0.2} if family == "icf" else {}), (CommGraph.ring(n), {})):
+        gaps = []
+        for K in (1, 3, 60):
+            d = design(family, sys_, cost, g, T, "ideal", iterations=K, **kw).stage_costs
+            gaps.append(np.max(np.abs(d - c) / c))
+        assert gaps[2] < 1e-6, gaps
+        if gaps[0] > 1e-12:
+            assert gaps[0] > gaps[1] > gaps[2], gaps
+
+
 def test_family_records():
     for name in FAMILIES:
         fam = get_family(name)
@@ -273,6 +384,16 @@ def test_bad_options_name_the_key():
     sys_, cost, g = instance(8)
     with pytest.raises(ArgumentError, match="horizon"):
         design_local(sys_, cost, g, None)
+    for fam in ("icf", "hcmci"):
+        for bad in (0, -2, 2.5, "3", True):
+            with pytest.raises(ArgumentError, match=rf"^{fam}\.iterations: expected a number of consensus iterations >= 1"):
+                get_family(fam).check_options({"iterations": bad})
+    with pytest.raises(ArgumentError, match=r"^icf\.epsilon: expected a consensus rate > 0"):
+        get_family("icf").check_options({"epsilon": 0.0})
+    with pytest.raises(ArgumentError, match=r"epsilon: expected a consensus rate 0 < epsilon < 1/Delta_max = 0.5 .*in-degree is 2"):
+        design_icf(sys_, cost, g, 5, epsilon=0.6)
+    with pytest.raises(ArgumentError, match=r"^hcmci\.epsilon: unknown option"):
+        get_family("hcmci").check_options({"epsilon": 0.1})
 
 
 def test_biased_description_is_detected():
@@ -288,3 +409,42 @@ def test_biased_description_is_detected():
 
     with pytest.raises(TeamkfError, match="biased"):
         build_steps(Biased(sys_, cost, g, 8, np.eye(3), honest=True))
+
+
+def test_families_in_scenarios():
+    """Scenario tables pick the families up from the registry; bad options name the scenario key."""
+    from teamkf.exceptions import ScenarioError
+    from teamkf.study.scenario import scenario_from_dict
+    from tests.unit.test_scenario import base_dict
+
+    d = base_dict()
+    d["estimators"] = ["mtmse", "local", "diffusion", "ci", "kcf", "icf", "hcmci"]
+    d["diffusion"] = {"weights": "uniform", "variant": "ideal"}
+    d["icf"] = {"iterations": 3, "epsilon": 0.4}
+    sc = scenario_from_dict(d)
+    dd = sc.design("diffusion")
+    assert dd.label == "diffusion [ideal]" and dd.info["weights"] == "uniform"
+    J = sc.design("mtmse").total_cost
+    for name in ("local", "ci", "kcf", "icf", "hcmci"):
+        des = sc.design(name)
+        assert des.info["variant"] == "honest" and des.total_cost >= J
+    for table, bad, prefix in [
+        ("diffusion", {"weights": [[1.0, 0.5], [0.0, 0.5]]}, "diffusion.weights: expected a 4×4 matrix"),
+        (
+            "diffusion",
+            {"weights": [[0, 0, 0, 0], [0, 1, 0, 0], [1, 0, 1, 0], [0, 0, 0, 1]]},
+            "diffusion.weights: expected weights only on the graph's edges",
+        ),
+        ("icf", {"epsilon": 0.7}, "icf.epsilon: expected a consensus rate 0 < epsilon < 1/Delta_max = 0.5"),
+        ("diffusion", {"weights": "metro"}, "diffusion.weights: expected a weight rule"),
+        ("icf", {"iterations": 0}, "icf.iterations: expected a number of consensus iterations >= 1"),
+        ("hcmci", {"iterations": 1.5}, "hcmci.iterations: expected a number of consensus iterations"),
+        ("ci", {"variant": "fair"}, "ci.variant: expected one of 'honest', 'ideal'"),
+        ("local", {"weights": "uniform"}, "local.weights: unknown option of the 'local' family"),
+    ]:
+        d2 = base_dict()
+        d2["estimators"] = [table]
+        d2[table] = bad
+        with pytest.raises((ScenarioError, ArgumentError)) as ei:
+            scenario_from_dict(d2).design(table)
+        assert str(ei.value).startswith(prefix), str(ei.value)

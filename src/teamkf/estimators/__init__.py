@@ -8,9 +8,17 @@ packages through the ``teamkf.families`` entry points, and a user's
 
 from . import _builtin  # noqa: F401  (registers the built-in families, in order)
 from .base import Design
+
+# baselines (issue 11): linear filters with data-independent gains on the exact engine of .linear_team
+from .ci import design_ci
 from .cikf import CIKFDesign, design_cikf
+from .diffusion import design_diffusion
+from .hcmci import design_hcmci
+from .icf import design_icf
 from .kalman import CentralizedDesign, design_centralized, kalman_covariances
 from .kcf import KCFDesign, design_kcf
+from .linear_team import LinearTeamDesign
+from .local import design_local
 from .registry import Family, Option, families, get_family, register_family, unregister_family
 from .team import StaticTeamEstimate, TeamDesign, design_mmse, design_mtmse, static_team_estimate
 
@@ -34,4 +42,10 @@ __all__ = [
     "design_mmse",
     "static_team_estimate",
     "kalman_covariances",
+    "LinearTeamDesign",
+    "design_local",
+    "design_diffusion",
+    "design_ci",
+    "design_icf",
+    "design_hcmci",
 ]

@@ -2,5 +2,5 @@
 
 from importlib import import_module
 
-for _name in ("kalman", "team", "kcf", "cikf", "local", "diffusion", "ci"):
+for _name in ("kalman", "team", "kcf", "cikf", "local", "diffusion", "ci", "icf", "hcmci"):
     import_module(f"{__package__}.{_name}")

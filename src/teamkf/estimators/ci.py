@@ -85,6 +85,7 @@ class CIAlgorithm(DiffusionAlgorithm):
         self.fuse_src = information_sources(graph, T, honest)
         self.fuse: dict[tuple[int, int], list[tuple[int, int, FloatArray]]] = {}  # (i,k) -> [(l, s, gain)]
         self.omega = np.zeros((n, T, n))
+        self._wcache: dict[tuple, FloatArray] = {}
         for i in range(n):
             for k in range(T):
                 srcs = [(i, k), *self.fuse_src[i][k]]
@@ -93,7 +94,10 @@ class CIAlgorithm(DiffusionAlgorithm):
                     Phi = self.Phi(k, s)
                     Pt = Phi @ self.P_filt[lnode, s] @ Phi.T + (process_noise(system, k, s) if s != k else 0.0)
                     Ys.append(np.linalg.inv(0.5 * (Pt + Pt.T)))
-                w = ci_weights(Ys)
+                key = tuple(np.round(Y, 12).tobytes() for Y in Ys)  # converged covariances: the same weights, solved once
+                if key not in self._wcache:
+                    self._wcache[key] = ci_weights(Ys)
+                w = self._wcache[key]
                 Pf = np.linalg.inv(sum(wj * Y for wj, Y in zip(w, Ys)))
                 self.fuse[(i, k)] = [(lnode, s, wj * Pf @ Y @ self.Phi(k, s)) for (lnode, s), wj, Y in zip(srcs, w, Ys) if wj > 0]
                 for (lnode, _), wj in zip(srcs, w):

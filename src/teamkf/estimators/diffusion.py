@@ -137,7 +137,7 @@ class DiffusionAlgorithm(Algorithm):
         """The graph whose in-neighbours' data is fused (None: no communication)."""
         return self.graph
 
-    def __init__(self, system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, horizon: int, c: FloatArray, honest: bool):
+    def __init__(self, system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph | None, horizon: int, c: FloatArray, honest: bool):
         super().__init__(system, cost, graph, horizon)
         self.honest, self.c = honest, c
         n, dx, T = system.n_agents, system.dx, horizon
@@ -233,7 +233,7 @@ def design_diffusion(
     T = _horizon(horizon, "diffusion")
     system.require_horizon(T)
     cost.require_horizon(T)
-    c = diffusion_weights(graph, weights)
+    c = diffusion_weights(graph, weights, key="diffusion.weights")
     alg = DiffusionAlgorithm(system, cost, graph, T, c, honest=(variant == "honest"))
     return finish_design("diffusion", alg, variant, {"weights": weights if isinstance(weights, str) else "explicit"})
 

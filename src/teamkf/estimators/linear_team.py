@@ -83,9 +83,22 @@ class Slot:
     dim: int
 
 
+def _compact(M: FloatArray) -> Any:
+    """A CSR copy of a mostly-zero matrix (selector and shift blocks dominate F), else the array itself."""
+    if M.size > 4096 and np.count_nonzero(M) < 0.2 * M.size:
+        import scipy.sparse as sp
+
+        return sp.csr_matrix(M)
+    return M
+
+
 @dataclass(frozen=True, eq=False)
 class LinearStep:
-    """Step k as a linear map: ξ(k) = F ξ(k-1) + K y(k); ε(k) = F ε(k-1) - K v(k) + Σ_r B[r] w(r); z = H ξ."""
+    """Step k as a linear map: ξ(k) = F ξ(k-1) + K y(k); ε(k) = F ε(k-1) - K v(k) + Σ_r B[r] w(r); z = H ξ.
+
+    ``Fs``, ``Ks``, ``Hs`` are the same matrices, stored sparse when they are mostly zero
+    (``Fs @ X`` is then a sparse-dense product).
+    """
 
     k: int
     slots: tuple[Slot, ...]
@@ -93,6 +106,11 @@ class LinearStep:
     K: FloatArray
     H: FloatArray
     B: dict[int, FloatArray]
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "Fs", _compact(self.F))
+        object.__setattr__(self, "Ks", _compact(self.K))
+        object.__setattr__(self, "Hs", _compact(self.H))
 
 
 class Algorithm:
@@ -306,15 +324,17 @@ class LinearTeamDesign(Design):
         out, covs = [], []
         Rcache: dict[int, FloatArray] = {}
         for st in steps:
-            F, K = st.F, st.K
+            F, K = st.Fs, st.Ks  # type: ignore[attr-defined]
             rk = st.k if system.is_time_varying else 0
             if rk not in Rcache:
                 Rcache[rk] = system.R_stack(st.k)
-            Pn = F @ P @ F.T + K @ Rcache[rk] @ K.T
+            FP = np.asarray(F @ P)
+            KR = np.asarray(K @ Rcache[rk])
+            Pn = np.asarray(F @ FP.T).T + np.asarray(K @ KR.T).T
             Xn: dict[int, FloatArray] = {}
             for r, Bm in st.B.items():
                 Qr = system.Sigma_x if r == -1 else system.Q_at(r)
-                FX = F @ X[r] if r in X else None
+                FX = np.asarray(F @ X[r]) if r in X else None
                 if FX is not None:
                     cross = FX @ Bm.T
                     Pn = Pn + cross + cross.T
@@ -323,7 +343,8 @@ class LinearTeamDesign(Design):
                 Xn[r] = BQ if FX is None else FX + BQ
             P = 0.5 * (Pn + Pn.T)
             X = Xn
-            E = st.H @ P @ st.H.T
+            HP = np.asarray(st.Hs @ P)  # type: ignore[attr-defined]
+            E = np.asarray(st.Hs @ HP.T).T  # type: ignore[attr-defined]
             covs.append(E)
             out.append(float(np.sum(cost.S_at(st.k) * E)))
         return np.asarray(out), covs
@@ -345,11 +366,11 @@ class LinearTeamDesign(Design):
         out = np.empty((n_runs, T, self.n_agents * self.cost.dz))
         for k in range(T):
             st = self.steps[k]
-            e = eps @ st.F.T - v[:, k] @ st.K.T
+            e = np.asarray(st.Fs @ eps.T).T - np.asarray(st.Ks @ v[:, k].T).T  # type: ignore[attr-defined]
             for r, Bm in st.B.items():
                 e = e + (x0 if r == -1 else w[:, r]) @ Bm.T
             eps = e
-            out[:, k] = eps @ st.H.T
+            out[:, k] = np.asarray(st.Hs @ eps.T).T  # type: ignore[attr-defined]
         return out
 
     def _filter(self, ys: list[FloatArray]) -> FloatArray:
@@ -363,8 +384,8 @@ class LinearTeamDesign(Design):
         out = np.empty((n_runs, T, self.n_agents * self.cost.dz))
         for k in range(T):
             st = self.steps[k]
-            xi = xi @ st.F.T + y[:, k] @ st.K.T
-            out[:, k] = xi @ st.H.T
+            xi = np.asarray(st.Fs @ xi.T).T + np.asarray(st.Ks @ y[:, k].T).T  # type: ignore[attr-defined]
+            out[:, k] = np.asarray(st.Hs @ xi.T).T  # type: ignore[attr-defined]
         return out
 
     # --- online agents ---------------------------------------------------------------------------
@@ -448,7 +469,7 @@ def compensated_measurement(system: LinearGaussianSystem, j: int, s: int, k: int
         return C, R
     Phi = system.transition(k, s)
     try:
-        Ct = np.linalg.solve(Phi.T, C.T).T
+        Ct: FloatArray = np.asarray(np.linalg.solve(Phi.T, C.T).T, dtype=float)
     except np.linalg.LinAlgError as exc:
         from ..exceptions import ArgumentError
 
@@ -458,4 +479,19 @@ def compensated_measurement(system: LinearGaussianSystem, j: int, s: int, k: int
             argument="system.A",
         ) from exc
     Rt = R + Ct @ process_noise(system, k, s) @ Ct.T
-    return Ct, 0.5 * (Rt + Rt.T)
+    return Ct, np.asarray(0.5 * (Rt + Rt.T), dtype=float)
+
+
+def compensate_information(system: LinearGaussianSystem, Y: FloatArray, s: int, k: int) -> tuple[FloatArray, FloatArray]:
+    r"""An information pair (Y, Y x̃) about x(s) through the prediction with process noise to step k.
+
+    Returns (Y', T) with Y' = (Φ Y⁻¹ Φᵀ + Q(k, s))⁻¹ and T = Y' Φ, so that the
+    compensated pair is (Y', T x̃) (x̃ = Y⁻¹ y the pair's estimate of x(s)).
+    """
+    if s == k:
+        return Y, Y
+    Phi = system.transition(k, s)
+    P = Phi @ np.linalg.inv(Y) @ Phi.T + process_noise(system, k, s)
+    Yn = np.linalg.inv(0.5 * (P + P.T))
+    Yn = 0.5 * (Yn + Yn.T)
+    return Yn, np.asarray(Yn @ Phi, dtype=float)

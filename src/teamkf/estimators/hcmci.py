@@ -1,0 +1,169 @@
+r"""Hybrid consensus on measurements and information, HCMCI (Battistelli, Chisci, Mugnai, Farina & Graziano, IEEE TAC 60(6), 2015).
+
+Agent i, information-form prior (Ω̄_i, q̄_i = Ω̄_i x̄_i) (Ω̄_i(0) = Σ_x⁻¹,
+x̄_i(0) = 0), novelty δΩ_i = C_iᵀR_i⁻¹C_i, δq_i = C_iᵀR_i⁻¹y_i, at step t:
+
+.. math::
+
+    (\Omega, q, \delta\Omega, \delta q)_i^{(l+1)} = \sum_{j\in N_i\cup\{i\}} \pi_{ij}\, (\Omega, q, \delta\Omega, \delta q)_j^{(l)}
+    \quad (l < L), \\
+    \Omega_i = \Omega_i^{(L)} + \omega\, \delta\Omega_i^{(L)}, \quad q_i = q_i^{(L)} + \omega\, \delta q_i^{(L)}, \quad
+    \hat x_i = \Omega_i^{-1} q_i, \\
+    \bar\Omega_i \leftarrow (A \Omega_i^{-1} A^\top + Q)^{-1}, \quad \bar x_i \leftarrow A \hat x_i,
+
+with the paper's Metropolis weights π_ij (row-stochastic; π_ij = c_ji of
+:func:`~teamkf.estimators.diffusion.diffusion_weights`) and ω = N (the number
+of agents: with L → ∞ on a connected graph the novelties' average times N is
+the total measurement information, the centralized filter). ẑ_i = L_i x̂_i.
+
+Variants: ``ideal`` runs the L iterations inside the step; ``honest`` exchanges
+once per step (one iteration): agent j sends (x̄_j(s), y_j(s)); agent i uses at
+k = s + τ_ji the prior pair through the prediction with process noise and the
+novelty of y_j(s) as a measurement of x(k) (delay compensation); the weights of
+neighbours not yet heard go to the agent itself. ``iterations`` is then unused.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ..exceptions import ArgumentError
+from ..models import LinearGaussianSystem, TeamCost
+from ..network.graph import CommGraph
+from .checks import check_graph, check_model
+from .diffusion import VARIANTS, _horizon, check_variant, diffusion_weights, information_sources
+from .icf import check_iterations
+from .linear_team import Algorithm, LinearTeamDesign, compensate_information, finish_design
+from .registry import Family, Option, _register_builtin
+
+__all__ = ["design_hcmci"]
+
+
+class HCMCIAlgorithm(Algorithm):
+    state_kinds = {"xhat": "x"}
+    payload_kinds = {"xbar": "x", "y": "y"}
+
+    def __init__(self, system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, horizon: int, iterations: int, honest: bool):
+        super().__init__(system, cost, graph, horizon)
+        if system.is_time_varying:
+            raise ArgumentError("system: the 'hcmci' family needs a time-invariant model here", argument="system")
+        self.honest, self.L = honest, (1 if honest else iterations)
+        n, dx, T = system.n_agents, system.dx, horizon
+        self.omega = float(n)
+        self.pi = diffusion_weights(graph, "metropolis").T  # pi[i, j]: agent i's weight on j
+        self.src = information_sources(graph, T, honest)
+        self.ins = [list(graph.in_neighbors(i)) for i in range(n)]
+        self.Obar = np.empty((n, T, dx, dx))
+        self.Om = np.empty((n, T, dx, dx))
+        self.w: dict[tuple[int, int], float] = {}  # honest: (i,k) -> self weight
+        self.prior_c: dict[tuple[int, int, int, int], tuple[Any, Any]] = {}
+        self.nov_c: dict[tuple[int, int, int, int], tuple[Any, Any]] = {}
+        Obar = [np.linalg.inv(system.Sigma_x) for _ in range(n)]
+        for k in range(T):
+            for i in range(n):
+                self.Obar[i, k] = Obar[i]
+            dO = [self.compensated(j, k, k)[3] for j in range(n)]
+            if honest:
+                for i in range(n):
+                    heard = {j for j, _ in self.src[i][k]}
+                    wii = self.pi[i, i] + sum(self.pi[i, j] for j in self.ins[i] if j not in heard)
+                    self.w[(i, k)] = wii
+                    Oi, dOi = wii * self.Obar[i, k], wii * dO[i]
+                    for j, s in self.src[i][k]:
+                        Yc, Tm = compensate_information(system, self.Obar[j, s], s, k)
+                        _, _, Gc, Yn = self.compensated(j, s, k)
+                        self.prior_c[(i, k, j, s)] = (Yc, Tm)
+                        self.nov_c[(i, k, j, s)] = (Yn, Gc)
+                        Oi = Oi + self.pi[i, j] * Yc
+                        dOi = dOi + self.pi[i, j] * Yn
+                    self.Om[i, k] = Oi + self.omega * dOi
+            else:
+                Os = [self.Obar[i, k] for i in range(n)]
+                ds = list(dO)
+                for _ in range(self.L):
+                    Os = [self.pi[i, i] * Os[i] + sum((self.pi[i, j] * Os[j] for j in self.ins[i]), np.zeros((dx, dx))) for i in range(n)]
+                    ds = [self.pi[i, i] * ds[i] + sum((self.pi[i, j] * ds[j] for j in self.ins[i]), np.zeros((dx, dx))) for i in range(n)]
+                for i in range(n):
+                    self.Om[i, k] = Os[i] + self.omega * ds[i]
+            for i in range(n):
+                A = system.A_at(k)
+                P = A @ np.linalg.inv(self.Om[i, k]) @ A.T + system.Q_at(k)
+                Obar[i] = np.linalg.inv(0.5 * (P + P.T))
+                Obar[i] = 0.5 * (Obar[i] + Obar[i].T)
+        self.Ominv = np.linalg.inv(self.Om)
+        self.schedules = {"Omega_prior": self.Obar, "Omega": self.Om}
+
+    def _xbar(self, i: int, k: int, prev: dict | None, zero: Any) -> Any:
+        return zero(self.system.dx) if prev is None else self.system.A_at(k - 1) @ prev["xhat"]
+
+    def agent_step(self, i: int, k: int, prev: dict | None, y_i: Any, inbox: Any, zero: Any) -> tuple[dict, dict]:
+        xbar = self._xbar(i, k, prev, zero)
+        _, _, G, _ = self.compensated(i, k, k)
+        wii = self.w[(i, k)]
+        q = wii * (self.Obar[i, k] @ xbar)
+        dq = wii * (G @ y_i)
+        for j, s, p in inbox:
+            _, Tm = self.prior_c[(i, k, j, s)]
+            _, Gc = self.nov_c[(i, k, j, s)]
+            q = q + self.pi[i, j] * (Tm @ p["xbar"])
+            dq = dq + self.pi[i, j] * (Gc @ p["y"])
+        xh = self.Ominv[i, k] @ (q + self.omega * dq)
+        return {"xhat": xh}, {"xbar": xbar, "y": y_i}
+
+    def team_step(self, k: int, prev: list[dict | None], ys: list[Any], zero: Any) -> list[dict]:
+        n = self.system.n_agents
+        qs = [self.Obar[i, k] @ self._xbar(i, k, prev[i], zero) for i in range(n)]
+        ds = [self.compensated(i, k, k)[2] @ ys[i] for i in range(n)]
+        for _ in range(self.L):
+            nq, nd = [], []
+            for i in range(n):
+                a, b = self.pi[i, i] * qs[i], self.pi[i, i] * ds[i]
+                for j in self.ins[i]:
+                    a = a + self.pi[i, j] * qs[j]
+                    b = b + self.pi[i, j] * ds[j]
+                nq.append(a)
+                nd.append(b)
+            qs, ds = nq, nd
+        return [{"xhat": self.Ominv[i, k] @ (qs[i] + self.omega * ds[i])} for i in range(n)]
+
+
+def design_hcmci(
+    system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, horizon: int | None = None, *, iterations: int = 5, variant: str = "honest"
+) -> LinearTeamDesign:
+    """Design the HCMCI filter with its exact team cost (module docstring).
+
+    Examples
+    --------
+    >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph
+    >>> d = design_hcmci(LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 10.0), CommGraph.line(4), 10, iterations=3, variant="ideal")
+    >>> d.info["iterations"]
+    3
+    """
+    check_model(system, cost)
+    check_graph(graph, system.n_agents)
+    variant = check_variant(variant, "variant")
+    L = check_iterations(iterations, "iterations")
+    T = _horizon(horizon, "hcmci")
+    system.require_horizon(T)
+    cost.require_horizon(T)
+    alg = HCMCIAlgorithm(system, cost, graph, T, L, honest=(variant == "honest"))
+    return finish_design("hcmci", alg, variant, {"iterations": alg.L, "omega": alg.omega})
+
+
+FAMILY = _register_builtin(
+    Family(
+        name="hcmci",
+        design=design_hcmci,
+        title="Hybrid consensus on measurements and information (Battistelli et al. 2015), honest = one delay-compensated exchange per step",
+        uses="graph",
+        horizons=frozenset({"finite"}),
+        analytic_cost=True,
+        options=(
+            Option(name="iterations", default=5, check=check_iterations, doc="consensus iterations L per step (ideal variant)"),
+            Option(name="variant", default="honest", check=check_variant, doc=" | ".join(f"{k!r}: {d}" for k, d in VARIANTS.items())),
+        ),
+        example="design_hcmci(system, cost, graph, horizon=100, iterations=5, variant='ideal')",
+    )
+)

@@ -1,0 +1,196 @@
+r"""Information-weighted consensus filter, ICF (Kamal, Farrell & Roy-Chowdhury, IEEE TAC 58(12), 2013).
+
+Agent i, N agents, prior (x̄_i, J̄_i) (J̄_i(0) = Σ_x⁻¹, x̄_i(0) = 0), at step t:
+
+.. math::
+
+    V_i^{0} = \tfrac1N \bar J_i + C_i^\top R_i^{-1} C_i, \qquad
+    v_i^{0} = \tfrac1N \bar J_i \bar x_i + C_i^\top R_i^{-1} y_i, \\
+    v_i^{(m+1)} = v_i^{(m)} + \epsilon \sum_{j\in N_i} (v_j^{(m)} - v_i^{(m)}), \quad
+    V_i^{(m+1)} = V_i^{(m)} + \epsilon \sum_{j\in N_i} (V_j^{(m)} - V_i^{(m)}) \quad (m < K), \\
+    \hat x_i = (V_i^{(K)})^{-1} v_i^{(K)}, \quad J_i = N V_i^{(K)}, \quad
+    \bar J_i \leftarrow (A J_i^{-1} A^\top + Q)^{-1}, \quad \bar x_i \leftarrow A \hat x_i,
+
+N_i the in-neighbours, 0 < ε < 1/Δ_max (Δ_max the maximum in-degree); ẑ_i = L_i x̂_i.
+
+Variants: ``ideal`` runs the K consensus iterations inside the step (the
+paper). ``honest`` has one exchange per step, hence one iteration: agent j
+sends x̂_j(s) = V_j(s)⁻¹ v_j(s) (its pair after the step's iteration), agent i
+uses it at k = s + τ_ji as the pair (V_j(s), v_j(s)) through the prediction with
+process noise (:func:`~teamkf.estimators.linear_team.compensate_information`);
+``iterations`` is then unused.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import scipy.linalg as sla
+
+from .. import _validation as V
+from ..exceptions import ArgumentError
+from ..models import LinearGaussianSystem, TeamCost
+from ..network.graph import CommGraph
+from .checks import check_graph, check_model
+from .diffusion import VARIANTS, _horizon, check_variant, information_sources
+from .linear_team import Algorithm, LinearTeamDesign, compensate_information, finish_design
+from .registry import Family, Option, _register_builtin
+
+__all__ = ["design_icf", "check_iterations", "check_rate", "consensus_rate"]
+
+
+def check_iterations(v: Any, key: str) -> int:
+    return V.integer(v, key, minimum=1, what="a number of consensus iterations")
+
+
+def check_rate(v: Any, key: str) -> float | None:
+    return None if v is None else V.real(v, key, minimum=0.0, strict=True, what="a consensus rate")
+
+
+def consensus_rate(graph: CommGraph, epsilon: Any, key: str = "epsilon") -> float:
+    """ε checked against 0 < ε < 1/Δ_max (Δ_max: maximum in-degree); None gives 1/(Δ_max + 1)."""
+    dmax = max((len(graph.in_neighbors(i)) for i in range(graph.n_agents)), default=0)
+    if epsilon is None:
+        return 1.0 / (dmax + 1)
+    eps = check_rate(epsilon, key)
+    assert eps is not None
+    if dmax > 0 and eps >= 1.0 / dmax:
+        raise ArgumentError(
+            f"{key}: expected a consensus rate 0 < epsilon < 1/Delta_max = {1.0 / dmax:.6g} (this graph's maximum in-degree is {dmax}), found {eps:g}",
+            argument=key,
+        )
+    return eps
+
+
+class ICFAlgorithm(Algorithm):
+    state_kinds = {"xhat": "x"}
+    payload_kinds = {"xhat": "x"}
+
+    def __init__(self, system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, horizon: int, epsilon: float, iterations: int, honest: bool):
+        super().__init__(system, cost, graph, horizon)
+        self.honest, self.eps, self.K = honest, epsilon, iterations if not honest else 1
+        n, dx, T = system.n_agents, system.dx, horizon
+        self.src = information_sources(graph, T, honest)
+        self.ins = [list(graph.in_neighbors(i)) for i in range(n)]
+        self.G, self.U = [], []
+        for j in range(n):
+            C, R = system.C_at(j, 0), system.R_at(j, 0)
+            g = sla.cho_solve(sla.cho_factor(R, lower=True), C).T
+            self.G.append(g)
+            self.U.append(g @ C)
+        if system.is_time_varying:
+            raise ArgumentError("system: the 'icf' family needs a time-invariant model here", argument="system")
+        self.Jbar = np.empty((n, T, dx, dx))
+        self.V0 = np.empty((n, T, dx, dx))
+        self.Vf = np.empty((n, T, dx, dx))
+        self.comp: dict[tuple[int, int, int, int], tuple[Any, Any]] = {}
+        Jbar = [np.linalg.inv(system.Sigma_x) for _ in range(n)]
+        for k in range(T):
+            for i in range(n):
+                self.Jbar[i, k] = Jbar[i]
+                self.V0[i, k] = Jbar[i] / n + self.U[i]
+            if honest:
+                for i in range(n):
+                    Vi = self.V0[i, k].copy()
+                    for j, s in self.src[i][k]:
+                        Yc, Tm = compensate_information(system, self.Vf[j, s], s, k)
+                        self.comp[(i, k, j, s)] = (Yc, Tm)
+                        Vi = Vi + epsilon * (Yc - self.V0[i, k])
+                    self.Vf[i, k] = Vi
+            else:
+                Vs = [self.V0[i, k] for i in range(n)]
+                for _ in range(self.K):
+                    Vs = [Vs[i] + epsilon * sum((Vs[j] - Vs[i] for j in self.ins[i]), np.zeros((dx, dx))) for i in range(n)]
+                for i in range(n):
+                    self.Vf[i, k] = Vs[i]
+            for i in range(n):
+                A = system.A_at(k)
+                Jinv = np.linalg.inv(n * self.Vf[i, k])
+                Jbar[i] = np.linalg.inv(A @ Jinv @ A.T + system.Q_at(k))
+                Jbar[i] = 0.5 * (Jbar[i] + Jbar[i].T)
+        self.Vinv = np.linalg.inv(self.Vf)
+        self.schedules = {"Jbar": self.Jbar, "V": self.Vf}
+
+    def _v0(self, i: int, k: int, prev: dict | None, y_i: Any, zero: Any) -> Any:
+        xbar = zero(self.system.dx) if prev is None else self.system.A_at(k - 1) @ prev["xhat"]
+        return (self.Jbar[i, k] / self.system.n_agents) @ xbar + self.G[i] @ y_i
+
+    def agent_step(self, i: int, k: int, prev: dict | None, y_i: Any, inbox: Any, zero: Any) -> tuple[dict, dict]:
+        v0 = self._v0(i, k, prev, y_i, zero)
+        v = v0
+        for j, s, p in inbox:
+            _, Tm = self.comp[(i, k, j, s)]
+            v = v + self.eps * (Tm @ p["xhat"] - v0)
+        xh = self.Vinv[i, k] @ v
+        return {"xhat": xh}, {"xhat": xh}
+
+    def team_step(self, k: int, prev: list[dict | None], ys: list[Any], zero: Any) -> list[dict]:
+        n = self.system.n_agents
+        vs = [self._v0(i, k, prev[i], ys[i], zero) for i in range(n)]
+        for _ in range(self.K):
+            new = []
+            for i in range(n):
+                acc = vs[i]
+                for j in self.ins[i]:
+                    acc = acc + self.eps * (vs[j] - vs[i])
+                new.append(acc)
+            vs = new
+        return [{"xhat": self.Vinv[i, k] @ vs[i]} for i in range(n)]
+
+
+def design_icf(
+    system: LinearGaussianSystem,
+    cost: TeamCost,
+    graph: CommGraph,
+    horizon: int | None = None,
+    *,
+    iterations: int = 5,
+    epsilon: float | None = None,
+    variant: str = "honest",
+) -> LinearTeamDesign:
+    """Design the information-weighted consensus filter with its exact team cost (module docstring).
+
+    Parameters
+    ----------
+    iterations : int >= 1
+        Consensus iterations K per step (ideal variant; the honest one exchanges once per step).
+    epsilon : float in (0, 1/Δ_max), or None for 1/(Δ_max + 1)
+
+    Examples
+    --------
+    >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph
+    >>> d = design_icf(LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 10.0), CommGraph.line(4), 10, variant="ideal")
+    >>> d.label
+    'icf [ideal]'
+    """
+    check_model(system, cost)
+    check_graph(graph, system.n_agents)
+    variant = check_variant(variant, "variant")
+    K = check_iterations(iterations, "iterations")
+    eps = consensus_rate(graph, epsilon, key="icf.epsilon")
+    T = _horizon(horizon, "icf")
+    system.require_horizon(T)
+    cost.require_horizon(T)
+    alg = ICFAlgorithm(system, cost, graph, T, eps, K, honest=(variant == "honest"))
+    return finish_design("icf", alg, variant, {"epsilon": eps, "iterations": alg.K})
+
+
+FAMILY = _register_builtin(
+    Family(
+        name="icf",
+        design=design_icf,
+        title="Information-weighted consensus filter (Kamal, Farrell & Roy-Chowdhury 2013), honest = one delay-compensated exchange per step",
+        uses="graph",
+        horizons=frozenset({"finite"}),
+        analytic_cost=True,
+        options=(
+            Option(name="iterations", default=5, check=check_iterations, doc="consensus iterations K per step (ideal variant)"),
+            Option(
+                name="epsilon", default=None, check=check_rate, doc="consensus rate, 0 < epsilon < 1/max in-degree (default 1/(max in-degree + 1))"
+            ),
+            Option(name="variant", default="honest", check=check_variant, doc=" | ".join(f"{k!r}: {d}" for k, d in VARIANTS.items())),
+        ),
+        example="design_icf(system, cost, graph, horizon=100, iterations=5, variant='ideal')",
+    )
+)
