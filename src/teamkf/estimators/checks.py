@@ -32,3 +32,30 @@ def check_graph(graph: Any, n_agents: int) -> CommGraph:
     if graph.n_agents != n_agents:
         raise GraphError(f"graph: expected a graph of {n_agents} agents (as the system), found one of {graph.n_agents}", argument="graph")
     return graph
+
+
+def check_information_form(system: LinearGaussianSystem, family: str) -> None:
+    """Families that run in information form (P^-1) need Sigma_x positive definite, and every prior
+    A P A' + Q positive definite: A invertible or Q positive definite (checked at every step)."""
+    import numpy as np
+
+    from ..exceptions import NotPositiveDefiniteError
+
+    def pd(M: Any) -> bool:
+        lam = np.linalg.eigvalsh(0.5 * (M + M.T))
+        return bool(lam[0] > 1e-12 * max(1.0, float(lam[-1])))
+
+    if not pd(system.Sigma_x):
+        raise NotPositiveDefiniteError(
+            f"system.Sigma_x: the {family!r} family works with information matrices P^-1 and needs a positive definite "
+            "Sigma_x, found a singular one; add a small multiple of I, or use a covariance-form family (local, kcf, mtmse)",
+            argument="system.Sigma_x",
+        )
+    for k in range(system._n_time or 1):
+        A, Q = system.A_at(k), system.Q_at(k)
+        if not pd(Q) and abs(np.linalg.det(A)) < 1e-12 * max(1.0, float(np.abs(A).max())) ** A.shape[0]:
+            raise NotPositiveDefiniteError(
+                f"system.Q: the {family!r} family needs every prior A P A' + Q positive definite, but at step {k} Q is singular "
+                "and A is not invertible; give Q positive definite",
+                argument="system.Q",
+            )

@@ -28,14 +28,29 @@ import numpy as np
 import scipy.optimize as sopt
 
 from .._validation import FloatArray
+from ..exceptions import NotPositiveDefiniteError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
-from .checks import check_graph, check_model
+from .checks import check_graph, check_information_form, check_model
 from .diffusion import VARIANTS, DiffusionAlgorithm, _horizon, check_variant
 from .linear_team import LinearTeamDesign, finish_design, process_noise
 from .registry import Family, Option, _register_builtin
 
 __all__ = ["design_ci", "ci_weights"]
+
+
+def _information(P: FloatArray, agent: int, s: int, k: int) -> FloatArray:
+    """P^-1 for the information form of CI; a typed error when P is (numerically) singular."""
+    P = 0.5 * (P + P.T)
+    lam = np.linalg.eigvalsh(P)
+    if lam[0] <= 1e-12 * max(1.0, float(lam[-1])):
+        raise NotPositiveDefiniteError(
+            f"ci: agent {agent}'s covariance from step {s}, used at step {k}, is singular (smallest eigenvalue {lam[0]:.3g}): "
+            "covariance intersection fuses information matrices P^-1 and needs positive definite covariances; "
+            "give Sigma_x and Q positive definite (add a small multiple of I), or use another family",
+            argument="ci",
+        )
+    return np.linalg.inv(P)
 
 
 def ci_weights(infos: list[FloatArray]) -> FloatArray:
@@ -93,7 +108,7 @@ class CIAlgorithm(DiffusionAlgorithm):
                 for lnode, s in srcs:
                     Phi = self.Phi(k, s)
                     Pt = Phi @ self.P_filt[lnode, s] @ Phi.T + (process_noise(system, k, s) if s != k else 0.0)
-                    Ys.append(np.linalg.inv(0.5 * (Pt + Pt.T)))
+                    Ys.append(_information(Pt, lnode, s, k))
                 key = tuple(np.round(Y, 12).tobytes() for Y in Ys)  # converged covariances: the same weights, solved once
                 if key not in self._wcache:
                     self._wcache[key] = ci_weights(Ys)
@@ -138,6 +153,7 @@ def design_ci(
     'ci [honest]'
     """
     check_model(system, cost)
+    check_information_form(system, "ci")
     check_graph(graph, system.n_agents)
     variant = check_variant(variant, "variant")
     T = _horizon(horizon, "ci")

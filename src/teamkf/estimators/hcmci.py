@@ -32,7 +32,7 @@ import numpy as np
 from ..exceptions import ArgumentError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
-from .checks import check_graph, check_model
+from .checks import check_graph, check_information_form, check_model
 from .diffusion import VARIANTS, _horizon, check_variant, diffusion_weights, information_sources
 from .icf import check_iterations
 from .linear_team import Algorithm, LinearTeamDesign, compensate_information, finish_design
@@ -142,6 +142,7 @@ def design_hcmci(
     3
     """
     check_model(system, cost)
+    check_information_form(system, "hcmci")
     check_graph(graph, system.n_agents)
     variant = check_variant(variant, "variant")
     L = check_iterations(iterations, "iterations")

@@ -32,7 +32,7 @@ from .. import _validation as V
 from ..exceptions import ArgumentError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
-from .checks import check_graph, check_model
+from .checks import check_graph, check_information_form, check_model
 from .diffusion import VARIANTS, _horizon, check_variant, information_sources
 from .linear_team import Algorithm, LinearTeamDesign, compensate_information, finish_design
 from .registry import Family, Option, _register_builtin
@@ -165,6 +165,7 @@ def design_icf(
     'icf [ideal]'
     """
     check_model(system, cost)
+    check_information_form(system, "icf")
     check_graph(graph, system.n_agents)
     variant = check_variant(variant, "variant")
     K = check_iterations(iterations, "iterations")
