@@ -75,6 +75,13 @@ def _fmt(x: float | None) -> str:
     return f"{x:.2f}" if ax >= 100 else f"{x:.4f}"
 
 
+def _pct(p: float) -> str:
+    """A relative difference in percent; huge ones (a diverging estimator) in e-notation, not 40 digits."""
+    if not np.isfinite(p):
+        return "diverged"
+    return f"{p:+.3e} %" if abs(p) >= 1e5 else f"{p:+.2f} %"
+
+
 def format_table(headers: Sequence[str], rows: Sequence[Sequence[Any]], *, indent: str = "  ", align: str | None = None) -> str:
     """Plain-text table; ``align`` has one letter per column ("l" or "r"), default: first left, the others right."""
     cells = [[str(h) for h in headers]] + [[str(c) for c in r] for r in rows]
@@ -134,10 +141,22 @@ def _header(sc: Any) -> str:
 def _cmd_population(sc: Any, args: argparse.Namespace) -> int:
     """evaluate / design of a [population] scenario: exact statistics, nothing simulated."""
     out = sc.evaluate()
+    if out.get("diverged"):
+        _warn(
+            f"{out['filter']} filter: the closed loop diverges (Var x_k beyond 1/eps times the noise) from step {out['diverged_at']}; "
+            "the numbers from there on are reported as diverged / null"
+        )
     if getattr(args, "json", False):
         print(dumps_json(out))
         return 0
     m = sc.model
+    if out.get("diverged"):
+        print(
+            f"scenario {sc.name}: population of N = {m.n_agents:,} interference-coupled agents, horizon T = {sc.horizon}, "
+            f"{out['filter']} filter, feedback f = {m.f:g} (a_f = {out['a_f']:g})\n"
+            f"  diverged: the closed loop is unstable under this filter from step {out['diverged_at']} on (gains, variances and cost not finite)"
+        )
+        return 0
     print(
         f"scenario {sc.name}: population of N = {m.n_agents:,} interference-coupled agents, horizon T = {sc.horizon}, "
         f"{out['filter']} filter, feedback f = {m.f:g} (a_f = {out['a_f']:g})"
@@ -234,7 +253,10 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
         if seed is None:
             seed = int(np.random.SeedSequence().entropy % (2**32))  # type: ignore[operator]
-        mc = monte_carlo(simulate, sc.horizon, runs, rng=seed)
+        try:
+            mc = monte_carlo(simulate, sc.horizon, runs, rng=seed)
+        except ArgumentError as exc:
+            raise (exc.rekeyed("--monte-carlo") if exc.argument == "n_runs" else exc) from None
     for name, d in designs.items():
         if d.diverged or (name in mc and not np.isfinite(mc[name].total_mean)):
             _warn(f"{name}: the team cost diverges (not finite){_divergence_step(d, mc.get(name))}; reported as diverged / null")
@@ -281,7 +303,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         row = [d.label, _fmt(v) + (" (MC)" if name in mc_only and v is not None and np.isfinite(v) else "")]
         if ref_value is not None:
             ok = v is not None and np.isfinite(v) and np.isfinite(ref_value) and ref_value != 0
-            row.append(f"{100.0 * (v - ref_value) / ref_value:+.2f} %" if ok else "-")  # type: ignore[operator]
+            row.append(_pct(100.0 * (v - ref_value) / ref_value) if ok else "-")  # type: ignore[operator]
         if mc:
             if name in mc:
                 lo, hi = mc[name].ci95
@@ -307,6 +329,15 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 _PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
+
+
+def _strict_rows(out: dict[str, Any]) -> dict[str, Any]:
+    """Rows with every non-finite number as null, and ``"non_finite": {column: "inf" | "-inf" | "nan"}`` saying which (strict JSON)."""
+    rows = []
+    for r in out.get("rows", []):
+        bad = {k: str(float(v)) for k, v in r.items() if isinstance(v, (float, np.floating)) and not np.isfinite(v)}
+        rows.append({**r, "non_finite": bad} if bad else r)
+    return {**out, "rows": rows}
 
 
 def _leaves(x: Any) -> list[Any]:
@@ -424,6 +455,9 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     spec = load_sweep(args.sweep)  # everything is checked before anything is written
     out = Path(args.out) if args.out else Path(f"{Path(args.sweep).stem}.parquet")
     scheduler = args.scheduler or "local"
+    _check_scheduler(scheduler)
+    if args.workers is not None and scheduler != "local":
+        _warn(f"--workers is ignored with --scheduler {scheduler}: it sets the worker processes of the local cluster (--scheduler local)")
     try:
         res = run_sweep(spec, out, scheduler=scheduler, resume=args.resume, progress=not args.no_progress, n_workers=args.workers)
     except KeyboardInterrupt:
@@ -514,10 +548,27 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         return 0
     from .simulation.parallel import use_scheduler
 
-    with use_scheduler(args.scheduler):
-        res = experiments.run(args.name, args.out, quick=args.quick)
+    exp = experiments.get(args.name)
+    if args.out:
+        _check_output_dir(args.out, "--out")
+    scheduler = args.scheduler or "serial"
+    owned: list[Any] = []
+    if scheduler != "serial":
+        if not exp.uses_scheduler:
+            raise ArgumentError(
+                f"--scheduler: the reproduction {args.name!r} runs in-process (it has no grid of independent points to distribute); "
+                f"drop --scheduler (reproductions that use it: {', '.join(n for n in experiments.names() if experiments.get(n).uses_scheduler)})",
+                argument="--scheduler",
+            )
+        scheduler, owned = _open_scheduler(scheduler)
+    try:
+        with use_scheduler(scheduler):
+            res = experiments.run(args.name, args.out, quick=args.quick)
+    finally:
+        for obj in owned:
+            obj.close()
     if args.json:
-        print(dumps_json(res.to_json()))
+        print(dumps_json(_strict_rows(res.to_json())))
         return 0
     print(res.title)
     print(res.format_table())
@@ -527,6 +578,62 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         where = ", ".join(res.figures) if res.figures else "no plots (pip install 'teamkf[plot]' for them)"
         print(f"\nwritten to {args.out}: {res.name}.csv, {res.name}.json; {where}")
     return 0
+
+
+def _check_scheduler(address: str) -> None:
+    """Fail fast (2 s) when a Dask scheduler address is malformed or nothing listens there."""
+    import socket
+    from urllib.parse import urlsplit
+
+    if address in ("local", "serial"):
+        return
+    parts = urlsplit(address if "://" in address else f"tcp://{address}")
+    try:
+        host, port = parts.hostname, parts.port
+    except ValueError:
+        host, port = None, None
+    if parts.scheme not in ("tcp", "tls", "ws", "wss", "inproc", "ucx") or not host or port is None:
+        raise ArgumentError(
+            f"--scheduler: expected 'serial', 'local' or a Dask scheduler address like tcp://host:8786, found {address!r}", argument="--scheduler"
+        )
+    try:
+        with socket.create_connection((host, port), timeout=2.0):
+            pass
+    except OSError as exc:
+        raise ArgumentError(
+            f"--scheduler: cannot reach a Dask scheduler at {address!r} ({exc.strerror or exc}); start one (dask scheduler) "
+            "or use 'local' / 'serial'",
+            argument="--scheduler",
+        ) from None
+
+
+def _open_scheduler(address: str) -> tuple[Any, list[Any]]:
+    """A Dask client for ``--scheduler`` (checked first), and the objects to close at the end."""
+    from . import _validation as V
+
+    _check_scheduler(address)
+    V.require("distributed", "dask")
+    from .study.sweep import _open_client
+
+    try:
+        return _open_client(address, None)  # type: ignore[no-any-return]
+    except TeamkfError as exc:
+        raise ArgumentError(f"--scheduler: {exc.detail}", argument="--scheduler") from None
+
+
+def _check_output_dir(path: str, flag: str) -> Path:
+    """An output folder that exists or can be created, and is writable; checked before any work."""
+    import os
+
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise ArgumentError(f"{flag}: expected a folder, found the file {path!r}; choose another path", argument=flag)
+    existing = p
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir() or not os.access(existing, os.W_OK):
+        raise ArgumentError(f"{flag}: cannot write into {path!r} (no permission or not a directory: {existing}); choose another path", argument=flag)
+    return p
 
 
 def _help_text() -> tuple[str, str]:
@@ -605,9 +712,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="a coarser grid, for a fast look")
     p.add_argument(
         "--scheduler",
-        default="serial",
         metavar="ADDRESS",
-        help="where grid points run: serial (default), local (an embedded Dask cluster) or a Dask scheduler address",
+        help="where grid points run: serial (default), local (an embedded Dask cluster) or a Dask scheduler address; "
+        "only reproductions with a grid of independent points (bulk-*) use it, the others refuse it",
     )
     p.set_defaults(func=_cmd_reproduce)
 

@@ -89,7 +89,7 @@ def test_cost_validation(kw, exc, words):
 
 
 def test_cost_builders():
-    with pytest.raises(ShapeError, match="lambda"):
+    with pytest.raises(ArgumentError, match="lambda"):
         TeamCost.platoon(3, -1.0)
     S = TeamCost.ring(4, 1.0).S_at(0)
     np.testing.assert_allclose(S.sum(axis=1), 1.0)  # differences cancel on constants

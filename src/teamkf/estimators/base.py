@@ -44,7 +44,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Protocol, Sequence
 import numpy as np
 
 from .._validation import FloatArray
-from ..exceptions import ShapeError, UnsupportedOperationError
+from ..exceptions import ArgumentError, ShapeError, UnsupportedOperationError
 from ..models import LinearGaussianSystem, TeamCost
 
 if TYPE_CHECKING:
@@ -348,7 +348,6 @@ def check_measurements(y: Any, system: LinearGaussianSystem, horizon: int | None
     Returns ``(ys, n_runs, T, single)`` with every array batched (run axis
     first); ``single`` is True when the input had no run axis.
     """
-    from .. import _validation as V
 
     if hasattr(y, "y") and not isinstance(y, (list, tuple, np.ndarray)):
         y = y.y
@@ -358,7 +357,7 @@ def check_measurements(y: Any, system: LinearGaussianSystem, horizon: int | None
         raise ShapeError(
             f"measurements: expected a list of {n} arrays (one per agent, each (n_steps, d_y^i) or (n_runs, n_steps, d_y^i)), found {found}"
         )
-    ys = [V.as_float_array(yi, f"measurements[{i}]") for i, yi in enumerate(y)]
+    ys = [_finite_measurements(yi, i) for i, yi in enumerate(y)]
     single = ys[0].ndim == 2
     if single:
         ys = [yi[None] if yi.ndim == 2 else yi for yi in ys]
@@ -376,6 +375,28 @@ def check_measurements(y: Any, system: LinearGaussianSystem, horizon: int | None
     if horizon is not None and T > horizon:
         raise ShapeError(f"measurements: expected at most horizon = {horizon} steps, found {T}; design a longer horizon")
     return ys, n_runs, T, single
+
+
+def _finite_measurements(yi: Any, i: int) -> FloatArray:
+    """Agent i's measurements as floats; a NaN or inf is refused with the agent and the step where it is."""
+    from .. import _validation as V
+
+    name = f"measurements[{i}]"
+    raw = yi if isinstance(yi, np.ndarray) else None
+    if raw is None and isinstance(yi, (list, tuple)):
+        try:
+            raw = np.asarray(yi)
+        except (TypeError, ValueError):
+            raw = None
+    if raw is not None and raw.dtype.kind == "f" and raw.ndim in (2, 3) and not np.all(np.isfinite(raw)):
+        bad = tuple(int(j) for j in np.argwhere(~np.isfinite(raw))[0])
+        run = f", run {bad[0]}" if raw.ndim == 3 else ""
+        raise ArgumentError(
+            f"{name}: expected finite measurements, found {float(raw[bad])} for agent {i} at step {bad[-2]}{run} (component {bad[-1]}); "
+            "NaN cannot mark a missing measurement here (no missing-measurement model): fill the value or drop the run",
+            argument=name,
+        )
+    return V.as_float_array(yi, name)
 
 
 # ---------------------------------------------------------------------------

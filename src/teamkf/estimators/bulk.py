@@ -74,7 +74,7 @@ from scipy.linalg.lapack import dtrtri
 from .. import _validation as V
 from .._blas import single_thread_blas
 from .._validation import FloatArray
-from ..exceptions import ShapeError
+from ..exceptions import DivergenceError, ShapeError
 from ..models.population import PopulationModel
 
 __all__ = [
@@ -96,6 +96,12 @@ __all__ = [
 
 #: default relative flush threshold for decaying coefficients (see the module docstring)
 FLUSH = 1e-30
+#: the exact filter stops (DivergenceError) when the round-off bound of the innovation variance s_k^2
+#: exceeds this fraction of s_k^2: fewer than 4 significant digits left (see exact_bulk_filter, Notes)
+PRECISION_FLOOR = 1e-4
+#: a finite-memory closed loop counts as diverged once Var x_k exceeds 1/eps times its noise variances:
+#: the noise is then below the round-off of the state (see finite_memory_filter)
+DIVERGENCE_RATIO = 1.0 / np.finfo(float).eps
 
 
 # ---------------------------------------------------------------------------
@@ -497,7 +503,7 @@ def _first_nonzero(v: np.ndarray) -> int:
     return int(nz[0]) if nz.size else v.size
 
 
-def exact_bulk_filter(model: PopulationModel, horizon: int, *, flush: float = FLUSH) -> BulkFilter:
+def exact_bulk_filter(model: PopulationModel, horizon: int, *, flush: float = FLUSH, progress: bool | None = None) -> BulkFilter:
     """The exact growing-memory filter (eqs. 15-17 / Theorem 1) and its closed loop, for any N.
 
     Parameters
@@ -509,10 +515,22 @@ def exact_bulk_filter(model: PopulationModel, horizon: int, *, flush: float = FL
     flush : float
         Relative threshold below which decayed coefficients are set to 0
         (default 1e-30; 0 turns flushing and the band restriction off).
+    progress : bool or None
+        Progress bar on stderr after 2 s (None: only when stderr is a terminal).
 
     Returns
     -------
     BulkFilter
+
+    Raises
+    ------
+    teamkf.exceptions.DivergenceError
+        (``argument="horizon"``) at the first step k where the innovation
+        variance has lost its precision (see Notes): the closed loop is
+        unstable (|a_f| >= 1 or an unstable mean loop) and the horizon is too
+        long for double precision. The message gives the last reliable horizon.
+    teamkf.exceptions.ArgumentError
+        When the two T x T matrices (16 T^2 bytes) do not fit in memory.
 
     Notes
     -----
@@ -528,6 +546,16 @@ def exact_bulk_filter(model: PopulationModel, horizon: int, *, flush: float = FL
         g      = (c Pi_xx + h Pi_xm) / s
         C[k+1, 1:k] = ((c+h) mu - c a_f beta - h C mu) / s
 
+    In exact arithmetic s^2 >= sigma_v^2 > 0. In floating point, s^2 is a sum
+    of terms as large as Var m_{k+1}, which grows like a_f^{2k} (or a^{2k})
+    when the closed loop is unstable, while s^2 stays of the order of the
+    noise: its round-off bound
+    ``eps (c^2 |Pi_xx| + 2|c h| (Var m + |gamma . mu|) + h^2 (Var m + mu . mu) + sigma_v^2)``
+    is checked at every step, and the filter stops with a DivergenceError
+    once the bound exceeds ``PRECISION_FLOOR`` (1e-4) times s^2 (the gains
+    would then carry fewer than 4 correct digits, and a few steps later s^2
+    turns negative). A stable closed loop never gets there.
+
     Examples
     --------
     >>> from teamkf.models.population import PopulationModel
@@ -541,9 +569,19 @@ def exact_bulk_filter(model: PopulationModel, horizon: int, *, flush: float = FL
     fl = float(flush)
     if not (fl >= 0 and fl < 1e-3):
         raise ShapeError(f"flush: expected 0 <= flush < 1e-3 (a relative round-off threshold), found {flush!r}")
+    from .._resources import check_memory
+    from .._resources import progress as _progress
+
+    check_memory(
+        24.0 * T * T,  # U and C (T x T), and one T x T triangular inverse for the gains
+        f"the exact bulk filter over T = {T} steps (O(T^2) memory)",
+        argument="horizon",
+        fix="use a shorter horizon or a finite-memory filter (population.memory = n)",
+    )
     a, b, c, h, f = model.a, model.b, model.c, model.h, model.f
     N = float(model.n_agents)
     af, bf = a - b * f, b * f
+    eps = float(np.finfo(float).eps)
     q, r, p0 = model.q, model.r_v, model.p0
     qm, rm = q / N, r / N
     ch = c + h
@@ -566,7 +604,7 @@ def exact_bulk_filter(model: PopulationModel, horizon: int, *, flush: float = FL
     band = 0
     flops = 0
     with np.errstate(over="ignore", invalid="ignore", under="ignore"), single_thread_blas():
-        for k in range(T):
+        for k in _progress(range(T), total=T, desc="bulk filter", enabled=progress):
             al = alpha[lo:k]
             be = beta[lo:k]
             mu = a * al - bf * be
@@ -575,9 +613,19 @@ def exact_bulk_filter(model: PopulationModel, horizon: int, *, flush: float = FL
             Pxx = a * a * Sig + q
             gp = af * gam[lo:k]  # Cov(x_{k+1}, e_t)
             mumu = float(mu @ mu)
-            Pxm = vm1 - float(gp @ mu)
+            gpmu = float(gp @ mu)
+            Pxm = vm1 - gpmu
             Pmm = vm1 - mumu
             s2 = c * c * Pxx + 2.0 * c * h * Pxm + h * h * Pmm + r
+            bound = eps * (c * c * abs(Pxx) + 2.0 * abs(c * h) * (abs(vm1) + abs(gpmu)) + h * h * (abs(vm1) + mumu) + r)
+            if not (math.isfinite(s2) and s2 > 0 and bound <= PRECISION_FLOOR * s2):
+                raise DivergenceError(
+                    f"horizon: the exact bulk filter loses its precision at step {k + 1} of {T}: the closed loop is unstable "
+                    f"(a = {a:g}, a_f = {af:g}) and the population-mean variance has grown to {vm1:.3g}, so the innovation variance "
+                    f"(exactly >= sigma_v^2 = {r:g}) is computed as {s2:.3g} with a round-off of {bound:.2g}; "
+                    f"the last reliable horizon is {k}: use horizon <= {k}, or a stabilizing feedback (|a - b f| < 1)",
+                    argument="horizon",
+                )
             sk = math.sqrt(s2)
             gk = (c * Pxx + h * Pxm) / sk
             Sig = Pxx - gk * gk
@@ -659,7 +707,7 @@ def _subsystems(model: PopulationModel) -> list[tuple[float, float, float, float
     return subs
 
 
-def finite_memory_filter(model: PopulationModel, horizon: int, memory: int | None = None) -> FiniteMemoryFilter:
+def finite_memory_filter(model: PopulationModel, horizon: int, memory: int | None = None, *, progress: bool | None = None) -> FiniteMemoryFilter:
     """The memory-n filter (Theorem 2, eqs. 46-52) and its exact closed loop, for any N.
 
     Each of the two independent closed loops (population mean, agent's deviation;
@@ -676,12 +724,19 @@ def finite_memory_filter(model: PopulationModel, horizon: int, memory: int | Non
         T.
     memory : int, optional
         n >= 1 (default ``model.memory``).
+    progress : bool or None
+        Progress bar on stderr after 2 s (None: only when stderr is a terminal).
 
     Returns
     -------
     FiniteMemoryFilter
-        When the closed loop is unstable its covariances overflow after a
-        while; the step is recorded in ``diverged_at`` and the rest is NaN.
+        When the closed loop is unstable its variances grow geometrically: the
+        first step k at which Var x_k exceeds ``DIVERGENCE_RATIO`` = 1/eps
+        (4.5e15) times the largest noise variance (sigma_w^2, sigma_v^2,
+        sigma_0^2) is recorded in ``diverged_at`` (the noise is then below the
+        round-off of the state, and every later number is meaningless), and
+        the gains and variances from there on are NaN. Overflow to inf is
+        caught the same way.
 
     Examples
     --------
@@ -694,6 +749,8 @@ def finite_memory_filter(model: PopulationModel, horizon: int, memory: int | Non
         raise ShapeError(f"model: expected a PopulationModel, found {type(model).__name__}")
     T = V.positive_int(horizon, "horizon")
     n = V.positive_int(model.memory if memory is None else memory, "memory")
+    from .._resources import progress as _progress
+
     a, bf = model.a, model.b * model.f
     subs = _subsystems(model)
     Ps = []
@@ -710,8 +767,9 @@ def finite_memory_filter(model: PopulationModel, horizon: int, memory: int | Non
     vx[0], vxh[0], sig[0], vm[0] = model.p0, 0.0, model.p0, model.p0 / model.n_agents
     row = np.empty(n + 1)
     diverged: int | None = None
+    limit = DIVERGENCE_RATIO * max(model.q, model.r_v, model.p0)
     with np.errstate(over="ignore", invalid="ignore"), single_thread_blas():
-        for k in range(T):
+        for k in _progress(range(T), total=T, desc=f"memory-{n} filter", enabled=progress):
             row[0] = a
             row[1:] = -bf * kprev
             for P, (cj, qj, rj, _) in zip(Ps, subs):
@@ -729,7 +787,7 @@ def finite_memory_filter(model: PopulationModel, horizon: int, memory: int | Non
             sl = slice(n + 1 - L, n + 1)
             Pyy = Pt[sl, sl]
             pxy = Pt[0, sl]
-            if not (np.all(np.isfinite(Pyy)) and np.isfinite(Pt[0, 0])):
+            if not (np.all(np.isfinite(Pyy)) and np.isfinite(Pt[0, 0])) or Pt[0, 0] > limit:
                 diverged = k + 1
                 K[k:] = np.nan
                 break

@@ -461,7 +461,15 @@ def _as_structure(structure: Any, n_agents: int) -> InformationStructure:
 
 
 def _design(
-    kind: Kind, system: LinearGaussianSystem, cost: TeamCost, structure: Any, horizon: int | None, method: Any, dense_max_bytes: int, check: bool
+    kind: Kind,
+    system: LinearGaussianSystem,
+    cost: TeamCost,
+    structure: Any,
+    horizon: int | None,
+    method: Any,
+    dense_max_bytes: int,
+    check: bool,
+    progress: bool | None = None,
 ) -> TeamDesign:
     check_model(system, cost)
     st = _as_structure(structure, system.n_agents)
@@ -501,8 +509,19 @@ def _design(
     T = V.positive_int(horizon, "horizon")
     system.require_horizon(T)
     cost.require_horizon(T)
+    from .._resources import check_memory
+    from .._resources import progress as _progress
+
+    dx, dy = system.dx, system.dy_total
+    per_step = 8.0 * (3 * dx * dx + dx * dy + dz * sum(info["local_dims"])) + 120.0 * (n + 4)  # arrays + object headers
+    check_memory(
+        T * per_step,
+        f"the {kind.upper()} design over T = {T} steps (gains and covariances of every step are kept)",
+        argument="horizon",
+        fix="use a shorter horizon, or horizon = none for the steady-state design",
+    )
     P_pred, K, _ = kalman_covariances(system, max(T - c + 1, 1))
-    res = [step(k, max(0, k - c + 1), P_pred[max(0, k - c + 1)]) for k in range(T)]
+    res = [step(k, max(0, k - c + 1), P_pred[max(0, k - c + 1)]) for k in _progress(range(T), total=T, desc=f"{kind} design", enabled=progress)]
     return TeamDesign(
         estimator=kind,
         horizon=T,
@@ -526,6 +545,7 @@ def design_mtmse(
     method: Literal["auto", "dense", "cg"] = "auto",
     dense_max_bytes: int = DENSE_MAX_BYTES,
     check: bool = True,
+    progress: bool | None = None,
 ) -> TeamDesign:
     """MTMSE filter for any information structure: Theorem 2 (``horizon=T``) or Theorem 3 (``horizon=None``).
 
@@ -541,6 +561,15 @@ def design_mtmse(
         (A4)-(A5), checked when ``check``).
     method : "auto", "dense" or "cg"
         How Gamma F = eta is solved (see :mod:`teamkf.estimators.gamma`).
+    progress : bool or None
+        A progress bar on stderr once a finite-horizon design has run 2 s
+        (None: only when stderr is a terminal; False: never).
+
+    Raises
+    ------
+    teamkf.exceptions.ArgumentError
+        (``horizon``) when the gains of every step would not fit in the
+        memory available (checked before the work, with the estimate).
 
     Examples
     --------
@@ -552,12 +581,17 @@ def design_mtmse(
     >>> d.total_cost <= design_mmse(sys, cost, g, horizon=20).total_cost
     True
     """
-    return _design("mtmse", system, cost, structure, horizon, method, dense_max_bytes, check)
+    return _design("mtmse", system, cost, structure, horizon, method, dense_max_bytes, check, progress)
 
 
-def design_mmse(system: LinearGaussianSystem, cost: TeamCost, structure: Any, horizon: int | None = None, *, check: bool = True) -> TeamDesign:
-    """Per-agent MMSE baseline z_i = L_i E[x(k) | I_i(k)] (eq. 46) with its team cost (eq. 47)."""
-    return _design("mmse", system, cost, structure, horizon, "auto", DENSE_MAX_BYTES, check)
+def design_mmse(
+    system: LinearGaussianSystem, cost: TeamCost, structure: Any, horizon: int | None = None, *, check: bool = True, progress: bool | None = None
+) -> TeamDesign:
+    """Per-agent MMSE baseline z_i = L_i E[x(k) | I_i(k)] (eq. 46) with its team cost (eq. 47).
+
+    ``progress`` and the memory check as in :func:`design_mtmse`.
+    """
+    return _design("mmse", system, cost, structure, horizon, "auto", DENSE_MAX_BYTES, check, progress)
 
 
 class TeamAgent:

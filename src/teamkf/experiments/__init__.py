@@ -73,9 +73,17 @@ class ExperimentResult:
 
 @dataclass(frozen=True)
 class Experiment:
+    """A registered reproduction.
+
+    ``uses_scheduler`` is True when its module maps its grid with
+    :func:`teamkf.control.map_points` (so ``--scheduler`` sends the points to
+    Dask); the others run in-process and refuse ``--scheduler``.
+    """
+
     name: str
     title: str
     func: Callable[..., ExperimentResult]
+    uses_scheduler: bool = False
 
 
 _REGISTRY: dict[str, Experiment] = {}
@@ -86,7 +94,7 @@ def register(name: str, title: str) -> Callable[[Callable[..., ExperimentResult]
     """Decorator: ``@register("fig1", "...")`` on ``run(out_dir: Path | None, quick: bool) -> ExperimentResult``."""
 
     def deco(func: Callable[..., ExperimentResult]) -> Callable[..., ExperimentResult]:
-        _REGISTRY[name] = Experiment(name, title, func)
+        _REGISTRY[name] = Experiment(name, title, func, uses_scheduler="map_points" in getattr(func, "__globals__", {}))
         return func
 
     return deco

@@ -188,10 +188,5 @@ class TeamCost:
 
 
 def _nonneg(x: Any, name: str) -> float:
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        raise ShapeError(f"{name}: expected a non-negative number, found {x!r}") from None
-    if not np.isfinite(v) or v < 0:
-        raise ShapeError(f"{name}: expected a non-negative number, found {v}")
-    return v
+    """A finite number >= 0 (complex, bools and strings refused: ArgumentError naming ``name``)."""
+    return V.real(x, name, minimum=0.0, what="a non-negative number")

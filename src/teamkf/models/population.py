@@ -168,8 +168,8 @@ class PopulationModel:
     @classmethod
     def from_af(cls, n_agents: int, a: float, a_f: float, **kw: Any) -> "PopulationModel":
         """Build from the closed-loop pole a_f instead of f (f = (a - a_f)/b)."""
-        b = float(kw.get("b", 1.0))
-        return cls(n_agents=n_agents, a=a, f=(float(a) - float(a_f)) / b, **kw)
+        b = _real(kw.get("b", 1.0), "b")
+        return cls(n_agents=n_agents, a=a, f=(_real(a, "a") - _real(a_f, "a_f")) / b, **kw)
 
 
 def cdma_population(

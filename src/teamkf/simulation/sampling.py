@@ -35,6 +35,8 @@ def run_streams(seed: int | np.random.SeedSequence | np.random.Generator | None,
     elif isinstance(seed, np.random.SeedSequence):
         seq = seed
     else:
+        if seed is not None:  # SeedSequence's own messages do not name the argument
+            seed = V.integer(seed, "rng", minimum=0, what="an integer seed (or a SeedSequence, a Generator, None)")
         seq = np.random.SeedSequence(seed)
     return seq.spawn(n_runs)
 

@@ -41,7 +41,12 @@ def evaluate_point(scenario: Any, estimators: Sequence[str] | None = None, runs:
     Estimators without an analytic cost are simulated with ``runs`` runs
     (:data:`DEFAULT_MC_RUNS` when ``runs`` is 0).
     Deterministic: the same (scenario, estimators, runs, seed) gives the same rows anywhere.
+    A population scenario gives one exact row, estimator ``"bulk"``, with its
+    ``average_cost`` (the average LQ cost per agent; NaN when the memory-n
+    closed loop diverges, and a DivergenceError where the exact filter does).
     """
+    if not hasattr(scenario, "designs"):  # a [population] scenario: exact statistics (study.population)
+        return [_population_row(scenario, seed)]
     names = tuple(scenario.estimators if estimators is None else estimators)
     designs = scenario.designs(names)
     key = "total_cost" if scenario.horizon is not None else "average_cost"
@@ -61,3 +66,16 @@ def evaluate_point(scenario: Any, estimators: Sequence[str] | None = None, runs:
             row.update({"method": "monte-carlo", key: mc[name].total_mean, "ci95_low": lo, "ci95_high": hi, "runs": mc_runs})
         rows.append(row)
     return rows
+
+
+def _population_row(scenario: Any, seed: int) -> dict[str, Any]:
+    out = scenario.evaluate()
+    return {
+        "estimator": scenario.estimators[0],
+        "method": "exact",
+        "average_cost": float(out["average_cost"]),
+        "ci95_low": None,
+        "ci95_high": None,
+        "runs": 0,
+        "seed": int(seed),
+    }

@@ -9,14 +9,17 @@ from __future__ import annotations
 
 import difflib
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 from .._validation import positive_int
 from ..exceptions import ScenarioError, TeamkfError
 from ..models.population import PopulationModel, cdma_population
 
-__all__ = ["PopulationScenario", "population_from_dict", "evaluate_population", "POPULATION_KEYS"]
+__all__ = ["PopulationScenario", "population_from_dict", "evaluate_population", "POPULATION_KEYS", "POPULATION_ESTIMATOR"]
+
+#: the estimator name of a population scenario's rows (sweeps): the bulk filter, exact or memory-n
+POPULATION_ESTIMATOR = "bulk"
 
 #: keys of the ``[population]`` table (scenario-and-cli.md); ``r`` and ``a_f`` are teamkf additions
 POPULATION_KEYS: tuple[str, ...] = (
@@ -50,6 +53,13 @@ class PopulationScenario:
     horizon: int
     model: PopulationModel
     description: str = ""
+    raw: Mapping[str, Any] = field(default_factory=dict, repr=False, compare=False)
+    source: str = "<dict>"
+
+    @property
+    def estimators(self) -> tuple[str, ...]:
+        """The one estimator of a population scenario: ``("bulk",)`` (exact or memory-n, by ``population.memory``)."""
+        return (POPULATION_ESTIMATOR,)
 
     def evaluate(self) -> dict[str, Any]:
         """:func:`evaluate_population` of the model over the horizon, with the scenario's name."""
@@ -203,7 +213,9 @@ def population_from_dict(d: Mapping[str, Any]) -> PopulationScenario:
         head, _, rest = msg.partition(": ")
         key = f"population.cdma.{head}" if head in _CDMA_KEYS else f"population.{head}"
         raise _fail(key, rest) from None
-    return PopulationScenario(name=name, horizon=horizon, model=model, description=desc)
+    import copy
+
+    return PopulationScenario(name=name, horizon=horizon, model=model, description=desc, raw=copy.deepcopy(dict(d)))
 
 
 # ---------------------------------------------------------------------------
@@ -233,7 +245,16 @@ def evaluate_population(model: PopulationModel, horizon: int) -> dict[str, Any]:
         i != j (null for N = 1);
         ``average_lq_cost``: (1/T) sum_{k<T} E[x_k**2 + r u_k**2] per agent (eq. 3 over
         the horizon); ``average_cost``: the same number (the contract's name for a
-        long-run average).
+        long-run average); for a memory-n closed loop that diverges
+        (:func:`~teamkf.estimators.bulk.finite_memory_filter`), ``diverged``: true
+        and ``diverged_at``: the step, the numbers from there on being NaN.
+
+    Raises
+    ------
+    teamkf.exceptions.DivergenceError
+        The exact filter of an unstable closed loop loses its precision before T
+        (:func:`~teamkf.estimators.bulk.exact_bulk_filter`; the message gives the
+        last reliable horizon).
 
     Examples
     --------
@@ -278,4 +299,11 @@ def evaluate_population(model: PopulationModel, horizon: int) -> dict[str, Any]:
         "cross_covariance": cross,
         "average_lq_cost": float(cost),
         "average_cost": float(cost),
+        **_divergence(filt),
     }
+
+
+def _divergence(filt: Any) -> dict[str, Any]:
+    """``{"diverged": True, "diverged_at": k}`` for a finite-memory closed loop that diverged at step k, else ``{}``."""
+    k = getattr(filt, "diverged_at", None)
+    return {} if k is None else {"diverged": True, "diverged_at": int(k)}

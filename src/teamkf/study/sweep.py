@@ -392,11 +392,19 @@ def sweep_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", source:
         raise _fail("seed", f"expected an integer seed between 0 and 2**63 - 1, found {seed}")
 
     scenario, base = _base_scenario(data["scenario"], Path(base_dir))
-    if "estimators" in data:
+    if not hasattr(base, "designs"):  # a [population] scenario: one exact filter, nothing simulated
+        if runs:
+            raise _fail("runs", f"expected 0 for a population scenario (evaluated exactly, nothing is simulated), found {runs}")
+        if "estimators" in data:
+            raise _fail(
+                "estimators", "a population scenario has one estimator, the bulk filter (population.memory picks exact or memory-n); remove the key"
+            )
+        estimators: tuple[str, ...] = tuple(base.estimators)
+    elif "estimators" in data:
         estimators = _estimators(data["estimators"], {**_families(), **base.families})
     else:
         estimators = tuple(base.estimators)
-    if runs == 0:
+    if runs == 0 and hasattr(base, "designs"):
         for idx, e in enumerate(estimators):
             if not is_analytic(e):
                 raise _fail(f"estimators[{idx}]", f"{e!r} has no analytic cost; set runs >= 2 to evaluate it by Monte Carlo")
@@ -523,7 +531,7 @@ def _check_points(spec: SweepSpec) -> tuple[str, ...]:
             sc = spec.scenario_for(p)
         except ScenarioError as exc:
             raise ScenarioError(f"{exc} (at grid point {p.index}: {p.describe()})") from None
-        horizons.add(sc.horizon is None)
+        horizons.add(sc.horizon is None or not hasattr(sc, "designs"))  # a population reports its average cost
         if spec.runs and sc.horizon is None:
             raise _fail(
                 "runs",
