@@ -189,4 +189,4 @@ class TeamCost:
 
 def _nonneg(x: Any, name: str) -> float:
     """A finite number >= 0 (complex, bools and strings refused: ArgumentError naming ``name``)."""
-    return V.real(x, name, minimum=0.0, what="a non-negative number")
+    return V.real(x, name, minimum=0.0, what="a number")

@@ -206,8 +206,9 @@ def monte_carlo(
     for name, c in costs.items():
         if not np.all(np.isfinite(c)):  # diverged: keep the steps that are finite, mark the rest inf
             c = np.where(np.isfinite(c), c, np.inf)
-        tot = c.sum(axis=1)
-        out[name] = MonteCarloResult(
-            name, R_, c.mean(axis=0), c.std(axis=0, ddof=1) / np.sqrt(R_), float(tot.mean()), float(tot.std(ddof=1) / np.sqrt(R_)), path
-        )
+        with np.errstate(over="ignore", invalid="ignore"):  # inf - inf in the spread of a diverged estimator: NaN, reported
+            tot = c.sum(axis=1)
+            out[name] = MonteCarloResult(
+                name, R_, c.mean(axis=0), c.std(axis=0, ddof=1) / np.sqrt(R_), float(tot.mean()), float(tot.std(ddof=1) / np.sqrt(R_)), path
+            )
     return out
