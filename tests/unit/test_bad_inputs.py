@@ -231,6 +231,8 @@ def _family_rows() -> list[tuple[str, Any, str]]:
     return rows
 
 
+#: the families the rows were generated for (registered when this module is collected: built-ins, entry points)
+FAMILIES = tuple(teamkf.families())
 SCENARIO_ROWS += _family_rows()
 
 
@@ -559,5 +561,6 @@ def test_campaign_size() -> None:
     assert len(set(names)) == len(names), "row names must be distinct"
     assert total >= 200, total
     # every registered family contributes rows
-    for fam in teamkf.families():
+    assert {"centralized", "mtmse", "mmse", "kcf", "cikf"} <= set(FAMILIES)
+    for fam in FAMILIES:
         assert sum(n.startswith(f"{fam}-") for n in names) >= 10, fam
