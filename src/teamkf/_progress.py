@@ -68,7 +68,7 @@ def progress_enabled(enabled: bool | None = None, stream: Any = None) -> bool:
         return False
     if os.environ.get("TEAMKF_PROGRESS", "").strip().lower() in _OFF:
         return False
-    if not _is_tty(sys.stderr if stream is None else stream):
+    if enabled is not True and not _is_tty(sys.stderr if stream is None else stream):  # True: asked for, shown anyway
         return False
     try:
         import tqdm  # noqa: F401
@@ -85,7 +85,7 @@ def progress(
     enabled: bool | None = None,
     unit: str = "it",
     stream: Any = None,
-    delay: float = DELAY,
+    delay: float | None = None,
 ) -> Iterable[T]:
     """``iterable``, with a tqdm bar on a terminal (see the module docstring for when it is silent).
 
@@ -94,14 +94,15 @@ def progress(
     iterable : what the loop runs over
     desc : label of the bar
     total : number of items (default: ``len(iterable)`` when it has one)
-    enabled : False silences the bar (a function's ``progress=False``); None or True: automatic
+    enabled : False silences the bar (a function's ``progress=False``); True shows it even when the stream is not
+        a terminal (unless quiet); None: only on a terminal
     unit : what one item is ("step", "point", ...)
     stream : where the bar is written (default: stderr)
-    delay : seconds before the bar first appears
+    delay : seconds before the bar first appears (default :data:`DELAY`)
     """
     out = sys.stderr if stream is None else stream
     if not progress_enabled(enabled, out):
         return iterable
     from tqdm import tqdm
 
-    return tqdm(iterable, desc=desc, total=total, unit=unit, file=out, delay=delay, leave=False, dynamic_ncols=True)
+    return tqdm(iterable, desc=desc, total=total, unit=unit, file=out, delay=DELAY if delay is None else delay, leave=False, dynamic_ncols=True)

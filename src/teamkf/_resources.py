@@ -3,8 +3,9 @@
 Every computation whose memory grows with the horizon or the number of runs
 calls :func:`check_memory` with its estimate *before* allocating anything, so
 an impossible request fails at once with the estimate instead of with a
-``MemoryError`` minutes later. Long loops wrap their iterable in
-:func:`teamkf._progress.progress` (re-exported here).
+``MemoryError`` minutes later. Long loops wrap their iterable in :func:`teamkf._progress.progress`
+(re-exported here): a tqdm bar on stderr after a delay, on a terminal only
+unless asked for, never with ``progress=False``.
 """
 
 from __future__ import annotations

@@ -34,7 +34,11 @@ def frozen(a: FloatArray) -> FloatArray:
 
 def as_float_array(x: ArrayLike, name: str) -> FloatArray:
     """Convert to a float array; reject non-numeric input and non-finite values."""
-    if np.iscomplexobj(x) or (isinstance(x, (list, tuple)) and _has_complex(x)):
+    try:
+        cplx = bool(np.iscomplexobj(x))
+    except (TypeError, ValueError):  # ragged nested lists: reported as a shape error below
+        cplx = False
+    if cplx or (isinstance(x, (list, tuple)) and _has_complex(x)):
         raise ArgumentError(
             f"{name}: expected real numbers, found complex values; pass the real part explicitly if that is what you mean", argument=name
         )
@@ -52,7 +56,10 @@ def _has_complex(x: Any) -> bool:
         return True
     if isinstance(x, (list, tuple)):
         return any(_has_complex(e) for e in x)
-    return bool(np.iscomplexobj(x))
+    try:
+        return bool(np.iscomplexobj(x))
+    except (TypeError, ValueError):
+        return False
 
 
 def shape_str(shape: Sequence[int]) -> str:

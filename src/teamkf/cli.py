@@ -144,14 +144,14 @@ def _cmd_population(sc: Any, args: argparse.Namespace) -> int:
     out = sc.evaluate()
     if out.get("diverged"):
         _warn(
-            f"{out['filter']} filter: the closed loop diverges (Var x_k beyond 1/eps times the noise) from step {out['diverged_at']}; "
-            "the numbers from there on are reported as diverged / null"
+            f"{out['filter']} filter: the closed loop diverges (Var x_k beyond 4.5e11 times the noise variance) from step {out['diverged_at']}"
+            + ("; the numbers from there on are reported as diverged / null" if not np.isfinite(out["state_variance"]) else "")
         )
     if getattr(args, "json", False):
         print(dumps_json(out))
         return 0
     m = sc.model
-    if out.get("diverged"):
+    if out.get("diverged") and not np.isfinite(out["state_variance"]):
         print(
             f"scenario {sc.name}: population of N = {m.n_agents:,} interference-coupled agents, horizon T = {sc.horizon}, "
             f"{out['filter']} filter, feedback f = {m.f:g} (a_f = {out['a_f']:g})\n"
@@ -171,6 +171,8 @@ def _cmd_population(sc: Any, args: argparse.Namespace) -> int:
         f"  stationarity index {out['stationarity_index']:.3g}; state variance Var x_T = {out['state_variance']:.6g}; "
         f"average LQ cost per agent {out['average_lq_cost']:.6g}"
     )
+    if out.get("diverged"):
+        print(f"  diverged: the closed loop is unstable (Var x_k > 4.5e11 times the noise variance from step {out['diverged_at']} on)")
     return 0
 
 
@@ -240,7 +242,8 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     if plot_to is not None:
         V.require("matplotlib", "plot")  # fail before the work, with the install command
 
-    designs = sc.designs()
+    with np.errstate(over="ignore", invalid="ignore"):  # a diverging design is reported below (warning, "diverged", null)
+        designs = sc.designs()
     mc_only = [name for name, d in designs.items() if not d.has_analytic_cost]
     simulate = designs
     if runs is None and mc_only:
@@ -410,7 +413,11 @@ def _cmd_design(args: argparse.Namespace) -> int:
                 out_path, lambda fh: np.savez(fh, gains=np.asarray(res["gains"]), state_variance=np.asarray(res["state_variance_trajectory"]))
             )
         return _cmd_population(sc, args)
-    designs = sc.designs()
+    with np.errstate(over="ignore", invalid="ignore"):  # a diverging design is reported as diverged
+        designs = sc.designs()
+    for name, d in designs.items():
+        if d.diverged:
+            _warn(f"{name}: the team cost diverges (not finite){_divergence_step(d, None)}; reported as diverged / null")
     notes = []
     if out_path is not None:
         arrays: dict[str, np.ndarray] = {"scenario": np.asarray(sc.name), "horizon": np.asarray(-1 if sc.horizon is None else sc.horizon)}
@@ -807,12 +814,37 @@ def _help_text() -> tuple[str, str]:
     return "\n".join(lines), epilog
 
 
+class _UsageError(Exception):
+    """A command-line usage error, reported as one line like every other error."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with usage errors as one line ``teamkf: error: <argument>: <what is wrong>`` (exit status 2)."""
+
+    def error(self, message: str) -> Any:  # type: ignore[override]
+        import re
+
+        m = re.match(r"argument ([^:]+): (.*)", message, re.S)
+        if m:
+            arg = m.group(1).split("/")[-1].strip()
+            text = f"{arg}: {m.group(2)}"
+        elif message.startswith("the following arguments are required: "):
+            names = message.split(": ", 1)[1]
+            text = f"{names.split(', ')[0]}: missing required argument ({names} required)"
+        elif message.startswith("unrecognized arguments: "):
+            extra = message.split(": ", 1)[1]
+            text = f"{extra.split()[0]}: unknown argument ({extra}); expected one of the options listed by --help"
+        else:
+            text = message
+        raise _UsageError(f"{text}; see {self.prog} --help")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``teamkf`` command (its --help lists every registered family)."""
     debug_help = "show the full traceback of an error"
     plugin_help = "import a module or .py file that registers estimator families (repeatable; also TEAMKF_PLUGINS)"
     description, epilog = _help_text()
-    parser = argparse.ArgumentParser(prog="teamkf", description=description, epilog=epilog, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = _Parser(prog="teamkf", description=description, epilog=epilog, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"teamkf {_version()}")
     parser.add_argument("--debug", action="store_true", help=debug_help)
     parser.add_argument("--plugin", action="append", default=[], metavar="MODULE", help=plugin_help)
@@ -917,8 +949,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
-    except SystemExit as exc:  # --help, --version, usage errors
+    except SystemExit as exc:  # --help, --version
         return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
+    except _UsageError as exc:
+        print(f"teamkf: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
     if getattr(args, "quiet", False):
         from ._progress import set_quiet
 

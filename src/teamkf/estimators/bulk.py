@@ -99,9 +99,10 @@ FLUSH = 1e-30
 #: the exact filter stops (DivergenceError) when the round-off bound of the innovation variance s_k^2
 #: exceeds this fraction of s_k^2: fewer than 4 significant digits left (see exact_bulk_filter, Notes)
 PRECISION_FLOOR = 1e-4
-#: a finite-memory closed loop counts as diverged once Var x_k exceeds 1/eps times its noise variances:
-#: the noise is then below the round-off of the state (see finite_memory_filter)
-DIVERGENCE_RATIO = 1.0 / np.finfo(float).eps
+#: a closed loop counts as diverged once Var x_k exceeds PRECISION_FLOOR / eps (4.5e11) times its largest noise
+#: variance: an error variance of the order of the noise, computed as a difference of such numbers, then has
+#: fewer than 4 correct digits (see finite_memory_filter)
+DIVERGENCE_RATIO = PRECISION_FLOOR / float(np.finfo(float).eps)
 
 
 # ---------------------------------------------------------------------------
@@ -770,12 +771,15 @@ def finite_memory_filter(model: PopulationModel, horizon: int, memory: int | Non
     -------
     FiniteMemoryFilter
         When the closed loop is unstable its variances grow geometrically: the
-        first step k at which Var x_k exceeds ``DIVERGENCE_RATIO`` = 1/eps
-        (4.5e15) times the largest noise variance (sigma_w^2, sigma_v^2,
-        sigma_0^2) is recorded in ``diverged_at`` (the noise is then below the
-        round-off of the state, and every later number is meaningless), and
-        the gains and variances from there on are NaN. Overflow to inf is
-        caught the same way.
+        first step k at which Var x_k exceeds ``DIVERGENCE_RATIO`` =
+        PRECISION_FLOOR / eps (4.5e11) times the largest noise variance
+        (sigma_w^2, sigma_v^2, sigma_0^2) is recorded in ``diverged_at``, and
+        the gains and variances from there on are NaN. The gains solve
+        P_YY K = P_xY with covariances that large, so the error variance, of
+        the order of the noise, is a difference of numbers 4.5e11 times
+        larger: fewer than 4 correct digits are left (checked against exact
+        rational arithmetic in the tests). Overflow to inf is caught the same
+        way.
 
     Examples
     --------

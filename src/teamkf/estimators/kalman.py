@@ -63,7 +63,9 @@ def kalman_covariances(system: LinearGaussianSystem, n_steps: int) -> tuple[Floa
     K = np.empty((T, dx, dy))
     P_filt = np.empty((T, dx, dx))
     P_pred[0] = system.Sigma_x
-    for k in range(T):
+    from .._resources import progress as _progress
+
+    for k in _progress(range(T), total=T, desc="Kalman covariances"):
         K[k], P_filt[k] = kalman_step(P_pred[k], system.C_stack(k), system.R_stack(k))
         if k + 1 < T:
             A = system.A_at(k)

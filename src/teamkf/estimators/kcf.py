@@ -527,9 +527,11 @@ def kcf_schedules(
     M = np.empty((n, T, dx, dx))
     S_f = np.empty((n, T, dx, dx))
     gam = np.empty((n, T))
+    from .._resources import progress as _progress
+
     for i in range(n):
         P[i, 0] = system.Sigma_x
-        for k in range(T):
+        for k in _progress(range(T), total=T, desc=f"kcf design, agent {i}"):  # stderr after 2 s, terminals only
             fused = [(i, k), *sources[i][k]]
             Ct = np.vstack([system.C_at(j, s) for (j, s) in fused])
             Rt = sla.block_diag(*[system.R_at(j, s) for (j, s) in fused])

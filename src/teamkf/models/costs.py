@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .. import _validation as V
-from ..exceptions import ShapeError
+from ..exceptions import ArgumentError, ShapeError
 
 FloatArray = V.FloatArray
 
@@ -189,4 +189,7 @@ class TeamCost:
 
 def _nonneg(x: Any, name: str) -> float:
     """A finite number >= 0 (complex, bools and strings refused: ArgumentError naming ``name``)."""
-    return V.real(x, name, minimum=0.0, what="a non-negative number")
+    v = V.real(x, name, what="a non-negative number")
+    if v < 0:
+        raise ArgumentError(f"{name}: expected a non-negative number, found {v:g}", argument=name)
+    return v

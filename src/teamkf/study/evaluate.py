@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from typing import Any, Sequence
 
+import numpy as np
+
 from ..estimators.registry import get_family
 from ..simulation.monte_carlo import monte_carlo
 
@@ -48,7 +50,8 @@ def evaluate_point(scenario: Any, estimators: Sequence[str] | None = None, runs:
     if not hasattr(scenario, "designs"):  # a [population] scenario: exact statistics (study.population)
         return [_population_row(scenario, seed)]
     names = tuple(scenario.estimators if estimators is None else estimators)
-    designs = scenario.designs(names)
+    with np.errstate(over="ignore", invalid="ignore"):  # a diverging design: its cost is not finite (inf/NaN in the row)
+        designs = scenario.designs(names)
     key = "total_cost" if scenario.horizon is not None else "average_cost"
     analytic = {n for n, d in designs.items() if d.has_analytic_cost}
     mc_runs = runs or (DEFAULT_MC_RUNS if len(analytic) < len(designs) else 0)

@@ -245,9 +245,10 @@ def evaluate_population(model: PopulationModel, horizon: int) -> dict[str, Any]:
         i != j (null for N = 1);
         ``average_lq_cost``: (1/T) sum_{k<T} E[x_k**2 + r u_k**2] per agent (eq. 3 over
         the horizon); ``average_cost``: the same number (the contract's name for a
-        long-run average); for a memory-n closed loop that diverges
-        (:func:`~teamkf.estimators.bulk.finite_memory_filter`), ``diverged``: true
-        and ``diverged_at``: the step, the numbers from there on being NaN.
+        long-run average); for a closed loop that diverges, ``diverged``: true and
+        ``diverged_at``: the first step k with Var x_k > 4.5e11 (1e-4/eps) times the largest noise
+        variance (for a memory-n filter the numbers from there on are NaN,
+        :func:`~teamkf.estimators.bulk.finite_memory_filter`; the exact filter's stay exact).
 
     Raises
     ------
@@ -299,11 +300,25 @@ def evaluate_population(model: PopulationModel, horizon: int) -> dict[str, Any]:
         "cross_covariance": cross,
         "average_lq_cost": float(cost),
         "average_cost": float(cost),
-        **_divergence(filt),
+        **_divergence(filt, model),
     }
 
 
-def _divergence(filt: Any) -> dict[str, Any]:
-    """``{"diverged": True, "diverged_at": k}`` for a finite-memory closed loop that diverged at step k, else ``{}``."""
+def _divergence(filt: Any, model: PopulationModel) -> dict[str, Any]:
+    """``{"diverged": True, "diverged_at": k}`` when the closed loop diverges, else ``{}``.
+
+    A memory-n filter records the step itself (its numbers are NaN from there
+    on); for the exact filter, whose numbers stay exact, k is the first step at
+    which Var x_k exceeds ``DIVERGENCE_RATIO`` (1e-4/eps) times the largest noise
+    variance, the same rule.
+    """
+    import numpy as np
+
+    from ..estimators.bulk import DIVERGENCE_RATIO
+
     k = getattr(filt, "diverged_at", None)
+    if k is None:
+        sv = np.asarray(filt.covariances.state_variance)
+        over = np.flatnonzero(~(sv <= DIVERGENCE_RATIO * max(model.q, model.r_v, model.p0)))
+        k = int(over[0]) if over.size else None
     return {} if k is None else {"diverged": True, "diverged_at": int(k)}
