@@ -32,8 +32,7 @@ Examples
 True
 """
 
-from importlib.metadata import PackageNotFoundError, version
-
+from ._version import __version__
 from .estimators import (  # baselines
     CentralizedDesign,
     CIKFDesign,
@@ -69,11 +68,6 @@ from .simulation.monte_carlo import MonteCarloResult, monte_carlo
 from .simulation.runtime import run_graph
 from .study.evaluate import evaluate_point
 from .study.scenario import Scenario, load_scenario, scenario_from_dict
-
-try:
-    __version__ = version("teamkf")
-except PackageNotFoundError:  # pragma: no cover - running from a source tree
-    __version__ = "0.2.0"
 
 __all__ = [
     "LinearGaussianSystem",

@@ -34,7 +34,7 @@ __all__ = ["main", "build_parser"]
 
 
 def _version() -> str:
-    from . import __version__
+    from ._version import __version__
 
     return str(__version__)
 

@@ -50,7 +50,7 @@ def _information(P: FloatArray, agent: int, s: int, k: int) -> FloatArray:
             "give Sigma_x and Q positive definite (add a small multiple of I), or use another family",
             argument="ci",
         )
-    return np.linalg.inv(P)
+    return np.asarray(np.linalg.inv(P), dtype=float)
 
 
 def ci_weights(infos: list[FloatArray]) -> FloatArray:

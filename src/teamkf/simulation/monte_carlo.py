@@ -75,8 +75,8 @@ class ExactSums:
     (1.0, True)
     """
 
-    def __init__(self, n: int, acc: Sequence[int] | None = None):
-        self.acc = list(acc) if acc is not None else [0] * int(n)
+    def __init__(self, n: int, acc: Sequence[int | float] | None = None):
+        self.acc: list[int | float] = list(acc) if acc is not None else [0] * int(n)  # float: inf (diverged)
 
     def add(self, x: FloatArray) -> None:
         x = np.asarray(x, dtype=float).ravel()
@@ -104,7 +104,7 @@ class ExactSums:
         return np.array([a if isinstance(a, float) else a / (1 << _SHIFT) for a in self.acc])
 
 
-def _mean_sem(s1: int, s2: int, n: int) -> tuple[float, float]:
+def _mean_sem(s1: int | float, s2: int | float, n: int) -> tuple[float, float]:
     """Mean and standard error of the mean from exact sums (units 2^-1126 and 2^-2252), rounded once each."""
     from fractions import Fraction
 
@@ -159,7 +159,7 @@ class MonteCarloResult:
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready and strict (non-finite values are null, with ``"diverged": true``); records what repeats the run."""
-        from .. import __version__
+        from .._version import __version__
         from ..estimators.base import json_float
 
         lo, hi = self.ci95
@@ -334,7 +334,7 @@ def _progress(total: int, enabled: bool | None) -> Any:
     return tqdm(total=total, unit="run", unit_scale=True, desc="Monte Carlo", disable=None if enabled is None else not enabled, file=sys.stderr)
 
 
-def _serial(spec: _Spec, chunks: list[tuple[int, int]], bar: Any) -> Iterator[dict[str, list[list[int]]]]:
+def _serial(spec: _Spec, chunks: list[tuple[int, int]], bar: Any) -> Iterator[dict[str, Any]]:
     for a, b in chunks:
         part = _run_chunk(spec, a, b)
         if bar is not None:
@@ -342,7 +342,7 @@ def _serial(spec: _Spec, chunks: list[tuple[int, int]], bar: Any) -> Iterator[di
         yield part
 
 
-def _dask(spec: _Spec, chunks: list[tuple[int, int]], bar: Any, scheduler: Any) -> Iterator[dict[str, list[list[int]]]]:
+def _dask(spec: _Spec, chunks: list[tuple[int, int]], bar: Any, scheduler: Any) -> Iterator[dict[str, Any]]:
     from .parallel import _open_client  # the Dask clients (LocalCluster tuned: one BLAS thread per worker)
 
     distributed = V.require("distributed", "dask")

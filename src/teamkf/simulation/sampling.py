@@ -180,10 +180,9 @@ def sample_paths(
 
     def factor(M: FloatArray, how: str) -> FloatArray:
         key = (how, M.__array_interface__["data"][0], M.shape, M.strides)  # the same stored matrix (a view of it)
-        hit = memo.get(key)
-        if hit is None:
-            hit = memo[key] = psd_sqrt(M) if how == "sqrt" else np.linalg.cholesky(M)
-        return hit
+        if key not in memo:
+            memo[key] = np.asarray(psd_sqrt(M) if how == "sqrt" else np.linalg.cholesky(M), dtype=float)
+        return memo[key]
 
     for k in range(T - 1):
         w[:, k] = zw[:, k] @ factor(system.Q_at(k), "sqrt").T

@@ -90,7 +90,7 @@ _INFO_KEYS = ("common_lag", "local")
 
 
 def _version() -> str:
-    from .. import __version__
+    from .._version import __version__
 
     return str(__version__)
 

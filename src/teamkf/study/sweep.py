@@ -181,7 +181,7 @@ _MAX_SEED = 2**63 - 1
 
 
 def _version() -> str:
-    from .. import __version__
+    from .._version import __version__
 
     return str(__version__)
 
