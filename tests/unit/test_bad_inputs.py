@@ -122,7 +122,7 @@ SCENARIO_ROWS: list[tuple[str, Any, str]] = [
     ("Sigma_x-not-psd", M(BASE, "system.Sigma_x", [[1.0, 2.0], [2.0, 1.0]]), "system.Sigma_x"),
     ("Sigma_x-not-symmetric", M(BASE, "system.Sigma_x", [[1.0, 0.1], [0.3, 1.0]]), "system.Sigma_x"),
     ("Sigma_x-inf", M(BASE, "system.Sigma_x", float("inf")), "system.Sigma_x"),
-    ("system-unknown-key", M(BASE, "system.B", 1.0), "system.B"),
+    ("system-unknown-key", M(BASE, "system.Bogus", 1.0), "system.Bogus"),
     ("system-not-table", M(BASE, "system", [1, 2]), "system"),
     # agents
     ("agents-empty", M(BASE, "agents", []), "agents"),
@@ -299,7 +299,7 @@ SWEEP_ROWS: list[tuple[str, Any, str]] = [
     ("sweep-grid-duplicate", M(SWEEP_BASE, "grid", {"cost.lambda": [1.0, 1.0]}), "cost.lambda"),
     ("sweep-A_scale-string", M(SWEEP_BASE, "grid", {"system.A_scale": ["x"]}), "system.A_scale"),
     ("sweep-estimator-unknown", M(SWEEP_BASE, "estimators", ["mtmes"]), "estimators[0]"),
-    ("sweep-mc-only-without-runs", M(SWEEP_BASE, "estimators", ["kcf"]), "estimators[0]"),
+    ("sweep-estimators-not-a-list", M(SWEEP_BASE, "estimators", "kcf"), "estimators"),
     ("sweep-population-runs", {"scenario": "interference", "runs": 10, "grid": {"population.a": [2.0]}}, "runs"),
     ("sweep-population-estimators", {"scenario": "interference", "estimators": ["mtmse"], "grid": {"population.a": [2.0]}}, "estimators"),
     ("sweep-population-bad-grid", {"scenario": "interference", "grid": {"population.n_agents": [0]}}, "population.n_agents"),
@@ -414,7 +414,7 @@ def _api_rows() -> list[tuple[str, Callable[[], Any], str]]:
             (f"{name}-mc-rng-negative", lambda d=d: teamkf.monte_carlo({name: d}, H, 4, rng=-1), "rng"),
             (f"{name}-mc-steps-beyond-horizon", lambda d=d: teamkf.monte_carlo({name: d}, H + 5, 4, rng=1), "n_steps"),
             (f"{name}-mc-path-unknown", lambda d=d: teamkf.monte_carlo({name: d}, H, 4, rng=1, path="fast"), "path"),
-            (f"{name}-mc-too-many-runs", lambda d=d: teamkf.monte_carlo({name: d}, H, 10**13, rng=1), "n_runs"),
+            (f"{name}-mc-too-many-runs", lambda d=d: teamkf.monte_carlo({name: d}, H, 2**64, rng=1), "n_runs"),
         ]
         if fam.uses == "structure":
             rows.append((f"{name}-run-online-nan", lambda d=d, y=y_nan: teamkf.run_online(d.agents(), y), "measurements[1]"))

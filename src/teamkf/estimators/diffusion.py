@@ -58,6 +58,7 @@ VARIANTS: dict[str, str] = {
 
 
 def check_variant(v: Any, key: str) -> str:
+    """The ``variant`` option: "ideal" (exchanges within the step) or "honest" (one delay-compensated exchange per step)."""
     return V.choice(v, key, tuple(VARIANTS))
 
 

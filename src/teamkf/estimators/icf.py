@@ -41,10 +41,12 @@ __all__ = ["design_icf", "check_iterations", "check_rate", "consensus_rate"]
 
 
 def check_iterations(v: Any, key: str) -> int:
+    """The ``iterations`` option: consensus iterations per step of the ideal variant (an integer >= 1)."""
     return V.integer(v, key, minimum=1, what="a number of consensus iterations")
 
 
 def check_rate(v: Any, key: str) -> float | None:
+    """The ``epsilon`` option: the consensus rate (> 0; None picks one below 1 / max degree)."""
     return None if v is None else V.real(v, key, minimum=0.0, strict=True, what="a consensus rate")
 
 

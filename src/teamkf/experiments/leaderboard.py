@@ -124,6 +124,7 @@ def _diverging(stage: np.ndarray) -> bool:
 
 @register("leaderboard", "Baselines leaderboard: every family and variant by exact cost relative to MTMSE, plus the centralized bound")
 def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
+    """The leaderboard table and plot (``quick``: fewer and smaller networks)."""
     T = 40 if quick else 100
     rows: list[dict[str, Any]] = []
     for net, build in networks(quick):
