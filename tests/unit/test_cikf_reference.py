@@ -57,7 +57,7 @@ def field_singular():
 def test_design_matches_reference(field12, field_singular, form, pinv):
     for sysm, graph in (field12, field_singular):
         T = 12
-        d = design_cikf(sysm, graph, T, form=form, pinv=pinv)
+        d = design_cikf(sysm, None, graph, T, form=form, pinv=pinv)
         assert d.model.rank <= sysm.dx
         ref = reference_iterate(sysm, graph, T, cost=_mse_cost(sysm.n_agents, sysm.dx), form=form, pinv=pinv)
         _compare(d, ref)
@@ -66,7 +66,7 @@ def test_design_matches_reference(field12, field_singular, form, pinv):
 @pytest.mark.parametrize("threads", [1, 2])
 def test_design_matches_reference_threads(field_singular, threads):
     sysm, graph = field_singular
-    d = design_cikf(sysm, graph, 10, threads=threads)
+    d = design_cikf(sysm, None, graph, 10, threads=threads)
     ref = reference_iterate(sysm, graph, 10, cost=_mse_cost(sysm.n_agents, sysm.dx), form="filter")
     _compare(d, ref)
 
@@ -79,7 +79,7 @@ def test_general_cost_matches_reference(field_singular, form):
     L = rng.standard_normal((2 * N, M))
     B = rng.standard_normal((2 * N, 2 * N))
     cost = TeamCost(S=B @ B.T + np.eye(2 * N), L=L, n_agents=N)
-    d = design_cikf(sysm, graph, 8, cost=cost, form=form)
+    d = design_cikf(sysm, cost, graph, 8, form=form)
     ref = reference_iterate(sysm, graph, 8, cost=cost, form=form)
     _compare(d, ref)
 
@@ -87,15 +87,15 @@ def test_general_cost_matches_reference(field_singular, form):
 @pytest.mark.parametrize("equations", ["printed", "printed-43", "printed-45"])
 def test_printed_equations_match_reference(field_singular, equations):
     sysm, graph = field_singular
-    d = design_cikf(sysm, graph, 8, equations=equations)
+    d = design_cikf(sysm, None, graph, 8, equations=equations)
     ref = reference_iterate(sysm, graph, 8, cost=_mse_cost(sysm.n_agents, sysm.dx), form="filter", equations=equations)
     _compare(d, ref)
 
 
 def test_fixed_gains_match_reference(field_singular):
     sysm, graph = field_singular
-    g = design_cikf(sysm, graph, 10, rcond=1e-6)
-    d = design_cikf(sysm, graph, 8, gains=g)
+    g = design_cikf(sysm, None, graph, 10, rcond=1e-6)
+    d = design_cikf(sysm, None, graph, 8, gains=g)
     ref = reference_iterate(sysm, graph, 8, cost=_mse_cost(sysm.n_agents, sysm.dx), form="filter", fixed=g)
     _compare(d, ref)
 
@@ -105,7 +105,7 @@ def test_fixed_gains_match_reference(field_singular):
 def test_errors_and_simulate_match_reference(field12, field_singular, form, threads):
     for sysm, graph in (field12, field_singular):
         T = 10
-        d = design_cikf(sysm, graph, T, form=form, threads=threads)
+        d = design_cikf(sysm, None, graph, T, form=form, threads=threads)
         paths = sample_paths(sysm, T, 37, rng=5)
         want_e = recursion_impl(d, paths.v, paths.x[:, 0], paths.w, paths.n_runs, T, form)
         _close(d.errors(paths), want_e, "errors")
@@ -118,6 +118,6 @@ def test_errors_general_cost_match_reference(field_singular):
     N, M = sysm.n_agents, sysm.dx
     L = np.random.default_rng(4).standard_normal((N, M))
     cost = TeamCost(S=np.eye(N), L=L, n_agents=N)
-    d = design_cikf(sysm, graph, 6, cost=cost)
+    d = design_cikf(sysm, cost, graph, 6)
     paths = sample_paths(sysm, 6, 11, rng=6)
     _close(d.errors(paths), recursion_impl(d, paths.v, paths.x[:, 0], paths.w, 11, 6, "filter"), "errors (general L)")

@@ -633,6 +633,36 @@ class KCFAlgorithm(Algorithm):
             r = r + self.gamma[i, k] * (self.Phi(k, s) @ xbars[(lnode, s)] - xbar)
         return xbar + self.M[i, k] @ r
 
+    def agent_step_tolerant(self, i: int, k: int, prev: dict | None, y_i: Any, inbox: Any, zero: Any) -> tuple[dict, dict]:
+        """Unreliable links: Olfati-Saber's update with the neighbours whose messages arrived in time.
+
+        The agent keeps its own nominal prior covariance P_i (a per-run quantity now) and recomputes
+        M_i = (P_i⁻¹ + S_i)⁻¹ and γ_i from the information that arrived; a lost or late message takes no
+        part in the innovation nor in the consensus term. With every message lost the agent is its own
+        Kalman filter on y_i alone.
+        """
+        xbar = self._prior(i, k, prev, zero)
+        P = self.system.Sigma_x if prev is None else prev["P"]
+        expected = set(self.src[i][k])
+        got = {(lnode, s): p for (lnode, s, p) in inbox if (lnode, s) in expected}
+        fused = [(i, k), *[key for key in self.src[i][k] if key in got]]
+        ys = {(i, k): y_i, **{key: p["y"] for key, p in got.items()}}
+        Cs, Rs, r = [], [], None
+        for lnode, s in fused:
+            Ct, Rt, G, Y = self.compensated(lnode, s, k)
+            Cs.append(Ct)
+            Rs.append(Rt)
+            term = G @ ys[(lnode, s)] - Y @ xbar
+            r = term if r is None else r + term
+        _, M = kalman_step(P, np.vstack(Cs), sla.block_diag(*Rs))
+        gamma = self.epsilon / (1.0 + np.linalg.norm(M, "fro"))
+        for key in fused[1:]:
+            r = r + gamma * (self.Phi(k, key[1]) @ got[key]["xbar"] - xbar)
+        xh = xbar + M @ r
+        A = self.system.A_at(k)
+        P_next = A @ M @ A.T + self.system.Q_at(k)
+        return {"xhat": xh, "P": 0.5 * (P_next + P_next.T)}, {"y": y_i, "xbar": xbar}
+
     def agent_step(self, i: int, k: int, prev: dict | None, y_i: Any, inbox: Any, zero: Any) -> tuple[dict, dict]:
         xbar = self._prior(i, k, prev, zero)
         got = {(lnode, s): p for (lnode, s, p) in inbox}

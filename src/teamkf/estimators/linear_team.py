@@ -43,7 +43,7 @@ import numpy as np
 
 from .._blas import single_thread_blas
 from .._validation import FloatArray
-from ..exceptions import ShapeError, TeamkfError
+from ..exceptions import DivergenceError, ShapeError, TeamkfError, UnsupportedOperationError
 from ..models import LinearGaussianSystem, TeamCost
 from .base import Design
 
@@ -170,6 +170,12 @@ class Algorithm:
             import scipy.linalg as sla
 
             Ct, Rt = compensated_measurement(self.system, j, s, k)
+            if not (np.all(np.isfinite(Ct)) and np.all(np.isfinite(Rt))):
+                raise DivergenceError(
+                    f"y_{j}({s}) propagated to step {k} for delay compensation overflows: the process leaves the floating-point "
+                    "range, so this delay-compensated filter diverges on this system (shorten the horizon or use an undelayed variant)",
+                    argument="system",
+                )
             G = sla.cho_solve(sla.cho_factor(Rt, lower=True), Ct).T
             cache[key] = (Ct, Rt, G, G @ Ct)
         return cache[key]  # type: ignore[no-any-return]
@@ -402,6 +408,11 @@ class LinearTeamDesign(Design):
     def delivery_graph(self) -> Any:
         return self.graph
 
+    @property
+    def tolerates_losses(self) -> bool:
+        """True when the agents run with lost or late packets (the family defines what a missing message means)."""
+        return hasattr(self.algorithm, "agent_step_tolerant")
+
     def details(self) -> dict[str, Any]:
         return {"variant": self.variant, "realizable": bool(getattr(self.algorithm, "honest", False)), "state_dim": int(self.steps[-1].F.shape[0])}
 
@@ -414,6 +425,8 @@ class LinearAgent:
 
     def __init__(self, design: LinearTeamDesign, index: int):
         self.design, self.index = design, index
+        #: set by the lossy runtime: messages may be missing or late (only families with a tolerant step support it)
+        self.tolerant = False
 
     def init_state(self, n_runs: int) -> dict[str, Any]:
         return {"n_runs": n_runs, "state": None}
@@ -429,7 +442,17 @@ class LinearAgent:
         def zero(dim: int) -> FloatArray:
             return np.zeros((dim, n_runs))
 
-        st, pl = d.algorithm.agent_step(i, k, state["state"], y_col, box, zero)
+        if self.tolerant:
+            step = getattr(d.algorithm, "agent_step_tolerant", None)
+            if step is None:
+                raise UnsupportedOperationError(
+                    d.estimator,
+                    "lost or late packets (unreliable links)",
+                    "its agents need every message of the design; run it on reliable links (p_drop = 0, jitter = 0)",
+                )
+            st, pl = step(i, k, state["state"], y_col, box, zero)
+        else:
+            st, pl = d.algorithm.agent_step(i, k, state["state"], y_col, box, zero)
         z = (d.cost.L_block(i, k) @ st[d.algorithm.output]).T
         return {"n_runs": n_runs, "state": st}, z, pl
 

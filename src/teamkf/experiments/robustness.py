@@ -44,9 +44,14 @@ def _designs(sc: Any, jitter: int) -> tuple[dict[str, Any], dict[str, str]]:
             skipped[name] = "no finite-horizon design"
             continue
         try:
-            out[name] = sc.design(name)
+            d = sc.design(name)
         except TeamkfError as exc:
             skipped[name] = exc.detail
+            continue
+        if not getattr(d, "tolerates_losses", True):
+            skipped[name] = "its agents need every message (no defined behaviour for lost packets yet)"
+            continue
+        out[name] = d
     if jitter > 0 and "mtmse" in out:
         from ..estimators.team import design_mtmse
 

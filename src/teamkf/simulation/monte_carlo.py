@@ -178,6 +178,23 @@ class MonteCarloResult:
             out["diverged"] = True
         return out
 
+    def _repr_html_(self) -> str:
+        from .._repr import html_table
+
+        lo, hi = self.ci95
+        rows = [
+            {
+                "estimator": self.estimator,
+                "runs": self.n_runs,
+                "steps": len(self.stage_mean),
+                "J_T (mean)": self.total_mean,
+                "95 % low": lo,
+                "95 % high": hi,
+                "path": self.path,
+            }
+        ]
+        return html_table(list(rows[0]), rows, caption="teamkf Monte Carlo result")
+
     def to_pandas(self) -> Any:
         pd = V.require("pandas", "dask")
         lo, hi = self.stage_ci95
@@ -465,10 +482,10 @@ def monte_carlo(
                 f"n_steps: expected at most the horizon {horizon} of designs[{name!r}], found {T}; design a longer horizon", argument="n_steps"
             )
     system.require_horizon(T)
-    if links is not None and links.trivial:
-        links = None
     if links is not None and path != "runtime":
-        raise ArgumentError('links: unreliable links act on the online agents; use path="runtime"', argument="links")
+        if not links.trivial:
+            raise ArgumentError('links: unreliable links act on the online agents; use path="runtime"', argument="links")
+        links = None  # reliable links on the error recursions: nothing to count
     n_blocks = -(-R_ // B)
     if chunk is None:  # at most 16 blocks a task, and some 32 tasks when there are enough blocks (balance)
         per_chunk = max(1, min(DEFAULT_BLOCKS_PER_CHUNK, -(-n_blocks // 32)))
