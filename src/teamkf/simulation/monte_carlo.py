@@ -452,7 +452,7 @@ def monte_carlo(
     >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph
     >>> from teamkf.estimators.kalman import design_centralized
     >>> sys_ = LinearGaussianSystem.platoon(3)
-    >>> d = design_centralized(sys_, TeamCost.platoon(3, 1.0), 5)
+    >>> d = design_centralized(sys_, TeamCost.platoon(3, 1.0), horizon=5)
     >>> a = monte_carlo({"kf": d}, 5, 300, rng=1, batch=100, chunk=100)["kf"]
     >>> b = monte_carlo({"kf": d}, 5, 300, rng=1, batch=100, chunk=300)["kf"]
     >>> a.total_mean == b.total_mean and a.total_sem == b.total_sem
