@@ -50,12 +50,12 @@ def main() -> None:
             best[key] = (w, u)
         return out
 
-    design_cikf(sysm, graph, 1)
+    design_cikf(sysm, None, graph, 1)
     for _ in range(a.repeat):
         with _blas_threads(1):
             ref = clock("design_previous", lambda: reference_iterate(sysm, graph, a.steps, cost=cost, form="predictor"))
-        d1 = clock("design_new_1thread", lambda: design_cikf(sysm, graph, a.steps, form="predictor", threads=1))
-        d2 = clock("design_new_2threads", lambda: design_cikf(sysm, graph, a.steps, form="predictor", threads=2))
+        d1 = clock("design_new_1thread", lambda: design_cikf(sysm, None, graph, a.steps, form="predictor", threads=1))
+        d2 = clock("design_new_2threads", lambda: design_cikf(sysm, None, graph, a.steps, form="predictor", threads=2))
     res["design_max_rel_diff"] = float(np.max(np.abs(d2.stage_costs - ref["stage"]) / np.abs(ref["stage"])))
     assert np.array_equal(d1.stage_costs, d2.stage_costs)
     if a.runs:
