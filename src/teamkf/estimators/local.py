@@ -42,6 +42,9 @@ class LocalAlgorithm(DiffusionAlgorithm):
         xbar = self._prior(i, k, prev, zero)
         return {"xhat": self.adapt(i, k, xbar, {(i, k): y_i})}, {}
 
+    #: no messages are used, so lost or late ones change nothing (unreliable links)
+    agent_step_tolerant = agent_step
+
 
 def design_local(
     system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph | None = None, horizon: int | None = None, *, variant: str = "honest"
