@@ -567,7 +567,7 @@ def exact_bulk_filter(model: PopulationModel, horizon: int, *, flush: float = FL
     teamkf.exceptions.DivergenceError
         (``argument="horizon"``) at the first step k where the innovation
         variance has lost its precision (see Notes): the closed loop is
-        unstable (|a_f| >= 1 or an unstable mean loop) and the horizon is too
+        unstable (``|a_f| >= 1`` or an unstable mean loop) and the horizon is too
         long for double precision. The message gives the last reliable horizon.
     teamkf.exceptions.ArgumentError
         When the two T x T matrices (16 T^2 bytes) do not fit in memory.

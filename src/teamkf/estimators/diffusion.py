@@ -27,7 +27,7 @@ Variants
     combination weight goes to the agent itself.
 
 Weights (columns of C = [c_lk] sum to 1): ``"metropolis"`` (default,
-c_lk = 1/max(n_k, n_l) for l ∈ N_k \ {k}, n_k = |N_k|, c_kk = 1 - Σ),
+c_lk = 1/max(n_k, n_l) for l ∈ N_k \ {k}, n_k = ``|N_k|``, c_kk = 1 - Σ),
 ``"uniform"`` (1/n_k) or an explicit n×n matrix (non-negative, column-stochastic,
 non-zero only on the graph's edges l → k and the diagonal).
 """

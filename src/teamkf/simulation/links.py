@@ -140,11 +140,13 @@ class LinkModel:
     def from_dict(cls, d: Mapping[str, Any], graph: CommGraph | None = None, key: str = "network") -> "LinkModel":
         """From a scenario's ``[network]`` table::
 
-        [network]
-        p_drop = 0.1                       # or [[from, to, p], ...] per edge
-        jitter = 1                         # or [[from, to, J], ...]
-        outages = [[0, 1, 20, 29]]         # edge 0 -> 1 down for steps 20..29
-        failures = [[2, 50]]               # agent 2 stops sending at step 50
+            [network]
+            p_drop = 0.1                       # or [[from, to, p], ...] per edge
+            jitter = 1                         # or [[from, to, J], ...]
+            outages = [[0, 1, 20, 29]]         # edge 0 -> 1 down for steps 20..29
+            failures = [[2, 50]]               # agent 2 stops sending at step 50
+
+        Every key is optional; a number applies to every edge.
         """
         if not isinstance(d, Mapping):
             raise ArgumentError(f"{key}: expected a table (p_drop, jitter, outages, failures), found {V.describe(d)}", argument=key)

@@ -62,7 +62,7 @@ _MAX_RUNS = 2**63  # run indices are Philox counter words (uint64)
 class ExactSums:
     r"""Exact, order-independent sums of float vectors (Python integers in units of 2^-1126).
 
-    Every finite double is m 2^e with an integer m (|m| < 2^53) and e >= -1126 + 53 (``np.frexp``), so
+    Every finite double is m 2^e with an integer m (``|m| < 2^53``) and e >= -1126 + 53 (``np.frexp``), so
     it is the integer m 2^(e + 1126) in units of 2^-1126; sums of such integers are exact, so the result
     does not depend on the order of the additions or on how they were split. ``value()`` rounds once.
 

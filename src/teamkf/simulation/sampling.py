@@ -38,7 +38,7 @@ def run_streams(seed: int | np.random.SeedSequence | np.random.Generator | None,
 
 
 def seed_sequence(seed: int | np.random.SeedSequence | np.random.Generator | None) -> np.random.SeedSequence:
-    """The SeedSequence behind ``seed`` (an int, a SeedSequence, a Generator created from a seed, or None: fresh entropy)."""
+    """The SeedSequence behind a seed: an int, a SeedSequence, a Generator created from a seed, or None (fresh entropy)."""
     if isinstance(seed, np.random.Generator):
         seq = seed.bit_generator.seed_seq
         if not isinstance(seq, np.random.SeedSequence):
@@ -144,7 +144,7 @@ def sample_paths(
     streams: Sequence[np.random.SeedSequence] | RunStreams | None = None,
     first_run: int = 0,
 ) -> Paths:
-    """Draw runs ``first_run .. first_run + n_runs - 1`` of ``n_steps`` steps.
+    """Draw the runs first_run to first_run + n_runs - 1, of ``n_steps`` steps each.
 
     Parameters
     ----------
