@@ -647,7 +647,8 @@ class KCFAlgorithm(Algorithm):
         got = {(lnode, s): p for (lnode, s, p) in inbox if (lnode, s) in expected}
         fused = [(i, k), *[key for key in self.src[i][k] if key in got]]
         ys = {(i, k): y_i, **{key: p["y"] for key, p in got.items()}}
-        Cs, Rs, r = [], [], None
+        Cs, Rs = [], []
+        r: Any = None  # the own measurement is always fused: set in the first pass
         for lnode, s in fused:
             Ct, Rt, G, Y = self.compensated(lnode, s, k)
             Cs.append(Ct)
