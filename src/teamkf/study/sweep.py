@@ -135,6 +135,7 @@ from .._blas import single_thread_blas
 from ..exceptions import ScenarioError, TeamkfError
 from ..simulation.parallel import WORKER_ENV, _cpu_count, _open_client, local_cluster  # noqa: F401  (public here since 0.1)
 from .evaluate import evaluate_point, is_analytic  # noqa: F401  (evaluate_point is looked up by _module_evaluate)
+from .results import _FIXED_COLUMNS as _ROW_COLUMNS  # columns of a row besides the grid keys, in order
 from .results import MANIFEST_NAME, SweepError, SweepResult, load_results
 from .scenario import Scenario, _describe, _estimators, _families, load_packaged, load_scenario, packaged_scenarios, read_data_file
 
@@ -159,24 +160,6 @@ A_SCALE = "system.A_scale"
 
 _SWEEP_KEYS = ("scenario", "runs", "seed", "estimators", "grid", "name", "description")
 _FORMAT = "teamkf-sweep-results/1"
-# columns of a row besides the grid keys, in order (cost and mc columns only where they apply)
-_ROW_COLUMNS = (
-    "point_id",
-    "point_index",
-    "estimator",
-    "method",
-    "total_cost",
-    "average_cost",
-    "ci95_low",
-    "ci95_high",
-    "mc_cost",
-    "mc_ci95_low",
-    "mc_ci95_high",
-    "runs",
-    "seed",
-    "sweep_seed",
-    "teamkf_version",
-)
 _MAX_SEED = 2**63 - 1
 
 
