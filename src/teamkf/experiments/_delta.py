@@ -77,3 +77,17 @@ def plot_deltas(rows: list[dict[str, Any]], group: str, x_name: str, title: str,
         ax.legend(fontsize=8)
     fig.suptitle(title)
     save_figure(fig, out_dir, name, figures)
+
+
+#: the columns of a delta_rows row after its x columns (fig3, fig5)
+DELTA_COLUMNS = [
+    "J* (MTMSE)",
+    "J mmse",
+    "J centralized",
+    "J KCF stale (MC)",
+    "J KCF ideal (MC)",
+    "Delta mmse %",
+    "Delta KCF stale %",
+    "Delta KCF ideal %",
+    "KCF ideal 95% CI half-width %",
+]

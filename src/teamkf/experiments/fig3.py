@@ -24,7 +24,7 @@ from pathlib import Path
 
 from . import ExperimentResult, register
 from ._common import uav
-from ._delta import EPSILON, delta_rows, plot_deltas
+from ._delta import DELTA_COLUMNS, EPSILON, delta_rows, plot_deltas
 
 RATIOS = (0.1, 0.3, 1.0, 3.0, 10.0)
 
@@ -44,19 +44,7 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
         rows += delta_rows(build, [r * n * n for r in RATIOS], T, runs, seed=2021 + n, label={"n": n}, x_name="lambda/n^2", x_of=x_of)
     figures: list[str] = []
     plot_deltas(rows, "n", "lambda/n^2", "Fig. 3: UAV formation (complete graph, delay 2)", out_dir, "fig3", figures)
-    cols = [
-        "n",
-        "lambda/n^2",
-        "J* (MTMSE)",
-        "J mmse",
-        "J centralized",
-        "J KCF stale (MC)",
-        "J KCF ideal (MC)",
-        "Delta mmse %",
-        "Delta KCF stale %",
-        "Delta KCF ideal %",
-        "KCF ideal 95% CI half-width %",
-    ]
+    cols = ["n", "lambda/n^2", *DELTA_COLUMNS]
     return ExperimentResult(
         "fig3",
         f"UAV formation, T = {T}: relative improvement of MTMSE (KCF: {runs} Monte Carlo paths, epsilon = {EPSILON})",

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from . import ExperimentResult, register
 from ._common import platoon
-from ._delta import EPSILON, delta_rows, plot_deltas
+from ._delta import DELTA_COLUMNS, EPSILON, delta_rows, plot_deltas
 
 LAMBDAS = (1.0, 3.0, 10.0, 30.0, 100.0, 300.0, 1000.0)
 
@@ -26,18 +26,7 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
     rows = delta_rows(platoon, LAMBDAS, T, runs, seed=2021, label={}, x_name="lambda", x_of=lambda lam: lam)
     figures: list[str] = []
     plot_deltas(rows, "", "lambda", "Fig. 5: vehicular platoon (line graph, unit delays)", out_dir, "fig5", figures)
-    cols = [
-        "lambda",
-        "J* (MTMSE)",
-        "J mmse",
-        "J centralized",
-        "J KCF stale (MC)",
-        "J KCF ideal (MC)",
-        "Delta mmse %",
-        "Delta KCF stale %",
-        "Delta KCF ideal %",
-        "KCF ideal 95% CI half-width %",
-    ]
+    cols = ["lambda", *DELTA_COLUMNS]
     return ExperimentResult(
         "fig5",
         f"Platoon, T = {T}: relative improvement of MTMSE (KCF: {runs} Monte Carlo paths, epsilon = {EPSILON})",
