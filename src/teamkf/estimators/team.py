@@ -644,9 +644,11 @@ class TeamAgent:
         self.system: LinearGaussianSystem = design.system
         self.structure: InformationStructure = design.structure
         #: on unreliable links (teamkf.simulation.links): a measurement that has not arrived when it is
-        #: needed is replaced by its conditional expectation given the agent's common estimate,
-        #: C_j(s) Φ(s, a) x̂(a) (a zero innovation), instead of raising; the state counts the misses
+        #: needed is replaced by its conditional expectation given everything the agent holds (its common
+        #: estimate and the window measurements it received, :meth:`expected_measurements`) instead of
+        #: raising; the state counts the misses
         self.tolerant = tolerant
+        self._fill_gains: dict[tuple, tuple[np.ndarray, np.ndarray, FloatArray]] = {}
 
     def arrival_lag(self, j: int) -> int:
         return self.structure.arrival_lag(self.index, j)
@@ -669,9 +671,10 @@ class TeamAgent:
                     raise InformationStructureError(
                         f"agent {self.index}: y_{exc.args[0][0]}({a}) is common at step {k} but was never delivered"
                     ) from None
-                # E[y_j(a) | x̂(a)] = C_j(a) x̂(a) for what never arrived
-                y = np.concatenate([buf[(j, a)] if (j, a) in buf else xhat @ sys.C_at(j, a).T for j in range(sys.n_agents)], axis=1)
-                missed |= {(j, a) for j in range(sys.n_agents) if (j, a) not in buf}
+                lost = [(j, a) for j in range(sys.n_agents) if (j, a) not in buf]
+                fill = self.expected_measurements(xhat, a, k, buf, lost)
+                y = np.concatenate([buf.get((j, a), fill.get((j, a))) for j in range(sys.n_agents)], axis=1)
+                missed |= set(lost)
             xhat = (xhat + (y - xhat @ sys.C_stack(a).T) @ d.K_at(a).T) @ sys.A_at(a).T
             a += 1
             buf = {key: v for key, v in buf.items() if key[1] >= a}
@@ -689,17 +692,67 @@ class TeamAgent:
                     raise InformationStructureError(
                         f"agent {self.index}: local measurement y_{exc.args[0][0]}({exc.args[0][1]}) was not delivered by step {k}"
                     ) from None
-                n_rows = xhat.shape[0]
-                innov = np.concatenate(
-                    [buf[(j, s)] - preds[s - a] @ sys.C_at(j, s).T if (j, s) in buf else np.zeros((n_rows, sys.dy[j])) for (j, s) in pairs], axis=1
-                )
-                missed |= {(j, s) for (j, s) in pairs if (j, s) not in buf}
+                lost = [(j, s) for (j, s) in pairs if (j, s) not in buf]
+                fill = self.expected_measurements(xhat, a, k, buf, lost)
+                innov = np.concatenate([buf.get((j, s), fill.get((j, s))) - preds[s - a] @ sys.C_at(j, s).T for (j, s) in pairs], axis=1)
+                missed |= set(lost)
             z = z + innov @ d.gain_at(k)[self.index].T
         out = {"xhat": xhat, "anchor": a, "buf": buf}
         if self.tolerant:
             out["missed_keys"] = missed
             out["missed"] = len(missed)
         return out, z
+
+    def expected_measurements(
+        self, xhat: FloatArray, a: int, k: int, buf: dict[tuple[int, int], FloatArray], wanted: Sequence[tuple[int, int]]
+    ) -> dict[tuple[int, int], FloatArray]:
+        r"""E[y_j(s) | what the agent holds] for the measurements in ``wanted`` that never arrived.
+
+        The agent holds its common estimate x̂(a) (the centralized predictor, error covariance P(a))
+        and the window measurements y_h(s'), a <= s' <= k, that it received (``buf``). Given x̂(a), the
+        window innovations ỹ(s) = y(s) - C(s) Φ(s, a) x̂(a) are jointly Gaussian with covariance
+        Σ_W (:func:`window_covariances`), so with h the held and m the wanted positions
+
+        .. math::  E[y_m | x̂(a), y_h] = C_m Φ x̂(a) + Σ_W[m, h] Σ_W[h, h]^{-1} ỹ_h.
+
+        Exact when x̂(a) is the centralized predictor, i.e. when every measurement folded into it
+        arrived; after an earlier miss P(a) understates its error (the substitute is then the
+        expectation under the nominal covariance). The gain is cached per (a, k, held, wanted).
+        """
+        sys = self.system
+        wanted = [(j, s) for (j, s) in wanted if a <= s <= k]
+        if not wanted:
+            return {}
+        held = tuple(sorted(key for key in buf if a <= key[1] <= k))
+        key = (a, k, held, tuple(wanted))
+        if key not in self._fill_gains:
+            dy_tot, off = sys.dy_total, sys.offsets
+
+            def pos(keys: Sequence[tuple[int, int]]) -> np.ndarray:
+                parts = [(s - a) * dy_tot + off[j] + np.arange(sys.dy[j]) for (j, s) in keys]
+                return np.concatenate(parts).astype(int) if parts else np.zeros(0, dtype=int)
+
+            h, m = pos(held), pos(wanted)
+            if h.size:
+                P_a = sys.Sigma_x if a == 0 else (self.design.P_pred if self.design.horizon is None else self.design.P_pred[a])
+                Sigma_W, _, _ = window_covariances(sys, k, a, P_a)
+                cf = sla.cho_factor(Sigma_W[np.ix_(h, h)], lower=True, check_finite=False)
+                G = sla.cho_solve(cf, Sigma_W[np.ix_(h, m)], check_finite=False).T  # Σ_mh Σ_hh^-1
+            else:
+                G = np.zeros((m.size, 0))
+            if len(self._fill_gains) > 4096:  # bounded: the patterns of lossy runs repeat, but need not
+                self._fill_gains.clear()
+            self._fill_gains[key] = (h, m, G)
+        _, _, G = self._fill_gains[key]
+        preds = {s: xhat @ sys.transition(s, a).T for s in {s for (_, s) in (*held, *wanted)}}
+        innov_h = [buf[(j, s)] - preds[s] @ sys.C_at(j, s).T for (j, s) in held]
+        innov_m = np.concatenate(innov_h, axis=1) @ G.T if held else np.zeros((xhat.shape[0], G.shape[0]))
+        out, col = {}, 0
+        for j, s in wanted:
+            d = sys.dy[j]
+            out[(j, s)] = preds[s] @ sys.C_at(j, s).T + innov_m[:, col : col + d]
+            col += d
+        return out
 
 
 FAMILY_MTMSE = _register_builtin(

@@ -24,9 +24,11 @@ the edge's delay), ``late`` (delivered after extra jitter) and ``dropped``
 
 What an agent does when a packet is missing at the step it needs it is the
 family's business (each family documents it; see ``tolerant`` agents): the
-packet agents of MTMSE and MMSE replace a missing measurement by their
-conditional expectation given the common estimate, C_j(s) Φ(s, a) x̂(a) (a zero
-innovation), and consensus filters (KCF) fuse the neighbours that delivered.
+packet agents of MTMSE and MMSE replace a missing measurement by its
+conditional expectation given everything the agent holds (its common estimate
+and the window measurements it received,
+:meth:`teamkf.estimators.team.TeamAgent.expected_measurements`), and consensus
+filters fuse the neighbours that delivered.
 
 The robust design for bounded jitter (:func:`robust_graph`) designs MTMSE/MMSE
 for the delays τ_e + J: every packet then arrives by its deadline, the agents
