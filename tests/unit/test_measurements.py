@@ -157,6 +157,17 @@ def test_bad_truth(tmp_path):
 # ---------------------------------------------------------------------------
 # filter == Monte Carlo (runtime path), bit for bit, for every family of the registry
 # ---------------------------------------------------------------------------
+def runtime_estimates_or_filter(d, ys):
+    """What the Monte Carlo ``path="runtime"`` computes for these runs."""
+    from teamkf.estimators.base import UnsupportedOperationError
+    from teamkf.simulation.monte_carlo import runtime_estimates
+
+    try:
+        return runtime_estimates(d, ys)[0]
+    except UnsupportedOperationError:
+        return d.filter([y[0] for y in ys])
+
+
 def _family_designs(sc):
     out = {}
     for name in teamkf.families():
@@ -185,17 +196,20 @@ def test_filter_equals_monte_carlo_bit_for_bit(tmp_path, name):
         log = M.read_measurements(f, sc.system, sc.horizon)
         res = M.filter_log(sc, log, estimators=[name], truth=M.read_truth(xf, sc.system.dx, T))
         costs[r] = res.stage_costs[name]
-        # the estimates themselves: Design.filter agrees (same arithmetic up to round-off; bit for bit for most)
+        # the estimates are the Monte Carlo runtime path's, bit for bit (the CSV round trip is exact)
+        np.testing.assert_array_equal(res.estimates[name], runtime_estimates_or_filter(d, p.y))
+        # Design.filter agrees (same arithmetic up to round-off; bit for bit for most)
         zf = d.filter([y[0] for y in p.y])
         np.testing.assert_allclose(res.estimates[name], zf, rtol=1e-10, atol=1e-10)
         # and L x - z agrees with the cancellation-free error recursion of the Monte Carlo "errors" path
         e = np.stack([p.x[0, k] @ sc.cost.L_at(k).T - res.estimates[name][k] for k in range(T)])
         np.testing.assert_allclose(e, d.errors(p)[0], rtol=1e-9, atol=1e-9)
-    # the Monte Carlo sums the per-run costs exactly and rounds the mean once; its quadratic form e'Se is
-    # evaluated in another order than filter_log's, so the two agree to round-off (the estimates match above)
+    # the Monte Carlo sums the per-run costs exactly and rounds the mean once; filter --truth evaluates
+    # e'Se with the same function (team_stage_costs), so the realized costs are the Monte Carlo's, bit for bit
     exact_mean = [float(sum(Fraction(float(c)) for c in costs[:, k]) / R) for k in range(T)]
-    np.testing.assert_allclose(np.array(exact_mean), mc.stage_mean, rtol=1e-13)
-    assert float(sum(Fraction(float(c)) for c in costs.sum(axis=1)) / R) == pytest.approx(mc.total_mean, rel=1e-13)
+    np.testing.assert_array_equal(np.array(exact_mean), mc.stage_mean)
+    totals = costs.sum(axis=1)  # a run's total as the Monte Carlo forms it (batch = 1), then summed exactly
+    assert float(sum(Fraction(float(t)) for t in totals) / R) == mc.total_mean
 
 
 # ---------------------------------------------------------------------------

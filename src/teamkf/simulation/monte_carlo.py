@@ -254,9 +254,17 @@ def _cost_kind(S: FloatArray) -> str:
 
 def _block_costs(design: Any, paths: Any, path: str, graph: Any, links: Any = None, streams: Any = None, stats: Any = None) -> FloatArray:
     """(n, T) team costs c(x(k), ẑ(k)) = e' S_k e of one block of runs."""
-    e = _team_errors(design, paths, path, graph, links, streams, stats)  # (n, T, d)
+    return team_stage_costs(design.cost, _team_errors(design, paths, path, graph, links, streams, stats))
+
+
+def team_stage_costs(cost: Any, e: FloatArray) -> FloatArray:
+    """c(k) = e(k)' S(k) e(k) for team errors e = L x - ẑ of shape (n_runs, T, n d_z): (n_runs, T).
+
+    The one evaluation of the quadratic form that the Monte Carlo and ``teamkf filter --truth`` share
+    (so a recorded run's realized costs are bit for bit the Monte Carlo's for the same run); it uses
+    S's structure (identity, diagonal, dense).
+    """
     n, T, d = e.shape
-    cost = design.cost
     out = np.empty((n, T))
     steps = range(T) if cost.is_time_varying else (None,)
     for k in steps:

@@ -73,6 +73,7 @@ from .. import _validation as V
 from .._validation import FloatArray
 from ..exceptions import TeamkfError, UnsupportedOperationError
 from ..models import LinearGaussianSystem
+from ..simulation.monte_carlo import runtime_estimates, team_stage_costs
 
 __all__ = [
     "MeasurementFileError",
@@ -909,11 +910,8 @@ def realized_costs(cost: Any, x: FloatArray, z: FloatArray) -> FloatArray:
     """c(k) = (L(k) x(k) - z(k))' S(k) (L(k) x(k) - z(k)) for one run (n_steps,) or a batch (n_runs, n_steps)."""
     single = x.ndim == 2
     xb, zb = (x[None], z[None]) if single else (x, z)
-    T = xb.shape[1]
-    c = np.empty((xb.shape[0], T))
-    for k in range(T):
-        e = xb[:, k] @ cost.L_at(k).T - zb[:, k]
-        c[:, k] = np.einsum("ra,ab,rb->r", e, cost.S_at(k), e)
+    e = np.stack([xb[:, k] @ cost.L_at(k).T - zb[:, k] for k in range(xb.shape[1])], axis=1)  # as the Monte Carlo forms it
+    c = team_stage_costs(cost, e)
     return c[0] if single else c
 
 
@@ -921,8 +919,6 @@ def online_estimates(design: Any, ys: Sequence[FloatArray]) -> FloatArray:
     """One run's estimates (n_steps, n d_z) from the design's online agents, exactly as the Monte Carlo
     ``path="runtime"`` computes them (message passing over the design's graph, or delivery by its
     information structure); ``design.filter`` for a design without online agents (the ideal KCF)."""
-    from ..simulation.monte_carlo import runtime_estimates
-
     batch = [np.asarray(y, dtype=float)[None] for y in ys]
     try:
         return np.asarray(runtime_estimates(design, batch))[0]

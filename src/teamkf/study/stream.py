@@ -29,6 +29,7 @@ import numpy as np
 
 from .._validation import FloatArray
 from ..exceptions import UnsupportedOperationError
+from ..simulation.monte_carlo import team_stage_costs
 from .measurements import (
     KnownInputs,
     MeasurementFileError,
@@ -432,7 +433,6 @@ def stream_filter(
     need = max(s.form.start for s in streams)
     warmed = False
     L = cost.L_at(0)
-    S = cost.S_at(0)
     try:
         for k0, Y, U in iter_blocks(measurements, system, chunk_rows=chunk_rows, progress=bar):
             miss = _first_missing(k0, Y, system)
@@ -476,7 +476,7 @@ def stream_filter(
                     x_true = _TruthStream(truth, system.dx, max(1, chunk_rows // n))
                 X = x_true.get(k0, B)
                 E = (X @ L.T)[:, None, :] - Z
-                c = np.einsum("bea,ac,bec->be", E, S, E)
+                c = team_stage_costs(cost, E.transpose(1, 0, 2)).T  # (B, estimators), as the Monte Carlo evaluates it
                 for e, name in enumerate(names):
                     costs_tot[name] += float(np.sum(c[:, e]))
                 if cwriter is not None:
@@ -502,7 +502,7 @@ def stream_filter(
                 x_true = _TruthStream(truth, system.dx, max(1, chunk_rows // n))
                 X = x_true.get(0, T)
                 E = (X @ L.T)[:, None, :] - Z
-                c = np.einsum("bea,ac,bec->be", E, S, E)
+                c = team_stage_costs(cost, E.transpose(1, 0, 2)).T  # (B, estimators), as the Monte Carlo evaluates it
                 for e, name in enumerate(names):
                     costs_tot[name] += float(np.sum(c[:, e]))
                 if cwriter is not None:
