@@ -175,7 +175,7 @@ class ICFAlgorithm(Algorithm):
         V0 = Jbar / n + self.U[i]
         v0 = (Jbar / n) @ xbar + self.G[i] @ y_i
         Vi, v = V0.copy(), v0
-        for j, s, p in freshest(delivered(self.graph, i, inbox)):
+        for _j, s, p in freshest(delivered(self.graph, i, inbox)):
             Yc, Tm = compensate_information(sysm, p["V"], s, k)
             Vi = Vi + self.eps * (Yc - V0)
             v = v + self.eps * (Tm @ p["xhat"] - v0)
