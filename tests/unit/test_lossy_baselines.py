@@ -86,6 +86,16 @@ def test_every_consensus_family_tolerates_losses(designs):
         assert _tolerant(d), name
 
 
+def test_the_robustness_study_runs_every_consensus_family():
+    """``teamkf reproduce robustness`` designs and runs them all (CIKF only on the unit-delay platoon)."""
+    from teamkf.experiments.robustness import _designs
+
+    for sname, expect in (("platoon-4", CONSENSUS), ("uav-4", tuple(c for c in CONSENSUS if c != "cikf"))):
+        ds, skipped = _designs(load_packaged(sname).updated({"horizon": 5}), 0)
+        assert set(expect) <= set(ds), (sname, skipped)
+        assert not any("lost packets" in why for why in skipped.values()), skipped
+
+
 @pytest.mark.parametrize("sname", SCENARIOS)
 @pytest.mark.parametrize("name", GRAPH_FAMILIES)
 def test_nothing_lost_is_the_reliable_runtime_bit_for_bit(scenarios, designs, sname, name):
