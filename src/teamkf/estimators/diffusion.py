@@ -26,6 +26,25 @@ Variants
     propagated to Φ(t,s) ψ_l(s). Before a neighbour's first message arrives its
     combination weight goes to the agent itself.
 
+Unreliable links (:mod:`teamkf.simulation.links`)
+-------------------------------------------------
+On lossy links the agents run :meth:`DiffusionAlgorithm.agent_step_tolerant`:
+
+* **adaptation**: every y_l(s) that arrives at step t is fused once, on time
+  (s = t - τ_lk) or late (s < t - τ_lk), delay-compensated from s to t exactly
+  as above; the agent carries its own P_k(t|t-1) (a per-run quantity) and
+  computes P_k(t|t) = (P_k(t|t-1)⁻¹ + S_k)⁻¹ from the S_k of what arrived, so
+  the gain follows the information actually fused;
+* **combination**: a neighbour that delivered enters with Φ(t,s) ψ_l(s) (the
+  most recent of its packets in the inbox, when several arrive together) and
+  its weight c_lk; the weight of a neighbour that delivered nothing goes to the
+  agent itself (the rule above for neighbours not yet heard; the same
+  re-assignment of a failed link's weight to the diagonal as Xiao, Boyd & Lall,
+  IPSN 2005, for Metropolis weights), so the weights used still sum to 1;
+* with nothing lost it is the honest variant (the same arithmetic, bit for
+  bit); with every packet lost (p = 1) every agent is its own Kalman filter on
+  y_k alone (:mod:`teamkf.estimators.local`).
+
 Weights (columns of C = [c_lk] sum to 1): ``"metropolis"`` (default,
 c_lk = 1/max(n_k, n_l) for l ∈ N_k \ {k}, n_k = ``|N_k|``, c_kk = 1 - Σ),
 ``"uniform"`` (1/n_k) or an explicit n×n matrix (non-negative, column-stochastic,
@@ -34,7 +53,7 @@ non-zero only on the graph's edges l → k and the diagonal).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 import scipy.linalg as sla
@@ -127,6 +146,37 @@ def information_sources(graph: CommGraph | None, T: int, honest: bool) -> list[l
     return out
 
 
+def delivered(graph: CommGraph | None, i: int, inbox: Sequence[tuple[int, int, Any]]) -> list[tuple[int, int, Any]]:
+    """The packets of agent i's inbox in the nominal order: in-neighbour order (as the graph lists them), then sent step.
+
+    On unreliable links an inbox may hold several packets of one sender (a late
+    one with the current one) or none; the nominal runtime's inbox is already in
+    this order, so sorting keeps the arithmetic of the reliable case. A repeated
+    (sender, step) is kept once; a packet from an agent that is not an
+    in-neighbour is not used.
+    """
+    if graph is None:
+        return []
+    pos = {j: a for a, j in enumerate(graph.in_neighbors(i))}
+    seen: set[tuple[int, int]] = set()
+    out = []
+    for l, s, p in sorted(((l, s, p) for (l, s, p) in inbox if l in pos), key=lambda e: (pos[e[0]], e[1])):
+        if (l, s) not in seen:
+            seen.add((l, s))
+            out.append((l, s, p))
+    return out
+
+
+def freshest(packets: Sequence[tuple[int, int, Any]]) -> list[tuple[int, int, Any]]:
+    """One packet per sender, the most recently sent one, in the order of ``packets`` (see :func:`delivered`)."""
+    best: dict[int, tuple[int, int, Any]] = {}
+    for l, s, p in packets:
+        if l not in best or s > best[l][1]:
+            best[l] = (l, s, p)
+    order = list(dict.fromkeys(l for l, _, _ in packets))
+    return [best[l] for l in order]
+
+
 class DiffusionAlgorithm(Algorithm):
     """The ATC diffusion KF on columns; nominal covariances and compensated gains precomputed."""
 
@@ -194,6 +244,52 @@ class DiffusionAlgorithm(Algorithm):
         psi = self.adapt(i, k, xbar, ys)
         xhat = self.combine(i, k, psi, {key: p["psi"] for key, p in got.items()})
         return {"xhat": xhat}, {"y": y_i, "psi": psi}
+
+    def agent_step_tolerant(self, i: int, k: int, prev: dict | None, y_i: Any, inbox: Any, zero: Any) -> tuple[dict, dict]:
+        r"""Unreliable links: adapt with every measurement that arrived, combine the neighbours that delivered.
+
+        Agent i (the paper's k) with prior (x̄_i, P_i(t|t-1)) (0 and Σ_x at the first step; P_i is carried in the
+        state, per run) fuses y_i(t) and every y_l(s) in the inbox, delay-compensated to t
+        (:meth:`~teamkf.estimators.linear_team.Algorithm.compensated`, late ones too):
+
+        .. math:: P_i(t|t) = (P_i(t|t-1)^{-1} + S_i)^{-1}, \quad
+                  \psi_i = \bar x_i + P_i(t|t)\,(q_i - S_i \bar x_i),
+
+        then :math:`\hat x_i = c'_{ii}\,\psi_i + \sum_{l \in D_i} c_{li}\,\Phi(t, s_l)\,\psi_l(s_l)` over the set
+        D_i of neighbours that delivered (the most recent packet s_l of each), with
+        :math:`c'_{ii} = c_{ii} + \sum_{l \notin D_i} c_{li}` (module docstring), and
+        P_i(t+1|t) = A P_i(t|t) Aᵀ + Q. It sends (y_i(t), ψ_i(t)), like :meth:`agent_step`.
+
+        Returns
+        -------
+        (state, payload) : state = {"xhat": x̂_i(t|t), "P": P_i(t+1|t)}, payload = {"y", "psi"}
+        """
+        sysm = self.system
+        xbar = self._prior(i, k, prev, zero)
+        P = sysm.Sigma_x if prev is None else prev.get("P", self.P_pred[i, k])
+        pk = delivered(self.info_graph, i, inbox)
+        ys = {(i, k): y_i, **{(lnode, s): p["y"] for (lnode, s, p) in pk}}
+        Cs, Rs = [], []
+        r: Any = None  # the own measurement is always fused: set in the first pass
+        for lnode, s in [(i, k), *[(lnode, s) for (lnode, s, _) in pk]]:
+            Ct, Rt, G, Y = self.compensated(lnode, s, k)
+            Cs.append(Ct)
+            Rs.append(Rt)
+            term = G @ ys[(lnode, s)] - Y @ xbar
+            r = term if r is None else r + term
+        _, Pf = kalman_step(P, np.vstack(Cs), sla.block_diag(*Rs))  # (P^-1 + S)^-1, Joseph form (as the design)
+        psi = xbar + Pf @ r
+        fresh = freshest(pk)
+        cii = self.c[i, i] + sum(self.c[lnode, i] for lnode in self.nbrs[i] - {l2 for l2, _, _ in fresh})
+        xhat = cii * psi
+        for lnode, s, p in fresh:
+            if self.c[lnode, i] != 0.0:
+                xhat = xhat + self.c[lnode, i] * (self.Phi(k, s) @ p["psi"])
+        if k + 1 < self.horizon:
+            A = sysm.A_at(k)
+            P = A @ Pf @ A.T + sysm.Q_at(k)
+            P = 0.5 * (P + P.T)
+        return {"xhat": xhat, "P": P}, {"y": y_i, "psi": psi}
 
     def team_step(self, k: int, prev: list[dict | None], ys: list[Any], zero: Any) -> list[dict]:
         n = self.system.n_agents

@@ -21,6 +21,33 @@ once per step (one iteration): agent j sends (x̄_j(s), y_j(s)); agent i uses at
 k = s + τ_ji the prior pair through the prediction with process noise and the
 novelty of y_j(s) as a measurement of x(k) (delay compensation); the weights of
 neighbours not yet heard go to the agent itself. ``iterations`` is then unused.
+
+Unreliable links (:mod:`teamkf.simulation.links`)
+-------------------------------------------------
+On lossy links the agents run :meth:`HCMCIAlgorithm.agent_step_tolerant`, the
+honest step over the neighbours that delivered, D_i(k):
+
+* **weights**: π_ij for j ∈ D_i(k); the weight of a neighbour that delivered
+  nothing goes to the agent itself, π'_ii = π_ii + Σ_{j∉D_i(k)} π_ij (the rule
+  above for neighbours not yet heard; for Metropolis weights it is the
+  re-assignment of a failed link's weight to the diagonal of Xiao, Boyd & Lall,
+  IPSN 2005, which keeps the weights summing to 1);
+* **consensus on information** (the priors): a packet carries (x̄_j(s), y_j(s))
+  and, because Ω̄_j(s) now depends on what the sender received, Ω̄_j(s) itself
+  (the paper exchanges (Ω, q)); the most recent packet of each sender in the
+  inbox enters through the prediction with process noise from s to k;
+* **consensus on measurements** (the novelties): every y_j(s) that arrived,
+  on time or late, enters once with weight π_ij, as a measurement of x(k)
+  (delay compensation), so no measurement is lost because its packet was late;
+* the agent carries its prior information Ω̄_i (per run), so the next prior
+  follows the information actually fused.
+
+With nothing lost it is the honest variant (the same arithmetic, bit for bit).
+With every packet lost (p = 1) π'_ii = 1 and Ω_i = Ω̄_i + ω C_iᵀR_i⁻¹C_i:
+with ω = N the definition makes each agent the Kalman filter of its own
+measurements with its measurement information counted N times (noise
+covariance R_i/N) — ω = N assumes the novelty consensus averages N agents'
+measurements.
 """
 
 from __future__ import annotations
@@ -33,7 +60,7 @@ from ..exceptions import ArgumentError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
 from .checks import check_graph, check_information_form, check_model
-from .diffusion import VARIANTS, _horizon, check_variant, diffusion_weights, information_sources
+from .diffusion import VARIANTS, _horizon, check_variant, delivered, diffusion_weights, freshest, information_sources
 from .icf import check_iterations
 from .linear_team import Algorithm, LinearTeamDesign, compensate_information, finish_design
 from .registry import Family, Option, _register_builtin
@@ -111,6 +138,50 @@ class HCMCIAlgorithm(Algorithm):
             dq = dq + self.pi[i, j] * (Gc @ p["y"])
         xh = self.Ominv[i, k] @ (q + self.omega * dq)
         return {"xhat": xh}, {"xbar": xbar, "y": y_i}
+
+    def agent_step_tolerant(self, i: int, k: int, prev: dict | None, y_i: Any, inbox: Any, zero: Any) -> tuple[dict, dict]:
+        r"""Unreliable links: one HCMCI iteration over the neighbours that delivered (module docstring).
+
+        With the carried prior (Ω̄_i, x̄_i) (Σ_x⁻¹ and 0 at the first step), π'_ii = π_ii + Σ_{j∉D} π_ij,
+        (Ω̃_j, T_j) the prior pair of j's latest packet (sent at s_j) through the prediction to step k, and
+        (G̃, Ỹ) each delivered y_j(s) as a measurement of x(k):
+
+        .. math:: \Omega_i = \pi'_{ii}\bar\Omega_i + \sum_{j\in D}\pi_{ij}\tilde\Omega_j
+                  + \omega\Big(\pi'_{ii} \delta\Omega_i + \sum_{(j,s)} \pi_{ij} \tilde Y_j(s)\Big), \quad
+                  q_i = \pi'_{ii}\bar\Omega_i \bar x_i + \sum_{j\in D}\pi_{ij} T_j \bar x_j(s_j)
+                  + \omega\Big(\pi'_{ii} \delta q_i + \sum_{(j,s)} \pi_{ij} \tilde G_j\, y_j(s)\Big),
+
+        x̂_i = Ω_i⁻¹ q_i and Ω̄_i ← (A Ω_i⁻¹ Aᵀ + Q)⁻¹.
+
+        Returns
+        -------
+        (state, payload) : state = {"xhat", "Obar": Ω̄_i(k+1)}, payload = {"xbar": x̄_i(k), "y": y_i(k), "Obar": Ω̄_i(k)}
+        """
+        sysm = self.system
+        Obar = self.Obar[i, 0] if prev is None else prev.get("Obar", self.Obar[i, k])
+        xbar = self._xbar(i, k, prev, zero)
+        _, _, G, dO = self.compensated(i, k, k)
+        pk = delivered(self.graph, i, inbox)
+        heard = {j for j, _, _ in pk}
+        wii = self.pi[i, i] + sum(self.pi[i, j] for j in self.ins[i] if j not in heard)
+        Oi, dOi = wii * Obar, wii * dO
+        q = wii * (Obar @ xbar)
+        dq = wii * (G @ y_i)
+        for j, s, p in freshest(pk):
+            Yc, Tm = compensate_information(sysm, p["Obar"], s, k)
+            Oi = Oi + self.pi[i, j] * Yc
+            q = q + self.pi[i, j] * (Tm @ p["xbar"])
+        for j, s, p in pk:
+            _, _, Gc, Yn = self.compensated(j, s, k)
+            dOi = dOi + self.pi[i, j] * Yn
+            dq = dq + self.pi[i, j] * (Gc @ p["y"])
+        Om = Oi + self.omega * dOi
+        xh = np.linalg.inv(Om) @ (q + self.omega * dq)
+        A = sysm.A_at(k)
+        P = A @ np.linalg.inv(Om) @ A.T + sysm.Q_at(k)
+        On = np.linalg.inv(0.5 * (P + P.T))
+        On = 0.5 * (On + On.T)
+        return {"xhat": xh, "Obar": On}, {"xbar": xbar, "y": y_i, "Obar": Obar}
 
     def team_step(self, k: int, prev: list[dict | None], ys: list[Any], zero: Any) -> list[dict]:
         n = self.system.n_agents

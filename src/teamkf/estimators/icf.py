@@ -19,6 +19,32 @@ sends x̂_j(s) = V_j(s)⁻¹ v_j(s) (its pair after the step's iteration), agent
 uses it at k = s + τ_ji as the pair (V_j(s), v_j(s)) through the prediction with
 process noise (:func:`~teamkf.estimators.linear_team.compensate_information`);
 ``iterations`` is then unused.
+
+Unreliable links (:mod:`teamkf.simulation.links`)
+-------------------------------------------------
+On lossy links the agents run :meth:`ICFAlgorithm.agent_step_tolerant`: the
+one consensus iteration runs over the neighbours that delivered, D_i(k),
+
+.. math::
+
+    V_i = V_i^{0} + \epsilon \sum_{j\in D_i(k)} (\tilde V_j - V_i^{0}), \qquad
+    v_i = v_i^{0} + \epsilon \sum_{j\in D_i(k)} (\tilde v_j - v_i^{0}),
+
+i.e. the weight ε of a neighbour that delivered nothing stays with the agent
+(self weight 1 - ε|D_i(k)| > 0: the consensus protocol on the graph of the
+links that worked, as for switching topologies). A packet carries the
+sender's pair: x̂_j(s) and, because its V_j(s) now depends on what *it*
+received, V_j(s) itself (in the paper the agents exchange (v_j, V_j)); the
+receiver uses the pair through the prediction with process noise from s to k
+(:func:`~teamkf.estimators.linear_team.compensate_information`), on time or
+late; of several packets of one sender in one inbox the most recent is used.
+The agent carries its prior information J̄_i (per run), so the next step's
+prior follows the information actually fused. With nothing lost it is the
+honest variant (the same arithmetic, bit for bit). With every packet lost
+(p = 1) V_i = J̄_i/N + C_iᵀR_i⁻¹C_i and J_i = N V_i: the definition makes
+each agent the Kalman filter of its own measurements with its measurement
+information counted N times (noise covariance R_i/N) — the ICF's weighting
+J̄_i/N assumes that consensus will average N agents' measurements.
 """
 
 from __future__ import annotations
@@ -33,7 +59,7 @@ from ..exceptions import ArgumentError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
 from .checks import check_graph, check_information_form, check_model
-from .diffusion import VARIANTS, _horizon, check_variant, information_sources
+from .diffusion import VARIANTS, _horizon, check_variant, delivered, freshest, information_sources
 from .linear_team import Algorithm, LinearTeamDesign, compensate_information, finish_design
 from .registry import Family, Option, _register_builtin
 
@@ -126,6 +152,39 @@ class ICFAlgorithm(Algorithm):
             v = v + self.eps * (Tm @ p["xhat"] - v0)
         xh = self.Vinv[i, k] @ v
         return {"xhat": xh}, {"xhat": xh}
+
+    def agent_step_tolerant(self, i: int, k: int, prev: dict | None, y_i: Any, inbox: Any, zero: Any) -> tuple[dict, dict]:
+        r"""Unreliable links: one consensus iteration over the neighbours that delivered (module docstring).
+
+        With the carried prior information J̄_i (Σ_x⁻¹ at the first step), V_i⁰ = J̄_i/N + C_iᵀR_i⁻¹C_i,
+        v_i⁰ = J̄_i x̄_i / N + C_iᵀR_i⁻¹y_i and, for each neighbour j that delivered (its latest packet, sent
+        at s_j), its pair (V_j(s_j), V_j(s_j) x̂_j(s_j)) through the prediction to step k, (Ṽ_j, T_j x̂_j):
+
+        .. math:: V_i = V_i^0 + \epsilon \sum_j (\tilde V_j - V_i^0), \quad
+                  v_i = v_i^0 + \epsilon \sum_j (T_j \hat x_j(s_j) - v_i^0), \quad \hat x_i = V_i^{-1} v_i,
+
+        J̄_i ← (A (N V_i)⁻¹ Aᵀ + Q)⁻¹.
+
+        Returns
+        -------
+        (state, payload) : state = {"xhat", "Jbar": J̄_i(k+1)}, payload = {"xhat": x̂_i(k), "V": V_i(k)}
+        """
+        sysm, n = self.system, self.system.n_agents
+        Jbar = self.Jbar[i, 0] if prev is None else prev.get("Jbar", self.Jbar[i, k])
+        xbar = zero(sysm.dx) if prev is None else sysm.A_at(k - 1) @ prev["xhat"]
+        V0 = Jbar / n + self.U[i]
+        v0 = (Jbar / n) @ xbar + self.G[i] @ y_i
+        Vi, v = V0.copy(), v0
+        for _j, s, p in freshest(delivered(self.graph, i, inbox)):
+            Yc, Tm = compensate_information(sysm, p["V"], s, k)
+            Vi = Vi + self.eps * (Yc - V0)
+            v = v + self.eps * (Tm @ p["xhat"] - v0)
+        xh = np.linalg.inv(Vi) @ v
+        A = sysm.A_at(k)
+        Jinv = np.linalg.inv(n * Vi)
+        Jn = np.linalg.inv(A @ Jinv @ A.T + sysm.Q_at(k))
+        Jn = 0.5 * (Jn + Jn.T)
+        return {"xhat": xh, "Jbar": Jn}, {"xhat": xh, "V": Vi}
 
     def team_step(self, k: int, prev: list[dict | None], ys: list[Any], zero: Any) -> list[dict]:
         n = self.system.n_agents

@@ -5,16 +5,28 @@ n = 4 (complete graph, delay 2), every registered family that can be designed
 for the scenario (MTMSE, per-agent MMSE, centralized, KCF, CIKF and any other
 registered baseline) runs in the message-passing runtime over links that drop
 each packet with probability p and delay it by 0..J extra steps
-(:mod:`teamkf.simulation.links`). ``mtmse-robust`` is MTMSE designed for the
+(:mod:`teamkf.simulation.links`): MTMSE, MMSE, the centralized filter, KCF,
+CIKF (platoon only: it needs unit delays) and the baselines local, diffusion,
+CI, ICF and HCMCI. ``mtmse-robust`` is MTMSE designed for the
 delays τ + J (:func:`~teamkf.simulation.links.robust_graph`): with p = 0 it
 meets every deadline and costs exactly its analytic cost. Team cost J_T by
 Monte Carlo with 95 % intervals; all estimators see the same sampled paths
 and the same link events (common random numbers, one link stream per run).
 
-What a missed packet does is each family's documented behaviour (MTMSE/MMSE:
-the conditional expectation given the common estimate; KCF/CIKF: the
-neighbours that delivered). The centralized filter is a bound that does not
-use the network, so links do not affect it.
+What a missed packet does is each family's documented behaviour (the table
+in ``docs/recorded-data-and-links.md``): MTMSE/MMSE replace it by the
+conditional expectation given the common estimate; the consensus-type
+filters use the neighbours that delivered (KCF, CIKF: on-time packets only;
+diffusion, HCMCI: every delivered measurement, late ones delay-compensated,
+and the latest estimate of each sender, the weight of a silent neighbour
+going to the agent itself; CI: the latest local estimate of each sender, the
+CI weights re-optimized over them; ICF: one consensus iteration over the
+senders' latest pairs). At p = 1 KCF, CI, diffusion and local are each agent's
+own Kalman filter; ICF and HCMCI are too, but with their own measurement
+counted N times (their definitions assume consensus averages N agents'
+information). The centralized filter is a bound that does not use the
+network, so links do not affect it. A family whose agents cannot run with
+missing packets would be listed as skipped in the notes (none today).
 """
 
 from __future__ import annotations
