@@ -14,8 +14,9 @@ Monte Carlo with 95 % intervals; all estimators see the same sampled paths
 and the same link events (common random numbers, one link stream per run).
 
 What a missed packet does is each family's documented behaviour (the table
-in ``docs/recorded-data-and-links.md``): MTMSE/MMSE replace it by the
-conditional expectation given the common estimate; the consensus-type
+in ``docs/recorded-data-and-links.md``): MTMSE/MMSE replace it by its
+conditional expectation given what the agent holds (common estimate and
+received window); the consensus-type
 filters use the neighbours that delivered (KCF, CIKF: on-time packets only;
 diffusion, HCMCI: every delivered measurement, late ones delay-compensated,
 and the latest estimate of each sender, the weight of a silent neighbour

@@ -27,8 +27,9 @@ family's business (each family documents it; see ``tolerant`` agents): the
 packet agents of MTMSE and MMSE replace a missing measurement by its
 conditional expectation given everything the agent holds (its common estimate
 and the window measurements it received,
-:meth:`teamkf.estimators.team.TeamAgent.expected_measurements`), and consensus
-filters fuse the neighbours that delivered.
+:meth:`teamkf.estimators.team.TeamAgent.expected_measurements`), and the
+consensus-type filters (KCF, CIKF, diffusion, CI, ICF, HCMCI) use the neighbours
+that delivered (the per-family table is in ``docs/recorded-data-and-links.md``).
 
 The robust design for bounded jitter (:func:`robust_graph`) designs MTMSE/MMSE
 for the delays τ_e + J: every packet then arrives by its deadline, the agents
