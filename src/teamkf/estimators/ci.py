@@ -48,8 +48,8 @@ from ..exceptions import NotPositiveDefiniteError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
 from .checks import check_graph, check_information_form, check_model
-from .diffusion import VARIANTS, DiffusionAlgorithm, _horizon, check_variant, delivered, freshest
-from .linear_team import LinearTeamDesign, finish_design, process_noise
+from .diffusion import VARIANTS, DiffusionAlgorithm, _horizon, check_variant
+from .linear_team import LinearTeamDesign, delivered, finish_design, freshest, process_noise
 from .registry import Family, Option, _register_builtin
 
 __all__ = ["design_ci", "ci_weights"]

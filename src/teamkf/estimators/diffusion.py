@@ -53,7 +53,7 @@ non-zero only on the graph's edges l → k and the diagonal).
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 import scipy.linalg as sla
@@ -65,7 +65,7 @@ from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
 from .checks import check_graph, check_model
 from .kalman import kalman_step
-from .linear_team import Algorithm, LinearTeamDesign, finish_design
+from .linear_team import Algorithm, LinearTeamDesign, delivered, finish_design, freshest
 from .registry import Family, Option, _register_builtin
 
 __all__ = ["design_diffusion", "diffusion_weights", "VARIANTS", "check_variant"]
@@ -144,37 +144,6 @@ def information_sources(graph: CommGraph | None, T: int, honest: bool) -> list[l
         else:
             out.append([[(j, k) for (j, _) in ins] for k in range(T)])
     return out
-
-
-def delivered(graph: CommGraph | None, i: int, inbox: Sequence[tuple[int, int, Any]]) -> list[tuple[int, int, Any]]:
-    """The packets of agent i's inbox in the nominal order: in-neighbour order (as the graph lists them), then sent step.
-
-    On unreliable links an inbox may hold several packets of one sender (a late
-    one with the current one) or none; the nominal runtime's inbox is already in
-    this order, so sorting keeps the arithmetic of the reliable case. A repeated
-    (sender, step) is kept once; a packet from an agent that is not an
-    in-neighbour is not used.
-    """
-    if graph is None:
-        return []
-    pos = {j: a for a, j in enumerate(graph.in_neighbors(i))}
-    seen: set[tuple[int, int]] = set()
-    out = []
-    for l, s, p in sorted(((l, s, p) for (l, s, p) in inbox if l in pos), key=lambda e: (pos[e[0]], e[1])):
-        if (l, s) not in seen:
-            seen.add((l, s))
-            out.append((l, s, p))
-    return out
-
-
-def freshest(packets: Sequence[tuple[int, int, Any]]) -> list[tuple[int, int, Any]]:
-    """One packet per sender, the most recently sent one, in the order of ``packets`` (see :func:`delivered`)."""
-    best: dict[int, tuple[int, int, Any]] = {}
-    for l, s, p in packets:
-        if l not in best or s > best[l][1]:
-            best[l] = (l, s, p)
-    order = list(dict.fromkeys(l for l, _, _ in packets))
-    return [best[l] for l in order]
 
 
 class DiffusionAlgorithm(Algorithm):

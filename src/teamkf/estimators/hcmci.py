@@ -60,9 +60,9 @@ from ..exceptions import ArgumentError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
 from .checks import check_graph, check_information_form, check_model
-from .diffusion import VARIANTS, _horizon, check_variant, delivered, diffusion_weights, freshest, information_sources
+from .diffusion import VARIANTS, _horizon, check_variant, diffusion_weights, information_sources
 from .icf import check_iterations
-from .linear_team import Algorithm, LinearTeamDesign, compensate_information, finish_design
+from .linear_team import Algorithm, LinearTeamDesign, compensate_information, delivered, finish_design, freshest
 from .registry import Family, Option, _register_builtin
 
 __all__ = ["design_hcmci"]

@@ -59,8 +59,8 @@ from ..exceptions import ArgumentError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
 from .checks import check_graph, check_information_form, check_model
-from .diffusion import VARIANTS, _horizon, check_variant, delivered, freshest, information_sources
-from .linear_team import Algorithm, LinearTeamDesign, compensate_information, finish_design
+from .diffusion import VARIANTS, _horizon, check_variant, information_sources
+from .linear_team import Algorithm, LinearTeamDesign, compensate_information, delivered, finish_design, freshest
 from .registry import Family, Option, _register_builtin
 
 __all__ = ["design_icf", "check_iterations", "check_rate", "consensus_rate"]

@@ -98,7 +98,7 @@ from ..network.graph import CommGraph
 from .base import Design, check_measurements
 from .checks import check_graph, check_model
 from .kalman import kalman_step
-from .linear_team import Algorithm, finish_design
+from .linear_team import Algorithm, delivered, finish_design, freshest
 from .registry import Family, Option, _register_builtin
 
 __all__ = ["KCFDesign", "KCFAgent", "KCFMessage", "KCFAlgorithm", "design_kcf", "kcf_schedules", "VARIANTS"]
@@ -634,22 +634,23 @@ class KCFAlgorithm(Algorithm):
         return xbar + self.M[i, k] @ r
 
     def agent_step_tolerant(self, i: int, k: int, prev: dict | None, y_i: Any, inbox: Any, zero: Any) -> tuple[dict, dict]:
-        """Unreliable links: Olfati-Saber's update with the neighbours whose messages arrived in time.
+        """Unreliable links: Olfati-Saber's update with the messages that arrived.
 
         The agent keeps its own nominal prior covariance P_i (a per-run quantity now) and recomputes
-        M_i = (P_i⁻¹ + S_i)⁻¹ and γ_i from the information that arrived; a lost or late message takes no
-        part in the innovation nor in the consensus term. With every message lost the agent is its own
-        Kalman filter on y_i alone.
+        M_i = (P_i⁻¹ + S_i)⁻¹ and γ_i from the information that arrived: every delivered y_l(s) is fused
+        once, delay-compensated from its sent step s (late ones too, as the honest step compensates
+        the nominal delay), and the consensus term uses the latest prior x̄_l(s) of each neighbour
+        that delivered, propagated by Φ(k, s); a lost message takes no part in either. With every
+        message lost the agent is its own Kalman filter on y_i alone. Nothing lost: the design's
+        arithmetic, in its order (``delivered`` sorts the inbox as the nominal runtime delivers it).
         """
         xbar = self._prior(i, k, prev, zero)
         P = self.system.Sigma_x if prev is None else prev["P"]
-        expected = set(self.src[i][k])
-        got = {(lnode, s): p for (lnode, s, p) in inbox if (lnode, s) in expected}
-        fused = [(i, k), *[key for key in self.src[i][k] if key in got]]
-        ys = {(i, k): y_i, **{key: p["y"] for key, p in got.items()}}
+        pk = delivered(self.graph, i, inbox)
+        ys = {(i, k): y_i, **{(lnode, s): p["y"] for (lnode, s, p) in pk}}
         Cs, Rs = [], []
         r: Any = None  # the own measurement is always fused: set in the first pass
-        for lnode, s in fused:
+        for lnode, s in [(i, k), *[(lnode, s) for (lnode, s, _) in pk]]:
             Ct, Rt, G, Y = self.compensated(lnode, s, k)
             Cs.append(Ct)
             Rs.append(Rt)
@@ -657,8 +658,8 @@ class KCFAlgorithm(Algorithm):
             r = term if r is None else r + term
         _, M = kalman_step(P, np.vstack(Cs), sla.block_diag(*Rs))
         gamma = self.epsilon / (1.0 + np.linalg.norm(M, "fro"))
-        for key in fused[1:]:
-            r = r + gamma * (self.Phi(k, key[1]) @ got[key]["xbar"] - xbar)
+        for _, s, p in freshest(pk):
+            r = r + gamma * (self.Phi(k, s) @ p["xbar"] - xbar)
         xh = xbar + M @ r
         A = self.system.A_at(k)
         P_next = A @ M @ A.T + self.system.Q_at(k)

@@ -45,6 +45,7 @@ from .._blas import single_thread_blas
 from .._validation import FloatArray
 from ..exceptions import DivergenceError, ShapeError, TeamkfError, UnsupportedOperationError
 from ..models import LinearGaussianSystem, TeamCost
+from ..network.graph import CommGraph
 from .base import Design
 
 __all__ = ["Slot", "LinearStep", "LinearTeamDesign", "Algorithm", "build_steps", "transition", "process_noise"]
@@ -418,6 +419,37 @@ class LinearTeamDesign(Design):
 
     def arrays(self) -> dict[str, np.ndarray]:
         return {**super().arrays(), **{k: np.asarray(v) for k, v in getattr(self.algorithm, "schedules", {}).items()}}
+
+
+def delivered(graph: CommGraph | None, i: int, inbox: Sequence[tuple[int, int, Any]]) -> list[tuple[int, int, Any]]:
+    """The packets of agent i's inbox in the nominal order: in-neighbour order (as the graph lists them), then sent step.
+
+    On unreliable links an inbox may hold several packets of one sender (a late
+    one with the current one) or none; the nominal runtime's inbox is already in
+    this order, so sorting keeps the arithmetic of the reliable case. A repeated
+    (sender, step) is kept once; a packet from an agent that is not an
+    in-neighbour is not used.
+    """
+    if graph is None:
+        return []
+    pos = {j: a for a, j in enumerate(graph.in_neighbors(i))}
+    seen: set[tuple[int, int]] = set()
+    out = []
+    for l, s, p in sorted(((l, s, p) for (l, s, p) in inbox if l in pos), key=lambda e: (pos[e[0]], e[1])):
+        if (l, s) not in seen:
+            seen.add((l, s))
+            out.append((l, s, p))
+    return out
+
+
+def freshest(packets: Sequence[tuple[int, int, Any]]) -> list[tuple[int, int, Any]]:
+    """One packet per sender, the most recently sent one, in the order of ``packets`` (see :func:`delivered`)."""
+    best: dict[int, tuple[int, int, Any]] = {}
+    for l, s, p in packets:
+        if l not in best or s > best[l][1]:
+            best[l] = (l, s, p)
+    order = list(dict.fromkeys(l for l, _, _ in packets))
+    return [best[l] for l in order]
 
 
 class LinearAgent:

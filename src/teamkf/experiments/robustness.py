@@ -17,8 +17,8 @@ What a missed packet does is each family's documented behaviour (the table
 in ``docs/recorded-data-and-links.md``): MTMSE/MMSE replace it by its
 conditional expectation given what the agent holds (common estimate and
 received window); the consensus-type
-filters use the neighbours that delivered (KCF, CIKF: on-time packets only;
-diffusion, HCMCI: every delivered measurement, late ones delay-compensated,
+filters use the neighbours that delivered (CIKF: on-time packets only;
+KCF, diffusion, HCMCI: every delivered measurement, late ones delay-compensated,
 and the latest estimate of each sender, the weight of a silent neighbour
 going to the agent itself; CI: the latest local estimate of each sender, the
 CI weights re-optimized over them; ICF: one consensus iteration over the
