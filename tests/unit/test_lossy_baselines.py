@@ -233,10 +233,10 @@ def _nominal_history(d: Any, system: LinearGaussianSystem, graph: CommGraph, y: 
     return states, sent
 
 
-@pytest.mark.parametrize("name", ["diffusion", "ci", "icf", "hcmci"])
+@pytest.mark.parametrize("name", ["kcf", "diffusion", "ci", "icf", "hcmci"])
 def test_late_packet_with_the_current_one(scenarios, designs, name):
-    """A late packet arriving with the sender's on-time one: measurements (diffusion, HCMCI) are all fused,
-    estimates (CI, ICF, and the priors/ψ of diffusion and HCMCI) only the most recent; the inbox order does
+    """A late packet arriving with the sender's on-time one: measurements (KCF, diffusion, HCMCI) are all fused,
+    estimates (CI, ICF, and the priors/ψ of KCF, diffusion and HCMCI) only the most recent; the inbox order does
     not matter."""
     d, system, graph = _case(scenarios, designs, "uav", name)  # complete graph, delay 2: CI fuses the neighbours there
     p = sample_paths(system, T, 1, rng=2)
@@ -256,7 +256,7 @@ def test_late_packet_with_the_current_one(scenarios, designs, name):
     xa, xb, xc = step(on_time), step(both), step(both[::-1])
     np.testing.assert_array_equal(xb, xc)
     assert np.all(np.isfinite(xb))
-    if name in ("diffusion", "hcmci"):  # the late y_0 is fused as well
+    if name in ("kcf", "diffusion", "hcmci"):  # the late y_0 is fused as well
         assert not np.allclose(xa, xb, rtol=1e-12, atol=0)
     else:  # the late estimate is superseded by the sender's on-time one
         np.testing.assert_array_equal(xa, xb)
