@@ -16,6 +16,13 @@ sensor produced nothing. NPZ: one array per agent, keys ``agent0``,
 ``agent1``, ... (or ``arr_0``, ... from ``np.savez(*ys)``), shape
 (steps, d_y^i), NaN for missing.
 
+Known inputs and time-varying offsets (optional columns, see :class:`KnownInputs`):
+``u0 .. u{d_u-1}`` the inputs u(t) and ``b0 .. b{d_x-1}`` the process offset b(t), one value
+per step (every row of a step carries the same values; every step needs a row, its y cells may
+be empty); ``d0 .. d{m-1}`` agent i's measurement offset d_i(t) on its row (required where a y
+value is present; an agent with d_y^i < m leaves the columns from ``d{d_y^i}`` empty). NPZ:
+keys ``u`` (steps, d_u), ``b`` (steps, d_x) and ``d_agent0``, ``d_agent1``, ... (steps, d_y^i).
+
 Truth (optional, for the realized team cost): ``step, x0, x1, ...`` one row
 per step (CSV/Parquet), or NPZ with the key ``x`` of shape (steps, d_x).
 
@@ -129,11 +136,16 @@ class MeasurementLog:
     y : list over agents of (n_steps, d_y^i) arrays, NaN where missing
     source : str
         Where they came from (a path, or ``"<arrays>"``).
+    u : (n_steps, d_u) known inputs, or None
+    b : (n_steps, d_x) process offsets b(t), or None (then the scenario's constant b)
+    d : list over agents of (n_steps, d_y^i) measurement offsets d_i(t) (NaN where y is missing), or None
     """
 
     y: list[FloatArray]
     source: str = "<arrays>"
     u: FloatArray | None = None
+    b: FloatArray | None = None
+    d: list[FloatArray] | None = None
 
     @property
     def n_steps(self) -> int:
@@ -167,9 +179,18 @@ class MeasurementLog:
 
     @classmethod
     def from_arrays(
-        cls, y: Sequence[Any], system: LinearGaussianSystem, horizon: int | None = None, source: str = "<arrays>", u: Any = None
+        cls,
+        y: Sequence[Any],
+        system: LinearGaussianSystem,
+        horizon: int | None = None,
+        source: str = "<arrays>",
+        u: Any = None,
+        b: Any = None,
+        d: Sequence[Any] | None = None,
     ) -> "MeasurementLog":
-        """Validate per-agent arrays (n_steps, d_y^i) with NaN for missing values (and known inputs u, (n_steps, d_u))."""
+        """Validate per-agent arrays (n_steps, d_y^i) with NaN for missing values, and the optional known
+        inputs u (n_steps, d_u), process offsets b (n_steps, d_x) and measurement offsets d (per agent,
+        (n_steps, d_y^i), finite wherever y is present)."""
         n = system.n_agents
         if not isinstance(y, (list, tuple)) or len(y) != n:
             raise MeasurementFileError(
@@ -206,7 +227,27 @@ class MeasurementLog:
             u = np.asarray(u, dtype=float)
             if u.ndim != 2 or u.shape[0] != T or not np.all(np.isfinite(u)):
                 raise _fmt_err(source, "u", f"expected finite known inputs of shape ({T}, d_u), found shape {u.shape}")
-        return cls(ys, source, u)
+        if b is not None:
+            b = np.asarray(b, dtype=float)
+            if b.shape != (T, system.dx) or not np.all(np.isfinite(b)):
+                raise _fmt_err(source, "b", f"expected finite process offsets b(t) of shape ({T}, {system.dx}) (steps, d_x), found shape {b.shape}")
+        ds = None
+        if d is not None:
+            if len(d) != n:
+                raise _fmt_err(source, "d", f"expected {n} arrays of measurement offsets d_i(t) (one per agent), found {len(d)}")
+            ds = []
+            for i, di in enumerate(d):
+                a = np.array(di, dtype=float)
+                if a.shape != ys[i].shape:
+                    raise _fmt_err(source, f"d, agent {i}", f"expected shape {ys[i].shape} (as its measurements), found {a.shape}")
+                need = ~np.isnan(ys[i]) & ~np.isfinite(a)
+                if need.any():
+                    r, c = (int(v) for v in np.argwhere(need)[0])
+                    raise _fmt_err(source, f"agent {i}, step {r}, column d{c}", f"expected a finite offset where y{c} has a value, found {a[r, c]}")
+                a = np.where(np.isnan(ys[i]), 0.0, a)  # where y is missing the offset is never used
+                a.setflags(write=False)
+                ds.append(a)
+        return cls(ys, source, u, b, ds)
 
 
 # ---------------------------------------------------------------------------
@@ -267,14 +308,37 @@ def _int_column(df: Any, col: str, path: Path, csv: bool, row0: int = 0) -> np.n
     return a.astype(np.int64)
 
 
-def _check_columns(df: Any, p: Path, system: LinearGaussianSystem) -> list[str]:
-    """The columns step, agent, y0..y{m-1} (m = max d_y^i), and optional u0..; returns the u columns."""
+@dataclass(frozen=True)
+class _Columns:
+    """The optional columns of a long-form file: inputs u, process offsets b (per step), measurement offsets d (per row)."""
+
+    u: list[str]
+    b: list[str]
+    d: list[str]
+
+    @property
+    def per_step(self) -> list[str]:
+        return self.u + self.b
+
+
+def _numbered(df: Any, prefix: str) -> list[str]:
+    return sorted((c for c in df.columns if isinstance(c, str) and c.startswith(prefix) and c[1:].isdigit()), key=lambda c: int(c[1:]))
+
+
+def _check_columns(df: Any, p: Path, system: LinearGaussianSystem) -> _Columns:
+    """The columns step, agent, y0..y{m-1} (m = max d_y^i), and the optional u0.., b0..b{d_x-1}, d0..d{m-1}."""
     m = max(system.dy)
     want = ["step", "agent"] + [f"y{c}" for c in range(m)]
-    ucols = sorted((c for c in df.columns if isinstance(c, str) and c.startswith("u") and c[1:].isdigit()), key=lambda c: int(c[1:]))
+    ucols, bcols, dcols = _numbered(df, "u"), _numbered(df, "b"), _numbered(df, "d")
     if ucols and ucols != [f"u{c}" for c in range(len(ucols))]:
         raise _fmt_err(p, f"column {ucols[-1]!r}", f"input columns must be u0..u{len(ucols) - 1} without gaps, found {', '.join(ucols)}")
-    want_all = want + ucols
+    if bcols and bcols != [f"b{c}" for c in range(system.dx)]:
+        raise _fmt_err(
+            p, f"column {bcols[-1]!r}", f"process-offset columns must be b0..b{system.dx - 1} (d_x = {system.dx}), found {', '.join(bcols)}"
+        )
+    if dcols and dcols != [f"d{c}" for c in range(m)]:
+        raise _fmt_err(p, f"column {dcols[-1]!r}", f"measurement-offset columns must be d0..d{m - 1} (as y0..y{m - 1}), found {', '.join(dcols)}")
+    want_all = want + ucols + bcols + dcols
     for col in df.columns:
         if col not in want_all:
             extra = (
@@ -286,7 +350,28 @@ def _check_columns(df: Any, p: Path, system: LinearGaussianSystem) -> list[str]:
     for col in want:
         if col not in df.columns:
             raise _fmt_err(p, f"column {col!r}", f"missing; expected the columns {', '.join(want)} (one y column per measurement component)")
-    return ucols
+    return _Columns(ucols, bcols, dcols)
+
+
+def _offset_values(
+    df: Any, cols: _Columns, p: Path, system: LinearGaussianSystem, agent: np.ndarray, vals: np.ndarray, csv: bool, row0: int = 0
+) -> Any:
+    """The d columns of validated rows (rows, m): finite where y has a value, empty beyond d_y^i; None without d columns."""
+    if not cols.d:
+        return None
+    dv = df[cols.d].to_numpy(dtype=float)
+    cells = np.argwhere(np.isinf(dv) | (~np.isnan(vals) & np.isnan(dv)))
+    if cells.size:
+        r, c = (int(v) for v in cells[0])
+        raise _fmt_err(p, _where(r + row0, f"d{c}", csv), f"expected a finite offset d_i(t) where y{c} has a value, found {df[f'd{c}'].iloc[r]!r}")
+    for i, dyi in enumerate(system.dy):
+        extra = dv[agent == i][:, dyi:]
+        hit = np.argwhere(~np.isnan(extra))
+        if hit.size:
+            r = int(np.flatnonzero(agent == i)[hit[0][0]])
+            c = dyi + int(hit[0][1])
+            raise _fmt_err(p, _where(r + row0, f"d{c}", csv), f"agent {i} has d_y = {dyi} (columns d0..d{dyi - 1}); leave d{c} empty")
+    return dv
 
 
 def _validate_rows(
@@ -369,29 +454,39 @@ def read_measurements(path: str | Path, system: LinearGaussianSystem, horizon: i
         return _read_npz(p, system, horizon)
     csv = suffix == ".csv"
     df = _read_table(p, suffix)
-    ucols = _check_columns(df, p, system)
+    cols = _check_columns(df, p, system)
     if len(df) == 0:
         raise _fmt_err(p, "", "no data rows; expected one row per agent and step")
     step, agent, vals = _validate_rows(df, p, system, horizon, n_steps, csv)
     n, dys = system.n_agents, system.dy
     T = n_steps if n_steps is not None else int(step.max()) + 1
-    ys = []
-    for i in range(n):
-        a = np.full((T, dys[i]), np.nan)
-        rows = agent == i
-        a[step[rows]] = vals[rows][:, : dys[i]]
-        ys.append(a)
-    u = _read_u_columns(df, ucols, step, T, p, csv) if ucols else None
-    return MeasurementLog.from_arrays(ys, system, horizon, source=str(p), u=u)
+    dv = _offset_values(df, cols, p, system, agent, vals, csv)
+
+    def per_agent(v: np.ndarray) -> list[FloatArray]:
+        out = []
+        for i in range(n):
+            a = np.full((T, dys[i]), np.nan)
+            rows = agent == i
+            a[step[rows]] = v[rows][:, : dys[i]]
+            out.append(a)
+        return out
+
+    ys = per_agent(vals)
+    ub = _read_u_columns(df, cols.per_step, step, T, p, csv) if cols.per_step else None
+    u = None if ub is None or not cols.u else ub[:, : len(cols.u)]
+    b = None if ub is None or not cols.b else ub[:, len(cols.u) :]
+    return MeasurementLog.from_arrays(ys, system, horizon, source=str(p), u=u, b=b, d=None if dv is None else per_agent(dv))
 
 
 def _read_u_columns(df: Any, ucols: list[str], step: np.ndarray, T: int, p: Path, csv: bool) -> FloatArray:
-    """u(t) from the u columns: every row of a step must give the same finite values, every step needs one."""
+    """u(t) (and b(t)) from the per-step columns: every row of a step must give the same finite values, every step needs one."""
     uv = df[ucols].to_numpy(dtype=float)
     bad = np.argwhere(~np.isfinite(uv))
     if bad.size:
         r, c = (int(v) for v in bad[0])
-        raise _fmt_err(p, _where(r, ucols[c], csv), f"expected a finite input value, found {uv[r, c]} (known inputs u(t) cannot be missing)")
+        raise _fmt_err(
+            p, _where(r, ucols[c], csv), f"expected a finite value, found {uv[r, c]} (known inputs u(t) and offsets b(t) cannot be missing)"
+        )
     u = np.full((T, len(ucols)), np.nan)
     for r in np.argsort(step, kind="stable"):
         s = step[r]
@@ -402,14 +497,14 @@ def _read_u_columns(df: Any, ucols: list[str], step: np.ndarray, T: int, p: Path
             raise _fmt_err(
                 p,
                 _where(int(r), ucols[c], csv),
-                f"step {int(s)} has input {ucols[c]} = {uv[r, c]} here and {u[s, c]} on another row; u(t) is one value per step",
+                f"step {int(s)} has {ucols[c]} = {uv[r, c]} here and {u[s, c]} on another row; u(t) and b(t) are one value per step",
             )
     gone = np.flatnonzero(np.isnan(u[:, 0]))
     if gone.size:
         raise _fmt_err(
             p,
             f"column {ucols[0]!r}",
-            f"step {int(gone[0])} has no row, so no input u({int(gone[0])}); give a row (y cells may be empty) for every step",
+            f"step {int(gone[0])} has no row, so no {ucols[0][0]}({int(gone[0])}); give a row (y cells may be empty) for every step",
         )
     return u
 
@@ -438,19 +533,28 @@ def _read_npz(p: Path, system: LinearGaussianSystem, horizon: int | None) -> Mea
                 f"key {next(k for k in names if k not in arrs)!r}",
                 f"missing; expected one array per agent: {', '.join(names)} (found {', '.join(arrs) or 'none'})",
             )
-    u = arrs.pop("u", None)
-    if u is not None and u.dtype.kind not in "fiub":
-        raise _fmt_err(p, "key 'u'", f"expected numbers, found dtype {u.dtype}")
+    opt: dict[str, Any] = {}
+    for key in ("u", "b", *[f"d_agent{i}" for i in range(n)]):
+        a = arrs.pop(key, None)
+        if a is not None and a.dtype.kind not in "fiub":
+            raise _fmt_err(p, f"key {key!r}", f"expected numbers, found dtype {a.dtype}")
+        opt[key] = None if a is None else a.astype(float)
     extra = [k for k in arrs if k not in names]
     if extra:
-        raise _fmt_err(p, f"key {extra[0]!r}", f"unknown array; expected {', '.join(names)} (the scenario has {n} agents)")
+        raise _fmt_err(
+            p, f"key {extra[0]!r}", f"unknown array; expected {', '.join(names)} (the scenario has {n} agents), and optionally u, b, d_agent0, ..."
+        )
+    dk = [f"d_agent{i}" for i in range(n)]
+    if any(opt[k] is not None for k in dk) and not all(opt[k] is not None for k in dk):
+        raise _fmt_err(p, f"key {next(k for k in dk if opt[k] is None)!r}", "missing; measurement offsets need one array per agent")
+    d = [opt[k] for k in dk] if opt[dk[0]] is not None else None
     ys = []
     for k in names:
         a = arrs[k]
         if a.dtype.kind not in "fiub":
             raise _fmt_err(p, f"key {k!r}", f"expected numbers, found dtype {a.dtype}")
         ys.append(a.astype(float))
-    return MeasurementLog.from_arrays(ys, system, horizon, source=str(p), u=None if u is None else u.astype(float))
+    return MeasurementLog.from_arrays(ys, system, horizon, source=str(p), u=opt["u"], b=opt["b"], d=d)
 
 
 def read_truth(path: str | Path, dx: int, n_steps: int) -> FloatArray:
@@ -510,20 +614,30 @@ def read_truth(path: str | Path, dx: int, n_steps: int) -> FloatArray:
 # ---------------------------------------------------------------------------
 # writers
 # ---------------------------------------------------------------------------
-def write_measurements(path: str | Path | Any, y: Sequence[Any], *, fmt: str | None = None, u: Any = None) -> None:
+def write_measurements(
+    path: str | Path | Any, y: Sequence[Any], *, fmt: str | None = None, u: Any = None, b: Any = None, d: Sequence[Any] | None = None
+) -> None:
     """Write per-agent measurements (n_steps, d_y^i) (NaN = missing) in long form (CSV/Parquet) or NPZ.
 
     ``path`` may be an open binary file when ``fmt`` (".csv", ".parquet", ".npz") is given.
     A CSV/Parquet file has a row for every (step, agent) with at least one value (every row
-    when known inputs ``u`` (n_steps, d_u) are given: columns ``u0, u1, ...``, NPZ key ``u``).
+    when per-step values are given: known inputs ``u`` (n_steps, d_u), columns ``u0, u1, ...``;
+    process offsets ``b`` (n_steps, d_x), columns ``b0, ...``). Measurement offsets ``d`` (per
+    agent, (n_steps, d_y^i)) go in columns ``d0, ...`` of the agent's rows. NPZ keys: ``u``,
+    ``b``, ``d_agent0``, ...
     """
     suffix = fmt if fmt is not None else _suffix(Path(path), "path")
     ys = [np.asarray(a, dtype=float) for a in y]
     uu = None if u is None else np.asarray(u, dtype=float).reshape(ys[0].shape[0], -1)
+    bb = None if b is None else np.asarray(b, dtype=float).reshape(ys[0].shape[0], -1)
+    dd = None if d is None else [np.asarray(a, dtype=float).reshape(ys[i].shape) for i, a in enumerate(d)]
     if suffix == ".npz":
         arrays: dict[str, Any] = {f"agent{i}": a for i, a in enumerate(ys)}
         if uu is not None:
             arrays["u"] = uu
+        if bb is not None:
+            arrays["b"] = bb
+        arrays.update({f"d_agent{i}": di for i, di in enumerate(dd or [])})
         np.savez(path, **arrays)
         return
     pd = _pandas()
@@ -531,17 +645,23 @@ def write_measurements(path: str | Path | Any, y: Sequence[Any], *, fmt: str | N
     T = ys[0].shape[0]
     blocks = []
     for i, a in enumerate(ys):
-        full = np.full((T, m), np.nan)
+        full = np.full((T, 2 * m), np.nan)  # y columns, then d columns
         full[:, : a.shape[1]] = a
-        keep = ~np.isnan(a).all(axis=1) if uu is None else np.ones(T, dtype=bool)
+        if dd is not None:
+            full[:, m : m + a.shape[1]] = np.where(np.isnan(a), np.nan, dd[i])
+        keep = ~np.isnan(a).all(axis=1) if uu is None and bb is None else np.ones(T, dtype=bool)
         blocks.append((np.flatnonzero(keep), np.full(int(keep.sum()), i), full[keep]))
-    step = np.concatenate([b[0] for b in blocks])
-    agent = np.concatenate([b[1] for b in blocks])
-    vals = np.concatenate([b[2] for b in blocks])
+    step = np.concatenate([blk[0] for blk in blocks])
+    agent = np.concatenate([blk[1] for blk in blocks])
+    vals = np.concatenate([blk[2] for blk in blocks])
     order = np.lexsort((agent, step))
     cols = {"step": step[order], "agent": agent[order], **{f"y{c}": vals[order, c] for c in range(m)}}
     if uu is not None:
         cols.update({f"u{c}": uu[step[order], c] for c in range(uu.shape[1])})
+    if bb is not None:
+        cols.update({f"b{c}": bb[step[order], c] for c in range(bb.shape[1])})
+    if dd is not None:
+        cols.update({f"d{c}": vals[order, m + c] for c in range(m)})
     _write_frame(pd.DataFrame(cols), path, suffix)
 
 
@@ -641,19 +761,49 @@ class KnownInputs:
             )
         return np.broadcast_to(self.u, (T, du))
 
-    def means(self, system: LinearGaussianSystem, T: int, u_log: FloatArray | None = None) -> tuple[FloatArray, list[FloatArray]]:
-        """The mean trajectory m (T, d_x) and the measurement means ȳ_i (T, d_y^i)."""
+    @classmethod
+    def zero(cls, system: LinearGaussianSystem) -> "KnownInputs":
+        """Zero prior mean and offsets, no inputs (a log's own offset columns then give the means)."""
+        return cls(x0_mean=np.zeros(system.dx), b=np.zeros(system.dx), d=tuple(np.zeros(k) for k in system.dy))
+
+    def offsets(self, T: int, b_log: FloatArray | None, d_log: Sequence[FloatArray] | None) -> tuple[FloatArray, list[FloatArray]]:
+        """b(t) (T, d_x) and d_i(t) (T, d_y^i): from the log's offset columns, else the scenario's constants.
+
+        The same offset given both ways is refused (which one is meant is not ours to guess).
+        """
+        if b_log is not None and np.any(self.b != 0):
+            raise MeasurementFileError("b: given both as system.b in the scenario and as b columns of the measurements; keep one", argument="b")
+        if d_log is not None and any(np.any(di != 0) for di in self.d):
+            raise MeasurementFileError("d: given both as agents[i].d in the scenario and as d columns of the measurements; keep one", argument="d")
+        b = b_log[:T] if b_log is not None else np.broadcast_to(self.b, (T, self.b.shape[0]))
+        d = [di[:T] for di in d_log] if d_log is not None else [np.broadcast_to(di, (T, di.shape[0])) for di in self.d]
+        return b, d
+
+    def means(
+        self,
+        system: LinearGaussianSystem,
+        T: int,
+        u_log: FloatArray | None = None,
+        b_log: FloatArray | None = None,
+        d_log: Sequence[FloatArray] | None = None,
+    ) -> tuple[FloatArray, list[FloatArray]]:
+        """The mean trajectory m (T, d_x) and the measurement means ȳ_i (T, d_y^i).
+
+        ``u_log``, ``b_log``, ``d_log``: the log's per-step inputs and time-varying offsets
+        (:attr:`MeasurementLog.u`, ``.b``, ``.d``), used instead of the scenario's constants.
+        """
         u = self.inputs(T, u_log)
+        b, d = self.offsets(T, b_log, d_log)
         m = np.empty((T, system.dx))
         m[0] = self.x0_mean
         for t in range(T - 1):
-            nxt = system.A_at(t) @ m[t] + self.b
+            nxt = system.A_at(t) @ m[t] + b[t]
             if u is not None and self.B is not None:
                 nxt = nxt + self.B @ u[t]
             m[t + 1] = nxt
         ybar = []
         for i in range(system.n_agents):
-            yi = np.stack([system.C_at(i, t) @ m[t] for t in range(T)]) + self.d[i]
+            yi = np.stack([system.C_at(i, t) @ m[t] for t in range(T)]) + d[i]
             if u is not None and self.D is not None:
                 yi = yi + u @ self.D[i].T
             ybar.append(yi)
@@ -751,7 +901,7 @@ def innovations(system: LinearGaussianSystem, log: MeasurementLog, inputs: Known
     """Innovations and log-likelihood of ``log`` under the centralized filter (gaps: present rows only)."""
     T, n, dx = log.n_steps, system.n_agents, system.dx
     if inputs is not None:
-        _, ybar = inputs.means(system, T, log.u)
+        _, ybar = inputs.means(system, T, log.u, log.b, log.d)
         yc = [log.y[i] - ybar[i] for i in range(n)]
     else:
         yc = list(log.y)
@@ -955,8 +1105,14 @@ def filter_log(
     names = list(scenario.estimators if estimators is None else estimators)
     known = known_inputs(scenario) if inputs == "scenario" else inputs
     T, n = log.n_steps, scenario.system.n_agents
+    if known is None and (log.b is not None or log.d is not None):
+        if inputs != "scenario":
+            raise MeasurementFileError(
+                f"{log.source}: b/d columns: the log has time-varying offsets but inputs=None (zero means) was asked; drop one", argument="inputs"
+            )
+        known = KnownInputs.zero(scenario.system)
     if known is not None:
-        mean, ybar = known.means(scenario.system, T, log.u)
+        mean, ybar = known.means(scenario.system, T, log.u, log.b, log.d)
         ys = [np.where(np.isnan(log.y[i]), 0.0, log.y[i] - ybar[i]) for i in range(n)]
     else:
         if log.u is not None:

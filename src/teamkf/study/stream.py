@@ -35,7 +35,9 @@ from .measurements import (
     MeasurementFileError,
     _check_columns,
     _coerce_numeric,
+    _Columns,
     _fmt_err,
+    _offset_values,
     _suffix,
     _validate_rows,
     _where,
@@ -78,15 +80,25 @@ def _raw_chunks(p: Path, suffix: str, chunk_rows: int) -> Iterator[Any]:
             yield df
 
 
-def iter_blocks(
-    path: str | Path, system: Any, *, chunk_rows: int = 400_000, progress: Any = None
-) -> Iterator[tuple[int, FloatArray, FloatArray | None]]:
-    """Blocks of whole steps from a long-form measurement file: ``(k0, Y, u)``.
+@dataclass(frozen=True)
+class Block:
+    """Whole steps k0, k0+1, ... of a measurement file.
 
-    ``Y`` is (steps, Σ d_y^i), the stacked measurement of steps k0, k0+1, ...
-    (NaN where missing); ``u`` the known inputs of those steps (u columns) or
-    None. Rows must be sorted by step. NPZ files are read whole and sliced.
+    Y : (steps, Σ d_y^i) stacked measurements (NaN where missing)
+    u : (steps, d_u) known inputs, or None;  b : (steps, d_x) process offsets b(t), or None
+    d : (steps, Σ d_y^i) stacked measurement offsets d_i(t), or None
     """
+
+    k0: int
+    Y: FloatArray
+    u: FloatArray | None = None
+    b: FloatArray | None = None
+    d: FloatArray | None = None
+
+
+def iter_blocks(path: str | Path, system: Any, *, chunk_rows: int = 400_000, progress: Any = None) -> Iterator[Block]:
+    """:class:`Block` s of whole steps from a long-form measurement file (rows sorted by step); NPZ files
+    are read whole and sliced."""
     p = Path(path)
     suffix = _suffix(p, "--measurements")
     if not p.exists():
@@ -99,23 +111,25 @@ def iter_blocks(
 
         log = _read_npz(p, system, None)
         Y = np.concatenate(log.y, axis=1)
+        D = None if log.d is None else np.concatenate(log.d, axis=1)
         steps = max(1, chunk_rows // n)
         for k0 in range(0, log.n_steps, steps):
             if progress is not None:
                 progress.update(min(steps, log.n_steps - k0) * n)
-            yield k0, Y[k0 : k0 + steps], None if log.u is None else log.u[k0 : k0 + steps]
+            sl = slice(k0, k0 + steps)
+            yield Block(k0, Y[sl], None if log.u is None else log.u[sl], None if log.b is None else log.b[sl], None if D is None else D[sl])
         return
     csv = suffix == ".csv"
     row0 = 0
     next_step = 0
     pending: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, int] | None = None  # rows of the last, maybe unfinished step
-    ucols: list[str] | None = None
+    spec: _Columns | None = None  # the optional columns (u, b per step; d per row, appended to the y values)
+    ucols: list[str] = []
     cols: list[str] = []
     seen_rows = False
+    m = max(dys)
 
-    def emit(
-        step: np.ndarray, agent: np.ndarray, vals: np.ndarray, u: np.ndarray | None, first_row: int
-    ) -> tuple[int, FloatArray, FloatArray | None]:
+    def emit(step: np.ndarray, agent: np.ndarray, vals: np.ndarray, u: np.ndarray | None, first_row: int) -> Block:
         nonlocal next_step
         k1 = int(step[-1]) + 1
         B = k1 - next_step
@@ -137,24 +151,31 @@ def iter_blocks(
                     _where(r2, "step", csv),
                     f"duplicated (step, agent) = ({int(step[dup[0]])}, {int(agent[dup[0]])}), first at row {r1 + 1}; keep one row per agent and step",
                 )
+        D = np.full((B, dy), np.nan) if spec is not None and spec.d else None
         for i in range(n):
             rows = agent == i
             Y[step[rows] - next_step, offs[i] : offs[i] + dys[i]] = vals[rows][:, : dys[i]]
+            if D is not None:
+                D[step[rows] - next_step, offs[i] : offs[i] + dys[i]] = vals[rows][:, m : m + dys[i]]
         U = None
         if u is not None:
             U = np.full((B, u.shape[1]), np.nan)
             U[step - next_step] = u
             if np.isnan(U[:, 0]).any():
                 s = next_step + int(np.flatnonzero(np.isnan(U[:, 0]))[0])
-                raise _fmt_err(p, "column 'u0'", f"step {s} has no row, so no input u({s}); give a row (y cells may be empty) for every step")
+                raise _fmt_err(
+                    p, f"column {ucols[0]!r}", f"step {s} has no row, so no {ucols[0][0]}({s}); give a row (y cells may be empty) for every step"
+                )
         k0 = next_step
         next_step = k1
-        return k0, Y, U
+        nu = len(spec.u) if spec is not None else 0
+        return Block(k0, Y, None if U is None or not nu else U[:, :nu], None if U is None or spec is None or not spec.b else U[:, nu:], D)
 
     for df in _raw_chunks(p, suffix, chunk_rows):
-        if ucols is None:
+        if spec is None:
             df = _coerce_numeric(df, p, csv, row0)
-            ucols = _check_columns(df, p, system)
+            spec = _check_columns(df, p, system)
+            ucols = spec.per_step
         else:
             if list(df.columns) != cols:
                 raise _fmt_err(p, f"row {row0 + 1}", "the columns changed within the file")
@@ -164,11 +185,16 @@ def iter_blocks(
             continue
         seen_rows = True
         step, agent, vals = _validate_rows(df, p, system, None, None, csv, row0)
+        dv = _offset_values(df, spec, p, system, agent, vals, csv, row0)
+        if dv is not None:
+            vals = np.concatenate([vals, dv], axis=1)
         u = df[ucols].to_numpy(dtype=float) if ucols else None
         if u is not None and not np.all(np.isfinite(u)):
             r, c = (int(v) for v in np.argwhere(~np.isfinite(u))[0])
             raise _fmt_err(
-                p, _where(row0 + r, ucols[c], csv), f"expected a finite input value, found {u[r, c]} (known inputs u(t) cannot be missing)"
+                p,
+                _where(row0 + r, ucols[c], csv),
+                f"expected a finite value, found {u[r, c]} (known inputs u(t) and offsets b(t) cannot be missing)",
             )
         back = np.flatnonzero(np.diff(step) < 0)
         if back.size or (pending is not None and step[0] < pending[0][-1]):
@@ -184,7 +210,9 @@ def iter_blocks(
             if same.size:
                 r = int(same[0]) + 1
                 raise _fmt_err(
-                    p, _where(row0 + r, ucols[0], csv), f"step {int(step[r])} has different inputs on different rows; u(t) is one value per step"
+                    p,
+                    _where(row0 + r, ucols[0], csv),
+                    f"step {int(step[r])} has different values of {', '.join(ucols)} on different rows; u(t) and b(t) are one value per step",
                 )
         if pending is not None:
             ps, pa, pv, pu, pr = pending
@@ -434,7 +462,8 @@ def stream_filter(
     warmed = False
     L = cost.L_at(0)
     try:
-        for k0, Y, U in iter_blocks(measurements, system, chunk_rows=chunk_rows, progress=bar):
+        for blk in iter_blocks(measurements, system, chunk_rows=chunk_rows, progress=bar):
+            k0, Y = blk.k0, blk.Y
             miss = _first_missing(k0, Y, system)
             if miss is not None:
                 raise UnsupportedOperationError(
@@ -444,9 +473,12 @@ def stream_filter(
                     "exactly only by a finite-horizon design: give the scenario a horizon (streaming also needs the rows sorted by step)",
                 )
             rows_in += Y.shape[0] * n
+            if known is None and (blk.b is not None or blk.d is not None):  # the log's own offsets: zero means otherwise
+                known = KnownInputs.zero(system)
+                m_next = known.x0_mean.copy()
             if known is not None:
-                Y, m_block, m_next = _centre(known, system, k0, Y, U, m_next)  # type: ignore[arg-type]
-            elif U is not None:
+                Y, m_block, m_next = _centre(known, system, blk, m_next)  # type: ignore[arg-type]
+            elif blk.u is not None:
                 raise MeasurementFileError(
                     f"{measurements}: u columns: the scenario has no input matrix (system.B or agents[i].D) to use them", argument="u"
                 )
@@ -518,11 +550,13 @@ def stream_filter(
     return StreamSummary(T, rows_in, rows_out, tuple(names), costs_tot)
 
 
-def _centre(
-    known: KnownInputs, system: Any, k0: int, Y: FloatArray, U: FloatArray | None, m_next: FloatArray
-) -> tuple[FloatArray, FloatArray, FloatArray]:
+def _centre(known: KnownInputs, system: Any, blk: Block, m_next: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Subtract the measurement means of a block; returns (centred Y, state means of the block, m at the next step)."""
+    Y, U = blk.Y, blk.u
     B = Y.shape[0]
+    offs, dys = system.offsets, system.dy
+    d_log = None if blk.d is None else [blk.d[:, offs[i] : offs[i] + dys[i]] for i in range(system.n_agents)]
+    b, d = known.offsets(B, blk.b, d_log)
     if known.B is not None or known.D is not None:
         if U is None:
             if known.u is None:
@@ -535,11 +569,11 @@ def _centre(
     x = m_next
     for t in range(B):
         m[t] = x
-        x = A @ x + known.b
+        x = A @ x + b[t]
         if known.B is not None:
             x = x + known.B @ U[t]  # type: ignore[index]
     C = system.C_stack(0)
-    ybar = m @ C.T + np.concatenate(known.d)
+    ybar = m @ C.T + np.concatenate(d, axis=1)
     if known.D is not None:
         ybar = ybar + U @ np.vstack(known.D).T  # type: ignore[operator]
     return Y - ybar, m, x
