@@ -237,16 +237,7 @@ class DiffusionAlgorithm(Algorithm):
         xbar = self._prior(i, k, prev, zero)
         P = sysm.Sigma_x if prev is None else prev.get("P", self.P_pred[i, k])
         pk = delivered(self.info_graph, i, inbox)
-        ys = {(i, k): y_i, **{(lnode, s): p["y"] for (lnode, s, p) in pk}}
-        Cs, Rs = [], []
-        r: Any = None  # the own measurement is always fused: set in the first pass
-        for lnode, s in [(i, k), *[(lnode, s) for (lnode, s, _) in pk]]:
-            Ct, Rt, G, Y = self.compensated(lnode, s, k)
-            Cs.append(Ct)
-            Rs.append(Rt)
-            term = G @ ys[(lnode, s)] - Y @ xbar
-            r = term if r is None else r + term
-        _, Pf = kalman_step(P, np.vstack(Cs), sla.block_diag(*Rs))  # (P^-1 + S)^-1, Joseph form (as the design)
+        r, Pf = self.fuse_delivered(i, k, xbar, P, y_i, pk)  # (P^-1 + S)^-1, Joseph form (as the design)
         psi = xbar + Pf @ r
         fresh = freshest(pk)
         cii = self.c[i, i] + sum(self.c[lnode, i] for lnode in self.nbrs[i] - {l2 for l2, _, _ in fresh})

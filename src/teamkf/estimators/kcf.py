@@ -647,16 +647,7 @@ class KCFAlgorithm(Algorithm):
         xbar = self._prior(i, k, prev, zero)
         P = self.system.Sigma_x if prev is None else prev["P"]
         pk = delivered(self.graph, i, inbox)
-        ys = {(i, k): y_i, **{(lnode, s): p["y"] for (lnode, s, p) in pk}}
-        Cs, Rs = [], []
-        r: Any = None  # the own measurement is always fused: set in the first pass
-        for lnode, s in [(i, k), *[(lnode, s) for (lnode, s, _) in pk]]:
-            Ct, Rt, G, Y = self.compensated(lnode, s, k)
-            Cs.append(Ct)
-            Rs.append(Rt)
-            term = G @ ys[(lnode, s)] - Y @ xbar
-            r = term if r is None else r + term
-        _, M = kalman_step(P, np.vstack(Cs), sla.block_diag(*Rs))
+        r, M = self.fuse_delivered(i, k, xbar, P, y_i, pk)
         gamma = self.epsilon / (1.0 + np.linalg.norm(M, "fro"))
         for _, s, p in freshest(pk):
             r = r + gamma * (self.Phi(k, s) @ p["xbar"] - xbar)

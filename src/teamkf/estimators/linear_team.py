@@ -40,6 +40,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
 import numpy as np
+import scipy.linalg as sla
 
 from .._blas import single_thread_blas
 from .._validation import FloatArray
@@ -47,6 +48,7 @@ from ..exceptions import DivergenceError, ShapeError, TeamkfError, UnsupportedOp
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
 from .base import Design
+from .kalman import kalman_step
 
 __all__ = ["Slot", "LinearStep", "LinearTeamDesign", "Algorithm", "build_steps", "transition", "process_noise"]
 
@@ -168,8 +170,6 @@ class Algorithm:
         cache = self.__dict__.setdefault("_comp", {})
         key = (j, *self._key(k, s))
         if key not in cache:
-            import scipy.linalg as sla
-
             Ct, Rt = compensated_measurement(self.system, j, s, k)
             if not (np.all(np.isfinite(Ct)) and np.all(np.isfinite(Rt))):
                 raise DivergenceError(
@@ -180,6 +180,25 @@ class Algorithm:
             G = sla.cho_solve(sla.cho_factor(Rt, lower=True), Ct).T
             cache[key] = (Ct, Rt, G, G @ Ct)
         return cache[key]  # type: ignore[no-any-return]
+
+    def fuse_delivered(self, i: int, k: int, xbar: Any, P: FloatArray, y_i: Any, packets: Sequence[tuple[int, int, Any]]) -> tuple[Any, FloatArray]:
+        """Information-form update of agent i's prior (x̄, P) with y_i(k) and every delivered y_l(s).
+
+        Each y_l(s) of ``packets`` (payload key ``"y"``) is a measurement of x(k), delay-compensated
+        (:meth:`compensated`). Returns r = Σ (G̃ y - Y x̄) over {y_i(k)} ∪ packets, in that order, and
+        P⁺ = (P⁻¹ + S)⁻¹ (Joseph form, as the designs): the update is x̄ + P⁺ r, before any consensus term.
+        """
+        ys = [((i, k), y_i), *[((lnode, s), p["y"]) for (lnode, s, p) in packets]]
+        Cs, Rs = [], []
+        r: Any = None
+        for (lnode, s), y in ys:
+            Ct, Rt, G, Y = self.compensated(lnode, s, k)
+            Cs.append(Ct)
+            Rs.append(Rt)
+            term = G @ y - Y @ xbar
+            r = term if r is None else r + term
+        _, P_post = kalman_step(P, np.vstack(Cs), sla.block_diag(*Rs))
+        return r, P_post
 
 
 def _target(system: LinearGaussianSystem, slot: Slot) -> FloatArray:
