@@ -2,6 +2,7 @@
 
     PYTHONPATH=src python3 benchmarks/bench_sweep.py                 # needs the dask extra
     PYTHONPATH=src python3 benchmarks/bench_sweep.py --workers 4 --repeat 3 --json
+    PYTHONPATH=src python3 benchmarks/bench_sweep.py --runs 400       # longer points: the cluster start-up amortized
 
 The sweep is ``examples/sweeps/platoon-40.toml``: the 4-vehicle platoon (T = 100),
 5 values of lambda x 2 delays x 4 scalings of A, 50 Monte Carlo runs per point,
@@ -35,6 +36,7 @@ def main() -> int:
     ap.add_argument("--sweep", default=str(ROOT / "examples" / "sweeps" / "platoon-40.toml"))
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--repeat", type=int, default=1, help="run every mode this many times and keep the fastest")
+    ap.add_argument("--runs", type=int, default=None, help="Monte Carlo runs per point instead of the sweep file's (longer points)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
 
@@ -43,6 +45,10 @@ def main() -> int:
     from teamkf.study.sweep import load_sweep, local_cluster, run_sweep
 
     spec = load_sweep(args.sweep)
+    if args.runs is not None:
+        import dataclasses
+
+        spec = dataclasses.replace(spec, runs=args.runs)
     n = spec.n_points
     out: dict[str, float] = {}
     frames = {}
