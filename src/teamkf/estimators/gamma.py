@@ -26,21 +26,28 @@ Cholesky factorization (sparse S, long windows: the 10-vehicle platoon);
 dense otherwise (dense S, short windows: the UAV formation). The measured
 crossover is in docs/performance.md.
 
-The window covariance is also accepted in *factored* form
-(:class:`FactoredCovariance`): Sigma = C Pi C' + R with C = blockdiag(C(s))
-and R = blockdiag(R(s)) sparse and Pi the (m x m, m = w d_x) covariance of
-the error trajectory over the window. Then Gamma is applied as
-
-    G Sigma = ((G C) Pi) C' + G R
-
-in O(D_loc nnz-per-row(C) + n d_z m^2 + nnz(S) D) flops, never touching a
-D x D matrix, and the block-Jacobi preconditioner is applied exactly by the
-Woodbury identity Sigma_ii^-1 = R_ii^-1 - R_ii^-1 C_i L M_i^-1 L' C_i' R_ii^-1,
-Pi = L L', M_i = I + L' C_i' R_ii^-1 C_i L (an m x m Cholesky factor per agent
-instead of a d_i x d_i inverse). This pays when measurements outnumber states
-(d_y > d_x, e.g. the platoon where every vehicle measures every position:
-m = (n-1) n against D = (n-1) n^2); :meth:`GammaProblem.prefers_factored`
-tells, and the team designs build the factors only then.
+Innovation coordinates (:class:`InnovationsProblem`)
+-----------------------------------------------------
+For a window of a state-space model (the team designs' Sigma_W) CG runs in
+other coordinates. The window innovation y~ = C eps + v carries eps(anchor),
+the common predictor's error propagated over the c - 1 steps of the window,
+so Sigma_W, eta and Tr(L'SL P_0) grow like ||A^(c-1)||^2 (1e15 for the
+18-vehicle platoon, 1e19 at 24) while the cost stays O(n): in float64 the
+R-sized part of Sigma_W, the residual of Gamma F = eta and the cost of eq.
+(35) are all lost in rounding. Each agent i instead runs its own Kalman
+filter over its local window data (prior eps(anchor) ~ N(0, P(anchor))) and
+uses its normalized innovations e^_i (cov(e^_i) = I) and the estimate z_i =
+L_i (x^com + x^_i(k|k)) + F^_i e^_i. Every quantity is then of the size of
+the filter errors: Gamma^_ij = S_ij (x) cov(e^_i, e^_j), eta^_i = sum_j S_ij
+cov(L_j (eps(k) - x^_j(k|k)), e^_i), the block-Jacobi preconditioner is
+S_ii^-1 (x) I, and the operator is applied by one adjoint (backward) and one
+forward pass of every agent's filter over the noise coordinates
+(eps(anchor), w, v) -- O(n w (d_x^2 + d_x d_y)) per application, no
+window-sized matrix at all. The cost is summed over the independent noises
+(no cancellation), and the gains are mapped back to the local data
+(F_i = L_i B_i + F^_i T_i with B_i, T_i the filter's maps) by one more
+backward pass. The designs use this form whenever :func:`choose_solver`
+picks CG.
 """
 
 from __future__ import annotations
@@ -56,7 +63,7 @@ import scipy.sparse.linalg as spla
 from .._validation import FloatArray
 from ..exceptions import ArgumentError, ConvergenceError, NotPositiveDefiniteError
 
-__all__ = ["GammaProblem", "FactoredCovariance", "DENSE_MAX_BYTES"]
+__all__ = ["GammaProblem", "InnovationsProblem", "WindowModel", "choose_solver", "DENSE_MAX_BYTES"]
 
 #: dense Gamma is assembled when it needs at most this much memory
 DENSE_MAX_BYTES = 1 << 30
@@ -64,48 +71,28 @@ DENSE_MAX_BYTES = 1 << 30
 Method = Literal["auto", "dense", "cg"]
 
 
-@dataclass(eq=False)
-class FactoredCovariance:
-    """A covariance Sigma = C Pi C' + R kept in factors (never formed unless asked).
+def _flop_estimates(S: FloatArray, dz: int, D_loc: int, D: int, cg_iterations: int = 150) -> tuple[float, float]:
+    N = float(dz * D_loc)
+    density = np.count_nonzero(S) / max(S.size, 1)
+    nnz_S = float(np.count_nonzero(S)) if density < 0.25 else float(S.size)
+    dense = N**3 / 3.0 + 2.0 * N**2
+    cg = cg_iterations * 2.0 * (dz * D_loc * float(D) + nnz_S * float(D))
+    return dense, cg
 
-    Parameters
-    ----------
-    C : (D, m) sparse matrix
-    Pi : (m, m) symmetric positive semidefinite array
-    R : (D, D) sparse symmetric matrix, positive definite on every agent's
-        local block (block diagonal in the team designs: R = blockdiag(R(s))).
+
+def choose_solver(S: FloatArray, idx: list[np.ndarray], dz: int, D: int, method: Method = "auto", dense_max_bytes: int = DENSE_MAX_BYTES) -> str:
+    """The solver for Gamma of a pool of dimension D, "dense" or "cg" (from the sizes alone).
+
+    Dense Cholesky unless Gamma would not fit in ``dense_max_bytes`` or ~150 applications of the
+    operator are estimated to cost fewer flops than the factorization.
     """
-
-    C: sp.csr_matrix
-    Pi: FloatArray
-    R: sp.csr_matrix
-
-    def __post_init__(self) -> None:
-        self.C = sp.csr_matrix(self.C)
-        self.R = sp.csr_matrix(self.R)
-        self.Pi = 0.5 * (np.asarray(self.Pi, dtype=float) + np.asarray(self.Pi, dtype=float).T)
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        D = int(self.C.shape[0])
-        return (D, D)
-
-    @property
-    def rank_dim(self) -> int:
-        """m, the inner dimension of the low-rank part."""
-        return int(self.C.shape[1])
-
-    def block(self, rows: np.ndarray, cols: np.ndarray) -> FloatArray:
-        """Sigma[rows][:, cols] as a dense array."""
-        Cr, Cc = self.C[rows], self.C[cols]
-        out = np.asarray(Cr @ np.asarray(Cc @ self.Pi).T)
-        return out + self.R[rows][:, cols].toarray()
-
-    def dense(self) -> FloatArray:
-        """Sigma formed (D x D)."""
-        ix = np.arange(self.shape[0])
-        return self.block(ix, ix)
-
+    if method != "auto":
+        return method
+    D_loc = int(sum(len(ix) for ix in idx))
+    if 8 * (dz * D_loc) ** 2 > dense_max_bytes:
+        return "cg"
+    dense, cg = _flop_estimates(S, dz, D_loc, D)
+    return "cg" if cg < dense else "dense"
 
 
 @dataclass(eq=False)
@@ -115,11 +102,9 @@ class GammaProblem:
     Parameters
     ----------
     S : (n d_z, n d_z) array
-    Sigma : (D, D) array or FactoredCovariance
+    Sigma : (D, D) array
         Covariance of the pooled innovations; agent i's local innovation is
-        ``pool[idx[i]]`` so Sigma_ij = Sigma[idx[i]][:, idx[j]]. In factored
-        form the operator and the preconditioner use the factors (module
-        docstring); the dense path forms only Sigma[idx_all][:, idx_all].
+        ``pool[idx[i]]`` so Sigma_ij = Sigma[idx[i]][:, idx[j]].
     idx : list of int arrays
         Indices of each agent's local innovation in the pool (no repeats
         within one agent).
@@ -127,7 +112,7 @@ class GammaProblem:
     """
 
     S: FloatArray
-    Sigma: FloatArray | FactoredCovariance
+    Sigma: FloatArray
     idx: list[np.ndarray]
     dz: int
     iterations: int = field(default=0, init=False)
@@ -140,8 +125,6 @@ class GammaProblem:
         self.D_loc = int(self.offsets[-1])
         self.idx_all = np.concatenate(self.idx).astype(int) if self.n else np.zeros(0, int)
         self.agent_of = np.repeat(np.arange(self.n), self.d)
-        self._fac = self.Sigma if isinstance(self.Sigma, FactoredCovariance) else None
-        self.D = int(self.Sigma.shape[0])
         dz = self.dz
         density = np.count_nonzero(self.S) / max(self.S.size, 1)
         self._S_op = sp.csr_matrix(self.S) if density < 0.25 else self.S
@@ -171,20 +154,11 @@ class GammaProblem:
         """Gamma x without forming Gamma."""
         if self.D_loc == 0:
             return np.zeros(0)
-        G = sp.csr_matrix((np.asarray(x, dtype=float).ravel(), (self._g_rows, self._g_cols)), shape=(self.n * self.dz, self.D))
-        if self._fac is not None:
-            fac = self._fac
-            P = np.asarray((G @ fac.C).todense()) @ fac.Pi  # (n dz, m): G C Pi
-            Ht = np.asarray(fac.C @ P.T) + np.asarray((fac.R @ G.T).todense())  # (D, n dz): (G Sigma)'
-            K = np.asarray(self._S_op @ Ht.T)
-        else:
-            H = np.asarray(G @ self.Sigma)  # (n dz, D): row (j, b) = F_j[b] scattered, times Sigma
-            K = np.asarray(self._S_op @ H)  # (n dz, D)
+        D = self.Sigma.shape[0]
+        G = sp.csr_matrix((np.asarray(x, dtype=float).ravel(), (self._g_rows, self._g_cols)), shape=(self.n * self.dz, D))
+        H = np.asarray(G @ self.Sigma)  # (n dz, D): row (j, b) = F_j[b] scattered, times Sigma
+        K = np.asarray(self._S_op @ H)  # (n dz, D)
         return K[self._g_rows, self._g_cols]
-
-    def scatter(self, F: list[FloatArray]) -> sp.csr_matrix:
-        """The gains as one sparse (n d_z, D) matrix: row (i, a) holds F_i[a] at the columns idx[i]."""
-        return sp.csr_matrix((self.flatten(F), (self._g_rows, self._g_cols)), shape=(self.n * self.dz, self.D))
 
     def apply(self, F: list[FloatArray]) -> list[FloatArray]:
         return self.unflatten(self.apply_flat(self.flatten(F)))
@@ -192,7 +166,7 @@ class GammaProblem:
     def dense(self) -> FloatArray:
         """Gamma assembled densely in the (a, i, p) ordering of :meth:`flatten`."""
         dz, N = self.dz, self.D_loc
-        Sig = self._fac.block(self.idx_all, self.idx_all) if self._fac is not None else np.asarray(self.Sigma)[np.ix_(self.idx_all, self.idx_all)]
+        Sig = self.Sigma[np.ix_(self.idx_all, self.idx_all)]
         G = np.empty((dz * N, dz * N))
         ag = self.agent_of
         for a in range(dz):
@@ -204,41 +178,11 @@ class GammaProblem:
     # --- solving -------------------------------------------------------------
     def flop_estimates(self, cg_iterations: int = 150) -> tuple[float, float]:
         """Rough flop counts of the dense Cholesky path and of ``cg_iterations`` operator applications."""
-        N, D = float(self.size), float(self.D)
-        dense = N**3 / 3.0 + 2.0 * N**2
-        cg = cg_iterations * 2.0 * (self.dz * self.D_loc * D + self._nnz_S() * D)
-        return dense, cg
-
-    def _nnz_S(self) -> float:
-        return float(self._S_op.nnz) if sp.issparse(self._S_op) else float(self.S.size)  # type: ignore[union-attr]
-
-    def factored_apply_flops(self) -> float:
-        """Rough flops of one operator application with the factors (inf without them)."""
-        if self._fac is None:
-            return float("inf")
-        fac, nz = self._fac, float(self.n * self.dz)
-        m, D = float(fac.rank_dim), float(self.D)
-        per_row_C = fac.C.nnz / max(D, 1.0)
-        per_row_R = fac.R.nnz / max(D, 1.0)
-        return 2.0 * (self.dz * self.D_loc * (per_row_C + per_row_R) + nz * m * m + nz * fac.C.nnz + self._nnz_S() * D)
-
-    def prefers_factored(self, method: Method = "auto", dense_max_bytes: int = DENSE_MAX_BYTES) -> bool:
-        """True when this (factored) problem will be solved by CG and the factored operator is cheaper than a dense Sigma's.
-
-        The solver choice is :meth:`choose`'s, made from the sizes alone, so it is the same with a dense Sigma.
-        """
-        if self._fac is None or self.D_loc == 0 or self.choose(method, dense_max_bytes) != "cg":
-            return False
-        return self.factored_apply_flops() < 2.0 * (self.dz * self.D_loc * self.D + self._nnz_S() * self.D)
+        return _flop_estimates(self.S, self.dz, self.D_loc, self.Sigma.shape[0], cg_iterations)
 
     def choose(self, method: Method = "auto", dense_max_bytes: int = DENSE_MAX_BYTES) -> str:
         """The solver: dense Cholesky unless Gamma would not fit in ``dense_max_bytes`` or the operator is cheaper."""
-        if method != "auto":
-            return method
-        if 8 * self.size**2 > dense_max_bytes:
-            return "cg"
-        dense, cg = self.flop_estimates()
-        return "cg" if cg < dense else "dense"
+        return choose_solver(self.S, self.idx, self.dz, self.Sigma.shape[0], method, dense_max_bytes)
 
     def solve(
         self,
@@ -271,10 +215,7 @@ class GammaProblem:
         return self.unflatten(x)
 
     def _preconditioner(self) -> spla.LinearOperator:
-        if self._fac is not None:
-            return self._preconditioner_factored(self._fac)
         dz = self.dz
-        Sigma = np.asarray(self.Sigma)
         S_inv = [np.linalg.inv(self.S[i * dz : (i + 1) * dz, i * dz : (i + 1) * dz]) for i in range(self.n)]
         groups: dict[int, list[int]] = {}
         for i, di in enumerate(self.d):
@@ -282,7 +223,7 @@ class GammaProblem:
                 groups.setdefault(int(di), []).append(i)
         inv_blocks = {}
         for di, members in groups.items():
-            blocks = np.stack([Sigma[np.ix_(self.idx[i], self.idx[i])] for i in members])
+            blocks = np.stack([self.Sigma[np.ix_(self.idx[i], self.idx[i])] for i in members])
             inv_blocks[di] = (np.array(members), np.linalg.inv(blocks), np.stack([S_inv[i] for i in members]))
 
         def apply(x: FloatArray) -> FloatArray:
@@ -293,55 +234,6 @@ class GammaProblem:
                 X = M[:, cols].transpose(1, 0, 2)  # (g, dz, di)
                 Y = Sinv @ X @ Sig_inv
                 out[:, cols] = Y.transpose(1, 0, 2)
-            return out.ravel()
-
-        return spla.LinearOperator((self.size, self.size), matvec=apply, dtype=float)
-
-    def _preconditioner_factored(self, fac: FactoredCovariance) -> spla.LinearOperator:
-        """Block Jacobi S_ii^-1 X Sigma_ii^-1 with Sigma_ii^-1 by the Woodbury identity (module docstring)."""
-        dz = self.dz
-        lam, V = np.linalg.eigh(fac.Pi)
-        keep = lam > max(float(lam[-1]), 0.0) * 1e-13 if lam.size else np.zeros(0, bool)
-        L = np.ascontiguousarray(V[:, keep] * np.sqrt(lam[keep]))  # Pi ~ L L' (m, r)
-        blocks: list[tuple | None] = []
-        for i, ix in enumerate(self.idx):
-            if ix.size == 0:
-                blocks.append(None)
-                continue
-            S_inv = np.linalg.inv(self.S[i * dz : (i + 1) * dz, i * dz : (i + 1) * dz])
-            Ci = fac.C[ix]  # (d_i, m)
-            Rii = sp.csr_matrix(fac.R[ix][:, ix])
-            diag = Rii.diagonal()
-            if Rii.nnz == np.count_nonzero(Rii.diagonal()) == ix.size and sp.triu(Rii, 1).nnz == 0 and np.all(diag > 0):
-                r_inv: FloatArray | None = 1.0 / diag
-                lu = None
-                W = np.asarray((Ci.T @ sp.diags(r_inv) @ Ci) @ L)  # C_i' R_ii^-1 C_i L
-            else:
-                try:
-                    lu = spla.splu(sp.csc_matrix(Rii))
-                except RuntimeError:
-                    raise NotPositiveDefiniteError("Gamma preconditioner: an agent's block of R is singular") from None
-                r_inv = None
-                W = np.asarray(Ci.T @ lu.solve(np.asarray(Ci @ L)))
-            # M_i = I + K, K = L' C_i' R_ii^-1 C_i L >= 0; by eigenvalues (K's may reach 1e17: no Cholesky of M_i)
-            mu, E = np.linalg.eigh(0.5 * (L.T @ W + W.T @ L))
-            EL = L @ E  # (m, r): M_i^-1 = E diag(1 / (1 + mu)) E'
-            blocks.append((S_inv, Ci, sp.csr_matrix(Ci.T), r_inv, lu, EL, 1.0 / (1.0 + np.maximum(mu, 0.0))))
-
-        def apply(x: FloatArray) -> FloatArray:
-            M = np.asarray(x).reshape(dz, self.D_loc)
-            out = np.empty_like(M)
-            for i, blk in enumerate(blocks):
-                if blk is None:
-                    continue
-                S_inv, Ci, CiT, r_inv, lu, EL, w = blk
-                sl = slice(self.offsets[i], self.offsets[i + 1])
-                Xt = M[:, sl].T  # (d_i, dz)
-                Zt = Xt * r_inv[:, None] if r_inv is not None else lu.solve(np.ascontiguousarray(Xt))
-                T = w[:, None] * (EL.T @ np.asarray(CiT @ Zt))  # (r, dz)
-                U = np.asarray(Ci @ (EL @ T))
-                Yt = Zt - (U * r_inv[:, None] if r_inv is not None else lu.solve(U))
-                out[:, sl] = S_inv @ Yt.T
             return out.ravel()
 
         return spla.LinearOperator((self.size, self.size), matvec=apply, dtype=float)
@@ -368,3 +260,278 @@ class GammaProblem:
         """<F, Gamma F>."""
         x = self.flatten(F)
         return float(x @ self.apply_flat(x)) if x.size else 0.0
+
+
+# ---------------------------------------------------------------------------
+# Gamma F = eta in the agents' Kalman-innovation coordinates
+# ---------------------------------------------------------------------------
+@dataclass(eq=False)
+class WindowModel:
+    """The window u = 0..w-1: eps(u+1) = A[u] eps(u) + w(u), y~(u) = C[u] eps(u) + v(u), eps(0) ~ N(0, P0).
+
+    w(u) ~ N(0, Q[u]) and v(u) ~ N(0, R[u]) independent; the pool of :class:`GammaProblem` is
+    vec(y~(0), ..., y~(w-1)), position u d_y + r for row r of step u.
+    """
+
+    A: list[FloatArray]
+    Q: list[FloatArray]
+    C: list[FloatArray]
+    R: list[FloatArray]
+    P0: FloatArray
+
+    @property
+    def steps(self) -> int:
+        return len(self.C)
+
+
+# a noise vector, or rows of them: (eps(0): (k, dx), w: (w-1, k, dx), v: (w, k, dy))
+_Noise = tuple[FloatArray, FloatArray, FloatArray]
+
+
+@dataclass(eq=False)
+class _LocalFilter:
+    order: np.ndarray  # idx positions in time order
+    # per step u: (rows, position in e^, count, H, N^-1/2 (lower-triangular inverse), K, I - K H)
+    steps: list[tuple[np.ndarray, int, int, FloatArray, FloatArray, FloatArray, FloatArray]]
+
+
+@dataclass(eq=False)
+class InnovationsProblem:
+    """MTMSE gains of one window step by CG in the agents' innovation coordinates (module docstring).
+
+    Parameters
+    ----------
+    S : (n d_z, n d_z) array
+    L : (n d_z, d_x) array
+    model : WindowModel
+    idx : list of int arrays
+        Agent i's local measurements as positions in the window pool (as for :class:`GammaProblem`).
+    dz : int
+    """
+
+    S: FloatArray
+    L: FloatArray
+    model: WindowModel
+    idx: list[np.ndarray]
+    dz: int
+    iterations: int = field(default=0, init=False)
+    method_used: str = field(default="cg", init=False)
+
+    def __post_init__(self) -> None:
+        self.n = len(self.idx)
+        m = self.model
+        self.w, self.dx, self.dy = m.steps, m.P0.shape[0], m.C[0].shape[0]
+        self.d = np.array([len(ix) for ix in self.idx], dtype=int)
+        self.offsets = np.concatenate([[0], np.cumsum(self.d)]).astype(int)
+        self.D_loc = int(self.offsets[-1])
+        self.filters = [self._filter(np.asarray(ix, dtype=int)) for ix in self.idx]
+
+    @property
+    def size(self) -> int:
+        return self.dz * self.D_loc
+
+    def _filter(self, ix: np.ndarray) -> _LocalFilter:
+        m, dx = self.model, self.dx
+        u_of, r_of = ix // self.dy, ix % self.dy
+        order = np.lexsort((r_of, u_of))
+        u_sorted, r_sorted = u_of[order], r_of[order]
+        steps = []
+        P, pos = np.asarray(m.P0, dtype=float), 0
+        I = np.eye(dx)
+        for u in range(self.w):
+            rows = r_sorted[u_sorted == u]
+            k = rows.size
+            if k:
+                H = m.C[u][rows]
+                Rr = m.R[u][np.ix_(rows, rows)]
+                N = H @ P @ H.T + Rr
+                try:
+                    Lc = np.linalg.cholesky(0.5 * (N + N.T))
+                except np.linalg.LinAlgError:
+                    raise NotPositiveDefiniteError("Gamma: an agent's innovation covariance is not positive definite; check R_i > 0") from None
+                N_isqrt = sla.solve_triangular(Lc, np.eye(k), lower=True, check_finite=False)  # N = Lc Lc', e^ = Lc^-1 e
+                K = (N_isqrt.T @ (N_isqrt @ (H @ P))).T  # P H' N^-1
+                G = I - K @ H
+                P = G @ P @ G.T + K @ Rr @ K.T  # Joseph form
+            else:
+                H = N_isqrt = np.zeros((0, 0))
+                K = np.zeros((dx, 0))
+                G = I
+            steps.append((rows, pos, k, H, N_isqrt, K, G))
+            pos += k
+            if u < self.w - 1:
+                P = m.A[u] @ P @ m.A[u].T + m.Q[u]
+                P = 0.5 * (P + P.T)
+        return _LocalFilter(order, steps)
+
+    # --- the filters as maps between noise coordinates and innovations ----------
+    def _noise_zeros(self, k: int) -> _Noise:
+        return np.zeros((k, self.dx)), np.zeros((max(self.w - 1, 0), k, self.dx)), np.zeros((self.w, k, self.dy))
+
+    def _forward(self, i: int, psi: _Noise) -> FloatArray:
+        """e^_i (rows, d_i in time order) for the noise realizations psi (rows)."""
+        e0, wn, vn = psi
+        out = np.empty((e0.shape[0], int(self.d[i])))
+        xi = e0  # eps(u) - x^_i(u|u-1)
+        for u, (rows, pos, k, H, N_isqrt, K, G) in enumerate(self.filters[i].steps):
+            if k:
+                vr = vn[u][:, rows]
+                out[:, pos : pos + k] = (xi @ H.T + vr) @ N_isqrt.T
+                xi = xi @ G.T - vr @ K.T
+            if u < self.w - 1:
+                xi = xi @ self.model.A[u].T + wn[u]
+        return out
+
+    def _adjoint(self, i: int, phi: FloatArray | None, terminal: FloatArray, acc: _Noise) -> None:
+        """Add to ``acc`` the noise sensitivities of phi e^_i + terminal (eps(w-1) - x^_i(w-1|w-1)) (rows)."""
+        e0, wn, vn = acc
+        lam = terminal
+        for u in range(self.w - 1, -1, -1):
+            rows, pos, k, H, N_isqrt, K, G = self.filters[i].steps[u]
+            if u < self.w - 1:
+                wn[u] += lam
+                lp = lam @ self.model.A[u]
+            else:
+                lp = terminal
+            if k:
+                if phi is not None:
+                    g = phi[:, pos : pos + k] @ N_isqrt
+                    vn[u][:, rows] += g - lp @ K
+                    lam = g @ H + lp @ G
+                else:
+                    vn[u][:, rows] -= lp @ K
+                    lam = lp @ G
+            else:
+                lam = lp
+        e0 += lam
+
+    def _data_adjoint(self, i: int, phi: FloatArray, terminal: FloatArray) -> FloatArray:
+        """Coefficients on agent i's local data (time order) of phi e^_i + terminal x^_i(w-1|w-1)."""
+        out = np.empty((phi.shape[0], int(self.d[i])))
+        mu = terminal
+        for u in range(self.w - 1, -1, -1):
+            rows, pos, k, H, N_isqrt, K, G = self.filters[i].steps[u]
+            mp = terminal if u == self.w - 1 else mu @ self.model.A[u]
+            if k:
+                ge = phi[:, pos : pos + k] @ N_isqrt + mp @ K
+                out[:, pos : pos + k] = ge
+                mu = mp - ge @ H
+            else:
+                mu = mp
+        return out
+
+    def _sensitivities(self, Fhat: list[FloatArray] | None, terminal: bool) -> _Noise:
+        """Rows (j, a): noise sensitivities of Fhat_j[a] e^_j (+ L_j[a] (eps(k) - x^_j(k|k)) when ``terminal``)."""
+        dz = self.dz
+        acc = self._noise_zeros(self.n * dz)
+        for j in range(self.n):
+            sl = slice(j * dz, (j + 1) * dz)
+            term = self.L[sl] if terminal else np.zeros((dz, self.dx))
+            self._adjoint(j, Fhat[j] if Fhat is not None else None, term, (acc[0][sl], acc[1][:, sl], acc[2][:, sl]))
+        return acc
+
+    def _weight(self, psi: _Noise, mix: bool = True) -> _Noise:
+        """S psi Lambda, Lambda = blockdiag(P0, Q, R): the noise covariance."""
+        e0, wn, vn = psi
+        m, S = self.model, self.S
+        if mix:
+            e0, wn, vn = S @ e0, np.matmul(S, wn), np.matmul(S, vn)
+        wq = np.stack([wn[u] @ m.Q[u] for u in range(self.w - 1)]) if self.w > 1 else wn
+        return e0 @ m.P0, wq, np.stack([vn[u] @ m.R[u] for u in range(self.w)])
+
+    def _to_agents(self, psi: _Noise) -> list[FloatArray]:
+        dz = self.dz
+        return [
+            self._forward(i, (psi[0][i * dz : (i + 1) * dz], psi[1][:, i * dz : (i + 1) * dz], psi[2][:, i * dz : (i + 1) * dz]))
+            for i in range(self.n)
+        ]
+
+    def flatten(self, F: list[FloatArray]) -> FloatArray:
+        return np.concatenate([np.asarray(f).reshape(self.dz, -1) for f in F], axis=1).ravel() if self.D_loc else np.zeros(0)
+
+    def unflatten(self, x: FloatArray) -> list[FloatArray]:
+        M = np.asarray(x).reshape(self.dz, self.D_loc)
+        return [M[:, self.offsets[i] : self.offsets[i + 1]] for i in range(self.n)]
+
+    def apply_flat(self, x: FloatArray) -> FloatArray:
+        """Gamma^ x in innovation coordinates."""
+        return self.flatten(self._to_agents(self._weight(self._sensitivities(self.unflatten(x), terminal=False))))
+
+    def _noise_cost(self, X: _Noise) -> float:
+        """sum Tr(S X Lambda X') over the noise blocks: non-negative terms, no cancellation."""
+        XL = self._weight(X, mix=False)
+        S = self.S
+        J = float(np.sum(S * (X[0] @ XL[0].T)))
+        for a, b in zip(X[1], XL[1]):
+            J += float(np.sum(S * (a @ b.T)))
+        for a, b in zip(X[2], XL[2]):
+            J += float(np.sum(S * (a @ b.T)))
+        return J
+
+    # --- solving -------------------------------------------------------------
+    def solve(self, *, rtol: float = 1e-12, max_iter: int | None = None) -> tuple[list[FloatArray], float]:
+        """Gains F_i on the local data (idx order, (d_z, d_i) each) and their team cost."""
+        dz, n = self.dz, self.n
+        Xi = self._sensitivities(None, terminal=True)  # L_j (eps(k) - x^_j(k|k))
+        b = self.flatten(self._to_agents(self._weight(Xi)))
+        x = np.zeros_like(b)
+        if b.size and np.any(b):
+            S_inv = [np.linalg.inv(self.S[i * dz : (i + 1) * dz, i * dz : (i + 1) * dz]) for i in range(n)]
+
+            def prec(v: FloatArray) -> FloatArray:
+                return self.flatten([S_inv[i] @ M for i, M in enumerate(self.unflatten(v))])
+
+            N = self.size
+            count = [0]
+
+            def cb(_: FloatArray) -> None:
+                count[0] += 1
+
+            A = spla.LinearOperator((N, N), matvec=self.apply_flat, dtype=float)
+            M = spla.LinearOperator((N, N), matvec=prec, dtype=float)
+            maxiter = max_iter if max_iter is not None else max(1000, 10 * int(np.sqrt(N)))
+            x, info = spla.cg(A, b, rtol=rtol, atol=0.0, maxiter=maxiter, M=M, callback=cb)
+            self.iterations = count[0]
+            if info != 0:
+                res = float(np.linalg.norm(self.apply_flat(x) - b)) / max(float(np.linalg.norm(b)), 1e-300)
+                raise ConvergenceError(
+                    f"Gamma F = eta (innovation coordinates): conjugate gradients stopped after {count[0]} iterations with relative "
+                    f"residual {res:.3g} (asked {rtol:g}); raise max_iter or use method='dense' if Gamma fits in memory"
+                )
+        Fhat = self.unflatten(x)
+        Psi = self._sensitivities(Fhat, terminal=False)
+        J = self._noise_cost((Xi[0] - Psi[0], Xi[1] - Psi[1], Xi[2] - Psi[2]))
+        F = []
+        for i, f in enumerate(Fhat):
+            coef = self._data_adjoint(i, f, self.L[i * dz : (i + 1) * dz])
+            Fi = np.empty_like(coef)
+            Fi[:, self.filters[i].order] = coef
+            F.append(Fi)
+        return F, J
+
+    def gains_cost(self, F: list[FloatArray]) -> float:
+        """Team cost of z_i = L_i x^com + F_i y~_i for any gains on the local data (idx order), without eq. (35)'s cancellation.
+
+        The error L eps(k) - F y~ has the noise sensitivities X_j = sum_{u >= j} Y_u Phi(u, j) (Y: L at the last step minus
+        F C), computed backwards Z_j = Y_j + Z_{j+1} A[j], each as small as the error itself.
+        """
+        dz, m = self.dz, self.model
+        nz = self.n * dz
+        Y = np.zeros((self.w, nz, self.dx))
+        V = np.zeros((self.w, nz, self.dy))
+        for i, ix in enumerate(self.idx):
+            ix = np.asarray(ix, dtype=int)
+            u_of, r_of = ix // self.dy, ix % self.dy
+            Fi = np.asarray(F[i]).reshape(dz, -1)
+            for u in np.unique(u_of):
+                sel = u_of == u
+                Y[u, i * dz : (i + 1) * dz] -= Fi[:, sel] @ m.C[u][r_of[sel]]
+                V[u, i * dz : (i + 1) * dz][:, r_of[sel]] -= Fi[:, sel]
+        Y[self.w - 1] += self.L
+        Z = Y[self.w - 1]
+        X = np.empty_like(Y)
+        X[self.w - 1] = Z
+        for j in range(self.w - 2, -1, -1):
+            Z = Y[j] + Z @ m.A[j]
+            X[j] = Z
+        return self._noise_cost((X[0], X[1:], V))

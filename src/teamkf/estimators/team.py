@@ -50,7 +50,7 @@ from ..models import LinearGaussianSystem, TeamCost
 from ..network.information import InformationStructure
 from .base import Design, Packet
 from .checks import check_model
-from .gamma import DENSE_MAX_BYTES, FactoredCovariance, GammaProblem
+from .gamma import DENSE_MAX_BYTES, GammaProblem, InnovationsProblem, WindowModel, choose_solver
 from .kalman import kalman_covariances, predictor_errors, steady_state
 from .registry import Family, Option, _register_builtin
 
@@ -62,7 +62,6 @@ __all__ = [
     "design_mtmse",
     "design_mmse",
     "window_covariances",
-    "window_factors",
     "gains_team_cost",
 ]
 
@@ -209,66 +208,6 @@ def window_covariances(system: LinearGaussianSystem, k: int, anchor: int, P_anch
     return 0.5 * (Sigma_W + Sigma_W.T), Theta_W, Pi
 
 
-def window_factors(system: LinearGaussianSystem, k: int, anchor: int, P_anchor: FloatArray) -> tuple[FactoredCovariance, FloatArray, FloatArray]:
-    """:func:`window_covariances` with Sigma_W in factored form, never formed.
-
-    Sigma_W = C_W Pi_W C_W' + R_W with C_W = blockdiag(C(s)), R_W = blockdiag(R(s))
-    (sparse) and Pi_W = cov(eps(anchor), ..., eps(k)) (w d_x square; the block
-    (s, s') is Phi(s, s') Pi(s') for s >= s'). Theta_W and P0 as there.
-    """
-    import scipy.sparse as sp
-
-    w, dx = k - anchor + 1, system.dx
-    Pi_W = np.zeros((w * dx, w * dx))
-    Theta_W = np.zeros((dx, w * system.dy_total))
-    Pi = np.array(P_anchor, dtype=float)
-    Cs = [system.C_stack(s) for s in range(anchor, k + 1)]
-    for u in range(w):
-        s = anchor + u
-        G = Pi  # cov(eps(s'), eps(s)) for s' = s, then later steps
-        blk = slice(u * dx, (u + 1) * dx)
-        Pi_W[blk, blk] = Pi
-        for u2 in range(u + 1, w):
-            G = system.A_at(anchor + u2 - 1) @ G
-            blk2 = slice(u2 * dx, (u2 + 1) * dx)
-            Pi_W[blk2, blk] = G
-            Pi_W[blk, blk2] = G.T
-        Theta_W[:, u * system.dy_total : (u + 1) * system.dy_total] = G @ Cs[u].T  # Phi(k, s) Pi(s) C(s)'
-        if u < w - 1:
-            A = system.A_at(s)
-            Pi = A @ Pi @ A.T + system.Q_at(s)
-            Pi = 0.5 * (Pi + Pi.T)
-    C_W = sp.block_diag([sp.csr_matrix(C) for C in Cs], format="csr")
-    R_W = sp.block_diag([sp.csr_matrix(system.R_stack(s)) for s in range(anchor, k + 1)], format="csr")
-    return FactoredCovariance(C_W, Pi_W, R_W), Theta_W, Pi
-
-
-def window_gains_cost(
-    system: LinearGaussianSystem, k: int, anchor: int, P_anchor: FloatArray, S: FloatArray, L: FloatArray, G: Any, fac: FactoredCovariance
-) -> float:
-    """Team cost E||L x(k) - z(k)||_S^2 of z_i = L_i x^com + F_i y~_i, summed over the independent noises.
-
-    ``G`` is the (n d_z, D) scatter of the gains (:meth:`GammaProblem.scatter`). With
-    nu = (eps(anchor), w(anchor), ..., w(k-1)) and eps_W = T nu, the error is X nu - G v_W with
-    X = (L E_k - G C_W) T; X's column blocks follow Z_j = Y_j + Z_{j+1} A(anchor + j) backwards
-    from Y = L E_k - G C_W, so no intermediate is larger than the error itself. The cost is then
-    sum_j Tr(S Z_j Lambda_j Z_j') + Tr(S G R_W G') with Lambda = blockdiag(P(anchor), Q, ..., Q):
-    a sum of non-negative terms, accurate where eq. (35) subtracts two numbers of size
-    Tr(L'SL P0) (1e17 for the 20-vehicle platoon, whose cost is 3e2).
-    """
-    w, dx = k - anchor + 1, system.dx
-    Y = -np.asarray((G @ fac.C).todense())
-    Y[:, (w - 1) * dx :] += L
-    J = float(np.sum(S * np.asarray((G @ fac.R @ G.T).todense())))
-    Z = Y[:, (w - 1) * dx :]
-    for j in range(w - 1, -1, -1):
-        if j < w - 1:
-            Z = Y[:, j * dx : (j + 1) * dx] + Z @ system.A_at(anchor + j)
-        Lam = P_anchor if j == 0 else system.Q_at(anchor + j - 1)
-        J += float(np.sum(S * (Z @ Lam @ Z.T)))
-    return J
-
-
 def _local_index(system: LinearGaussianSystem, structure: InformationStructure, i: int, k: int, anchor: int) -> np.ndarray:
     """Positions of agent i's local measurements (in local_pairs order) in the window y(anchor:k)."""
     dy_tot, off = system.dy_total, system.offsets
@@ -330,6 +269,23 @@ def _solve_step(
         if want == "mmse":
             F = Fm
     return F, J, J_mmse
+
+
+def _solve_step_innovations(
+    system: LinearGaussianSystem, cost: TeamCost, k: int, anchor: int, P_anchor: FloatArray, idx: list[np.ndarray], dz: int
+) -> tuple[list[FloatArray], float, dict[str, Any]]:
+    """MTMSE gains and cost of one step by CG in the agents' innovation coordinates (:class:`InnovationsProblem`)."""
+    w = k - anchor + 1
+    model = WindowModel(
+        A=[system.A_at(anchor + u) for u in range(w - 1)],
+        Q=[system.Q_at(anchor + u) for u in range(w - 1)],
+        C=[system.C_stack(anchor + u) for u in range(w)],
+        R=[system.R_stack(anchor + u) for u in range(w)],
+        P0=np.asarray(P_anchor, dtype=float),
+    )
+    prob = InnovationsProblem(cost.S_at(k), cost.L_at(k), model, idx, dz)
+    F, J = prob.solve()
+    return F, J, {"method": "cg", "size": prob.size, "iterations": prob.iterations, "coordinates": "innovations"}
 
 
 # ---------------------------------------------------------------------------
@@ -575,18 +531,15 @@ def _design(
 
     def step(k: int, a: int, P_a: FloatArray, record: bool = True) -> tuple[tuple, float]:
         idx = [_local_index(system, st, i, k, a) for i in range(n)]
-        Sigma_W: Any
-        Sigma_W, Theta_W, P0 = window_factors(system, k, a, P_a)
-        if want != "mtmse" or not GammaProblem(cost.S_at(k), Sigma_W, idx, dz).prefers_factored(method, dense_max_bytes):
-            Sigma_W, Theta_W, P0 = window_covariances(system, k, a, P_a)  # dense Sigma_W: the dense solver or the MMSE gains
         ginfo: dict[str, Any] = {}
-        F, J, Jm = _solve_step(
-            cost.S_at(k), cost.L_at(k), Sigma_W, Theta_W, P0, idx, dz, method=method, dense_max_bytes=dense_max_bytes, want=want, gamma_info=ginfo
-        )
-        if isinstance(Sigma_W, FactoredCovariance):  # the cost summed over the noises, not eq. (35)'s difference
-            G = GammaProblem(cost.S_at(k), Sigma_W, idx, dz).scatter(list(F))
-            ginfo.update(factored=True, cost_eq35=J)
-            J = window_gains_cost(system, k, a, P_a, cost.S_at(k), cost.L_at(k), G, Sigma_W)
+        if want == "mtmse" and choose_solver(cost.S_at(k), idx, dz, (k - a + 1) * system.dy_total, method, dense_max_bytes) == "cg":
+            F, J, ginfo = _solve_step_innovations(system, cost, k, a, P_a, idx, dz)  # no window-sized matrix
+            Jm = float("nan")
+        else:
+            Sigma_W, Theta_W, P0 = window_covariances(system, k, a, P_a)
+            F, J, Jm = _solve_step(
+                cost.S_at(k), cost.L_at(k), Sigma_W, Theta_W, P0, idx, dz, method=method, dense_max_bytes=dense_max_bytes, want=want, gamma_info=ginfo
+            )
         if ginfo and record:
             info["gamma"] = ginfo  # the last (largest) step
         return tuple(F), (J if kind == "mtmse" else Jm)
