@@ -88,14 +88,17 @@ def case_platoon_scale(n: int, method: str) -> dict:
     from teamkf import CommGraph, LinearGaussianSystem, TeamCost, design_mtmse
 
     system, cost, graph = LinearGaussianSystem.platoon(n), TeamCost.platoon(n, 100.0), CommGraph.line(n)
-    t0 = time.perf_counter()
+    load0 = os.getloadavg()[0]
+    t0, c0 = time.perf_counter(), time.process_time()
     d = design_mtmse(system, cost, graph, method=method)  # type: ignore[arg-type]
-    t1 = time.perf_counter()
+    t1, c1 = time.perf_counter(), time.process_time()
     return {
         "case": "platoon-scale",
         "n": n,
         "method": method,
         "design_s": t1 - t0,
+        "design_cpu_s": c1 - c0,
+        "load_1min": [load0, os.getloadavg()[0]],
         "average_cost": d.average_cost,
         "gamma": d.info["gamma"],
         "window": (n - 1) * n * n,
@@ -195,7 +198,11 @@ def main() -> None:
                 f"{r['gamma']['method'] + ' ' + str(r['gamma']['size']):>16} {r['peak_mb']:>8.0f}"
             )
     if "platoon-scale" in todo:
-        print(f"{'n':>4} {'window':>7} {'Gamma size':>10} {'method':>6} {'iters':>6} {'design[s]':>10} {'peak MB':>8}")
+        print(
+            f"{'n':>4} {'window':>7} {'Gamma size':>10} {'method':>6} {'iters':>6} {'design[s]':>10} {'CPU[s]':>7} {'peak MB':>8} "
+            f"{'average cost':>20} {'load':>11}",
+            flush=True,
+        )
         for n in a.platoon_sizes:
             r = _run(["platoon-scale", str(n), "auto"], a.timeout)
             rows.append(r)
@@ -203,7 +210,11 @@ def main() -> None:
                 print(n, r["error"])
                 continue
             g = r["gamma"]
-            print(f"{n:>4} {r['window']:>7} {g['size']:>10} {g['method']:>6} {g['iterations']:>6} {r['design_s']:>10.2f} {r['peak_mb']:>8.0f}")
+            print(
+                f"{n:>4} {r['window']:>7} {g['size']:>10} {g['method']:>6} {g['iterations']:>6} {r['design_s']:>10.2f} {r['design_cpu_s']:>7.2f} "
+                f"{r['peak_mb']:>8.0f} {r['average_cost']:>20.15g} {r['load_1min'][0]:>5.1f}-{r['load_1min'][1]:<5.1f}",
+                flush=True,
+            )
     if "gamma" in todo:
         print(f"{'instance':>12} {'size':>6} {'dense[s]':>9} {'cg[s]':>8} {'iters':>6} {'auto':>6} {'rel diff':>9}")
         for kind, n in [("uav", 100), ("uav", 300), ("uav", 1000), ("platoon", 6), ("platoon", 8), ("platoon", 10)]:

@@ -36,11 +36,12 @@ so Sigma_W, eta and Tr(L'SL P_0) grow like ||A^(c-1)||^2 (1e15 for the
 R-sized part of Sigma_W, the residual of Gamma F = eta and the cost of eq.
 (35) are all lost in rounding. Each agent i instead runs its own Kalman
 filter over its local window data (prior eps(anchor) ~ N(0, P(anchor))) and
-uses its normalized innovations e^_i (cov(e^_i) = I) and the estimate z_i =
-L_i (x^com + x^_i(k|k)) + F^_i e^_i. Every quantity is then of the size of
-the filter errors: Gamma^_ij = S_ij (x) cov(e^_i, e^_j), eta^_i = sum_j S_ij
-cov(L_j (eps(k) - x^_j(k|k)), e^_i), the block-Jacobi preconditioner is
-S_ii^-1 (x) I, and the operator is applied by one adjoint (backward) and one
+uses its innovations e_i (cov(e_i(u)) = N_i(u), block diagonal in time) and
+the estimate z_i = L_i (x^com + x^_i(k|k)) + F^_i e_i. Every quantity is then
+of the size of the filter errors: Gamma^_ij = S_ij (x) cov(e_i, e_j), eta^_i
+= sum_j S_ij cov(L_j (eps(k) - x^_j(k|k)), e_i), the block-Jacobi preconditioner
+S_ii^-1 (x) blockdiag_u N_i(u)^-1 is exact and cheap (Woodbury with the d_x x d_x
+filter covariance when R is diagonal), and the operator is applied by one adjoint (backward) and one
 forward pass of every agent's filter over the noise coordinates
 (eps(anchor), w, v) -- O(n w (d_x^2 + d_x d_y)) per application, no
 window-sized matrix at all. The cost is summed over the independent noises
@@ -289,10 +290,47 @@ _Noise = tuple[FloatArray, FloatArray, FloatArray]
 
 
 @dataclass(eq=False)
+class _InnovationCov:
+    """N^-1 for one step's innovation covariance N = H P H' + R_rows.
+
+    R_rows diagonal: Woodbury, N^-1 = R^-1 - B M^-1 B' with B = R^-1 H P^1/2 (k x d_x) and
+    M = I + P^1/2' H' R^-1 H P^1/2 (d_x x d_x, eigenvalues >= 1): O(k d_x) per row. Otherwise N^-1 dense.
+    """
+
+    r_inv: FloatArray | None
+    B: FloatArray | None
+    M_inv: FloatArray | None
+    N_inv: FloatArray | None
+
+    def right(self, X: FloatArray) -> FloatArray:
+        """X N^-1 (N symmetric) for rows X (., k)."""
+        if self.N_inv is not None:
+            return X @ self.N_inv
+        assert self.r_inv is not None and self.B is not None and self.M_inv is not None
+        return X * self.r_inv - ((X @ self.B) @ self.M_inv) @ self.B.T
+
+    @classmethod
+    def of(cls, H: FloatArray, P: FloatArray, Rr: FloatArray) -> "_InnovationCov":
+        rd = np.diag(Rr).copy()
+        if np.all(rd > 0) and not np.any(Rr - np.diag(rd)):
+            lam, V = np.linalg.eigh(P)
+            HPc = H @ (V * np.sqrt(np.clip(lam, 0.0, None)))  # H P^1/2
+            B = HPc / rd[:, None]
+            M = np.eye(P.shape[0]) + HPc.T @ B
+            return cls(1.0 / rd, B, np.linalg.inv(0.5 * (M + M.T)), None)
+        N = H @ P @ H.T + Rr
+        try:
+            cf = sla.cho_factor(0.5 * (N + N.T), lower=True, check_finite=False)
+        except np.linalg.LinAlgError:
+            raise NotPositiveDefiniteError("Gamma: an agent's innovation covariance is not positive definite; check R_i > 0") from None
+        return cls(None, None, None, sla.cho_solve(cf, np.eye(N.shape[0]), check_finite=False))
+
+
+@dataclass(eq=False)
 class _LocalFilter:
     order: np.ndarray  # idx positions in time order
-    # per step u: (rows, position in e^, count, H, N^-1/2 (lower-triangular inverse), K, I - K H)
-    steps: list[tuple[np.ndarray, int, int, FloatArray, FloatArray, FloatArray, FloatArray]]
+    # per step u: (rows, position in e, count, H, N^-1, K, I - K H)
+    steps: list[tuple[np.ndarray, int, int, FloatArray, _InnovationCov | None, FloatArray, FloatArray]]
 
 
 @dataclass(eq=False)
@@ -325,6 +363,7 @@ class InnovationsProblem:
         self.offsets = np.concatenate([[0], np.cumsum(self.d)]).astype(int)
         self.D_loc = int(self.offsets[-1])
         self.filters = [self._filter(np.asarray(ix, dtype=int)) for ix in self.idx]
+        self._R_sp = [sp.csr_matrix(R) for R in m.R]  # block diagonal (per agent) in the designs
 
     @property
     def size(self) -> int:
@@ -344,20 +383,13 @@ class InnovationsProblem:
             if k:
                 H = m.C[u][rows]
                 Rr = m.R[u][np.ix_(rows, rows)]
-                N = H @ P @ H.T + Rr
-                try:
-                    Lc = np.linalg.cholesky(0.5 * (N + N.T))
-                except np.linalg.LinAlgError:
-                    raise NotPositiveDefiniteError("Gamma: an agent's innovation covariance is not positive definite; check R_i > 0") from None
-                N_isqrt = sla.solve_triangular(Lc, np.eye(k), lower=True, check_finite=False)  # N = Lc Lc', e^ = Lc^-1 e
-                K = (N_isqrt.T @ (N_isqrt @ (H @ P))).T  # P H' N^-1
+                Ninv: _InnovationCov | None = _InnovationCov.of(H, P, Rr)
+                K = Ninv.right(P @ H.T)  # type: ignore[union-attr]  # P H' N^-1
                 G = I - K @ H
                 P = G @ P @ G.T + K @ Rr @ K.T  # Joseph form
             else:
-                H = N_isqrt = np.zeros((0, 0))
-                K = np.zeros((dx, 0))
-                G = I
-            steps.append((rows, pos, k, H, N_isqrt, K, G))
+                H, Ninv, K, G = np.zeros((0, dx)), None, np.zeros((dx, 0)), I
+            steps.append((rows, pos, k, H, Ninv, K, G))
             pos += k
             if u < self.w - 1:
                 P = m.A[u] @ P @ m.A[u].T + m.Q[u]
@@ -369,25 +401,25 @@ class InnovationsProblem:
         return np.zeros((k, self.dx)), np.zeros((max(self.w - 1, 0), k, self.dx)), np.zeros((self.w, k, self.dy))
 
     def _forward(self, i: int, psi: _Noise) -> FloatArray:
-        """e^_i (rows, d_i in time order) for the noise realizations psi (rows)."""
+        """e_i (rows, d_i in time order) for the noise realizations psi (rows)."""
         e0, wn, vn = psi
         out = np.empty((e0.shape[0], int(self.d[i])))
         xi = e0  # eps(u) - x^_i(u|u-1)
-        for u, (rows, pos, k, H, N_isqrt, K, G) in enumerate(self.filters[i].steps):
+        for u, (rows, pos, k, H, _, K, G) in enumerate(self.filters[i].steps):
             if k:
                 vr = vn[u][:, rows]
-                out[:, pos : pos + k] = (xi @ H.T + vr) @ N_isqrt.T
+                out[:, pos : pos + k] = xi @ H.T + vr
                 xi = xi @ G.T - vr @ K.T
             if u < self.w - 1:
                 xi = xi @ self.model.A[u].T + wn[u]
         return out
 
     def _adjoint(self, i: int, phi: FloatArray | None, terminal: FloatArray, acc: _Noise) -> None:
-        """Add to ``acc`` the noise sensitivities of phi e^_i + terminal (eps(w-1) - x^_i(w-1|w-1)) (rows)."""
+        """Add to ``acc`` the noise sensitivities of phi e_i + terminal (eps(w-1) - x^_i(w-1|w-1)) (rows)."""
         e0, wn, vn = acc
         lam = terminal
         for u in range(self.w - 1, -1, -1):
-            rows, pos, k, H, N_isqrt, K, G = self.filters[i].steps[u]
+            rows, pos, k, H, _, K, G = self.filters[i].steps[u]
             if u < self.w - 1:
                 wn[u] += lam
                 lp = lam @ self.model.A[u]
@@ -395,7 +427,7 @@ class InnovationsProblem:
                 lp = terminal
             if k:
                 if phi is not None:
-                    g = phi[:, pos : pos + k] @ N_isqrt
+                    g = phi[:, pos : pos + k]
                     vn[u][:, rows] += g - lp @ K
                     lam = g @ H + lp @ G
                 else:
@@ -406,14 +438,14 @@ class InnovationsProblem:
         e0 += lam
 
     def _data_adjoint(self, i: int, phi: FloatArray, terminal: FloatArray) -> FloatArray:
-        """Coefficients on agent i's local data (time order) of phi e^_i + terminal x^_i(w-1|w-1)."""
+        """Coefficients on agent i's local data (time order) of phi e_i + terminal x^_i(w-1|w-1)."""
         out = np.empty((phi.shape[0], int(self.d[i])))
         mu = terminal
         for u in range(self.w - 1, -1, -1):
-            rows, pos, k, H, N_isqrt, K, G = self.filters[i].steps[u]
+            rows, pos, k, H, _, K, G = self.filters[i].steps[u]
             mp = terminal if u == self.w - 1 else mu @ self.model.A[u]
             if k:
-                ge = phi[:, pos : pos + k] @ N_isqrt + mp @ K
+                ge = phi[:, pos : pos + k] + mp @ K
                 out[:, pos : pos + k] = ge
                 mu = mp - ge @ H
             else:
@@ -421,7 +453,7 @@ class InnovationsProblem:
         return out
 
     def _sensitivities(self, Fhat: list[FloatArray] | None, terminal: bool) -> _Noise:
-        """Rows (j, a): noise sensitivities of Fhat_j[a] e^_j (+ L_j[a] (eps(k) - x^_j(k|k)) when ``terminal``)."""
+        """Rows (j, a): noise sensitivities of Fhat_j[a] e_j (+ L_j[a] (eps(k) - x^_j(k|k)) when ``terminal``)."""
         dz = self.dz
         acc = self._noise_zeros(self.n * dz)
         for j in range(self.n):
@@ -437,7 +469,7 @@ class InnovationsProblem:
         if mix:
             e0, wn, vn = S @ e0, np.matmul(S, wn), np.matmul(S, vn)
         wq = np.stack([wn[u] @ m.Q[u] for u in range(self.w - 1)]) if self.w > 1 else wn
-        return e0 @ m.P0, wq, np.stack([vn[u] @ m.R[u] for u in range(self.w)])
+        return e0 @ m.P0, wq, np.stack([np.asarray(self._R_sp[u] @ vn[u].T).T for u in range(self.w)])
 
     def _to_agents(self, psi: _Noise) -> list[FloatArray]:
         dz = self.dz
@@ -478,8 +510,15 @@ class InnovationsProblem:
         if b.size and np.any(b):
             S_inv = [np.linalg.inv(self.S[i * dz : (i + 1) * dz, i * dz : (i + 1) * dz]) for i in range(n)]
 
-            def prec(v: FloatArray) -> FloatArray:
-                return self.flatten([S_inv[i] @ M for i, M in enumerate(self.unflatten(v))])
+            def prec(v: FloatArray) -> FloatArray:  # block Jacobi: S_ii^-1 X blockdiag_u(N_u^-1) = Gamma_ii^-1
+                out = []
+                for i, X in enumerate(self.unflatten(v)):
+                    Y = np.empty_like(X)
+                    for _rows, pos, k, _H, Ninv, _K, _G in self.filters[i].steps:
+                        if k:
+                            Y[:, pos : pos + k] = Ninv.right(X[:, pos : pos + k])  # type: ignore[union-attr]
+                    out.append(S_inv[i] @ Y)
+                return self.flatten(out)
 
             N = self.size
             count = [0]
