@@ -210,3 +210,17 @@ def test_innovations_edge_cases():
     bad = WindowModel(inn.model.A, inn.model.Q, inn.model.C, [-np.eye(r.shape[0]) for r in inn.model.R], inn.model.P0)
     with pytest.raises(NotPositiveDefiniteError):
         InnovationsProblem(inn.S, inn.L, bad, g.idx, inn.dz)
+
+
+def test_innovations_pay_for_platoons_not_for_the_uav_formation():
+    from teamkf.estimators.gamma import innovations_pays
+
+    for kind, n, expected in [("platoon", 4, True), ("platoon", 12, True), ("uav", 10, False), ("uav", 300, False)]:
+        if kind == "platoon":
+            system, cost, graph = LinearGaussianSystem.platoon(n), TeamCost.platoon(n, 100.0), CommGraph.line(n)
+        else:
+            system, cost, graph = LinearGaussianSystem.uav_formation(n), TeamCost.average_tracking(n, 10.0 * n * n), CommGraph.complete(n, 2)
+        st = InformationStructure.from_graph(graph)
+        c = st.common_lag
+        idx = [_local_index(system, st, i, c - 1, 0) for i in range(n)]
+        assert innovations_pays(cost.S_at(0), idx, cost.dz, system.dx, system.dy_total, c) is expected

@@ -47,8 +47,10 @@ forward pass of every agent's filter over the noise coordinates
 window-sized matrix at all. The cost is summed over the independent noises
 (no cancellation), and the gains are mapped back to the local data
 (F_i = L_i B_i + F^_i T_i with B_i, T_i the filter's maps) by one more
-backward pass. The designs use this form whenever :func:`choose_solver`
-picks CG.
+backward pass. The designs use this form when :func:`choose_solver` picks
+CG and :func:`innovations_pays` (every agent filters the whole state: n w d_x^3
+to set up: too much for the UAV formation, d_x = d_y = n with a 2-step window;
+little for the platoon, d_x = n against d_y = n^2 measurements per step).
 """
 
 from __future__ import annotations
@@ -65,7 +67,7 @@ from .._blas import single_thread_blas
 from .._validation import FloatArray
 from ..exceptions import ArgumentError, ConvergenceError, NotPositiveDefiniteError
 
-__all__ = ["GammaProblem", "InnovationsProblem", "WindowModel", "choose_solver", "DENSE_MAX_BYTES"]
+__all__ = ["GammaProblem", "InnovationsProblem", "WindowModel", "choose_solver", "innovations_pays", "DENSE_MAX_BYTES"]
 
 #: dense Gamma is assembled when it needs at most this much memory
 DENSE_MAX_BYTES = 1 << 30
@@ -95,6 +97,22 @@ def choose_solver(S: FloatArray, idx: list[np.ndarray], dz: int, D: int, method:
         return "cg"
     dense, cg = _flop_estimates(S, dz, D_loc, D)
     return "cg" if cg < dense else "dense"
+
+
+def innovations_pays(S: FloatArray, idx: list[np.ndarray], dz: int, dx: int, dy: int, w: int) -> bool:
+    """Whether CG in innovation coordinates is estimated cheaper than CG on the window covariance.
+
+    Window covariance: 150 applications of 2 (d_z D_loc D + nnz(S) D) flops plus the block-Jacobi
+    inverses sum d_i^3 (D = w d_y). Innovations: every agent's filter, n w 12 d_x^3, plus 250
+    applications of 12 d_z D_loc d_x + 2 nnz(S) w d_y + 2 n w d_z d_x^2. The platoons (d_x = n,
+    d_y = n^2, w = n - 1) take the innovations, the UAV formation (d_x = d_y = n, w = 2) the window.
+    """
+    d = np.array([len(ix) for ix in idx], dtype=float)
+    D_loc, D, n = float(d.sum()), float(w * dy), float(len(idx))
+    nnz_S = float(np.count_nonzero(S))
+    window = 150 * 2.0 * (dz * D_loc * D + nnz_S * D) + float(np.sum(d**3))
+    innov = n * w * 12.0 * dx**3 + 250 * (12.0 * dz * D_loc * dx + 2.0 * nnz_S * w * dy + 2.0 * n * w * dz * dx**2)
+    return innov < window
 
 
 @dataclass(eq=False)

@@ -50,7 +50,7 @@ from ..models import LinearGaussianSystem, TeamCost
 from ..network.information import InformationStructure
 from .base import Design, Packet
 from .checks import check_model
-from .gamma import DENSE_MAX_BYTES, GammaProblem, InnovationsProblem, WindowModel, choose_solver
+from .gamma import DENSE_MAX_BYTES, GammaProblem, InnovationsProblem, WindowModel, choose_solver, innovations_pays
 from .kalman import kalman_covariances, predictor_errors, steady_state
 from .registry import Family, Option, _register_builtin
 
@@ -532,7 +532,8 @@ def _design(
     def step(k: int, a: int, P_a: FloatArray, record: bool = True) -> tuple[tuple, float]:
         idx = [_local_index(system, st, i, k, a) for i in range(n)]
         ginfo: dict[str, Any] = {}
-        if want == "mtmse" and choose_solver(cost.S_at(k), idx, dz, (k - a + 1) * system.dy_total, method, dense_max_bytes) == "cg":
+        w, dy, S = k - a + 1, system.dy_total, cost.S_at(k)
+        if want == "mtmse" and choose_solver(S, idx, dz, w * dy, method, dense_max_bytes) == "cg" and innovations_pays(S, idx, dz, system.dx, dy, w):
             F, J, ginfo = _solve_step_innovations(system, cost, k, a, P_a, idx, dz)  # no window-sized matrix
             Jm = float("nan")
         else:
