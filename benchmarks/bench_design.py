@@ -88,14 +88,17 @@ def case_platoon_scale(n: int, method: str) -> dict:
     from teamkf import CommGraph, LinearGaussianSystem, TeamCost, design_mtmse
 
     system, cost, graph = LinearGaussianSystem.platoon(n), TeamCost.platoon(n, 100.0), CommGraph.line(n)
-    t0 = time.perf_counter()
+    load0 = os.getloadavg()[0]
+    t0, c0 = time.perf_counter(), time.process_time()
     d = design_mtmse(system, cost, graph, method=method)  # type: ignore[arg-type]
-    t1 = time.perf_counter()
+    t1, c1 = time.perf_counter(), time.process_time()
     return {
         "case": "platoon-scale",
         "n": n,
         "method": method,
         "design_s": t1 - t0,
+        "design_cpu_s": c1 - c0,
+        "load_1min": [load0, os.getloadavg()[0]],
         "average_cost": d.average_cost,
         "gamma": d.info["gamma"],
         "window": (n - 1) * n * n,
@@ -108,7 +111,7 @@ def case_gamma(kind: str, n: int) -> dict:
     import numpy as np
 
     from teamkf import CommGraph, LinearGaussianSystem, TeamCost
-    from teamkf.estimators.gamma import GammaProblem
+    from teamkf.estimators.gamma import GammaProblem, InnovationsProblem, WindowModel, innovations_pays
     from teamkf.estimators.kalman import steady_state
     from teamkf.estimators.team import _eta, _local_index, window_covariances
     from teamkf.network.information import InformationStructure
@@ -128,7 +131,7 @@ def case_gamma(kind: str, n: int) -> dict:
     for m in ("dense", "cg"):
         g = GammaProblem(cost.S_at(0), Sig, idx, cost.dz)
         out["size"] = g.size
-        if m == "dense" and 8 * g.size**2 > 6 * 2**30:
+        if m == "dense" and 8 * g.size**2 > 2 * 2**30:
             out["dense_s"] = None
             continue
         t0 = time.perf_counter()
@@ -139,6 +142,30 @@ def case_gamma(kind: str, n: int) -> dict:
         out["auto_choice"] = g.choose("auto")
     if len(sols) == 2:
         out["rel_diff"] = float(np.linalg.norm(sols["dense"] - sols["cg"]) / np.linalg.norm(sols["dense"]))
+    # the designs' CG: innovation coordinates (no window covariance); costs by gains_cost (no eq. 35 cancellation)
+    w = c
+    out["innovations_pays"] = innovations_pays(cost.S_at(0), idx, cost.dz, system.dx, system.dy_total, w)
+    if not out["innovations_pays"]:  # every agent filters the whole state: n w d_x^3 (hours for the UAV n = 1000)
+        out["peak_mb"] = _peak_mb()
+        return out
+    model = WindowModel(
+        [system.A_at(u) for u in range(w - 1)],
+        [system.Q_at(u) for u in range(w - 1)],
+        [system.C_stack(u) for u in range(w)],
+        [system.R_stack(u) for u in range(w)],
+        P,
+    )
+    t0 = time.perf_counter()
+    inn = InnovationsProblem(cost.S_at(0), cost.L_at(0), model, idx, cost.dz)
+    F_inn, J_inn = inn.solve()
+    out["innov_s"] = time.perf_counter() - t0
+    out["innov_iterations"] = inn.iterations
+    out["innov_cost"] = J_inn
+    for m, x in sols.items():
+        J_m = inn.gains_cost(g.unflatten(x))
+        out[f"{m}_cost"] = J_m
+        out[f"innov_vs_{m}_cost"] = abs(J_inn - J_m) / abs(J_m)
+        out[f"innov_vs_{m}_gains"] = float(np.linalg.norm(g.flatten(F_inn) - x) / np.linalg.norm(x))
     out["peak_mb"] = _peak_mb()
     return out
 
@@ -195,7 +222,11 @@ def main() -> None:
                 f"{r['gamma']['method'] + ' ' + str(r['gamma']['size']):>16} {r['peak_mb']:>8.0f}"
             )
     if "platoon-scale" in todo:
-        print(f"{'n':>4} {'window':>7} {'Gamma size':>10} {'method':>6} {'iters':>6} {'design[s]':>10} {'peak MB':>8}")
+        print(
+            f"{'n':>4} {'window':>7} {'Gamma size':>10} {'method':>6} {'iters':>6} {'design[s]':>10} {'CPU[s]':>7} {'peak MB':>8} "
+            f"{'average cost':>20} {'load':>11}",
+            flush=True,
+        )
         for n in a.platoon_sizes:
             r = _run(["platoon-scale", str(n), "auto"], a.timeout)
             rows.append(r)
@@ -203,10 +234,17 @@ def main() -> None:
                 print(n, r["error"])
                 continue
             g = r["gamma"]
-            print(f"{n:>4} {r['window']:>7} {g['size']:>10} {g['method']:>6} {g['iterations']:>6} {r['design_s']:>10.2f} {r['peak_mb']:>8.0f}")
+            print(
+                f"{n:>4} {r['window']:>7} {g['size']:>10} {g['method']:>6} {g['iterations']:>6} {r['design_s']:>10.2f} {r['design_cpu_s']:>7.2f} "
+                f"{r['peak_mb']:>8.0f} {r['average_cost']:>20.15g} {r['load_1min'][0]:>5.1f}-{r['load_1min'][1]:<5.1f}",
+                flush=True,
+            )
     if "gamma" in todo:
-        print(f"{'instance':>12} {'size':>6} {'dense[s]':>9} {'cg[s]':>8} {'iters':>6} {'auto':>6} {'rel diff':>9}")
-        for kind, n in [("uav", 100), ("uav", 300), ("uav", 1000), ("platoon", 6), ("platoon", 8), ("platoon", 10)]:
+        print(
+            f"{'instance':>12} {'size':>6} {'dense[s]':>9} {'cg[s]':>8} {'iters':>6} {'auto':>6} {'rel diff':>9} "
+            f"{'innov[s]':>9} {'iters':>6} {'cost vs dense':>13} {'cost vs cg':>10} {'F vs dense':>10}"
+        )
+        for kind, n in [("uav", 100), ("uav", 300), ("uav", 1000), ("platoon", 6), ("platoon", 8), ("platoon", 10), ("platoon", 12), ("platoon", 14)]:
             r = _run(["gamma", kind, str(n)], a.timeout)
             rows.append(r)
             if "error" in r:
@@ -215,7 +253,10 @@ def main() -> None:
             ds = r.get("dense_s")
             print(
                 f"{kind + '-' + str(n):>12} {r['size']:>6} {(ds if ds is not None else float('nan')):>9.3f} {r['cg_s']:>8.3f} "
-                f"{r['cg_iterations']:>6} {r['auto_choice']:>6} {r.get('rel_diff', float('nan')):>9.1e}"
+                f"{r['cg_iterations']:>6} {r['auto_choice']:>6} {r.get('rel_diff', float('nan')):>9.1e} "
+                f"{r.get('innov_s', float('nan')):>9.3f} {r.get('innov_iterations', 0):>6} {r.get('innov_vs_dense_cost', float('nan')):>13.1e} "
+                f"{r.get('innov_vs_cg_cost', float('nan')):>10.1e} {r.get('innov_vs_dense_gains', float('nan')):>10.1e}",
+                flush=True,
             )
     if a.json:
         with open(a.json, "w") as f:

@@ -25,6 +25,32 @@ with the block-Jacobi preconditioner Gamma_ii^-1 X = S_ii^-1 X Sigma_ii^-1.
 Cholesky factorization (sparse S, long windows: the 10-vehicle platoon);
 dense otherwise (dense S, short windows: the UAV formation). The measured
 crossover is in docs/performance.md.
+
+Innovation coordinates (:class:`InnovationsProblem`)
+-----------------------------------------------------
+For a window of a state-space model (the team designs' Sigma_W) CG runs in
+other coordinates. The window innovation y~ = C eps + v carries eps(anchor),
+the common predictor's error propagated over the c - 1 steps of the window,
+so Sigma_W, eta and Tr(L'SL P_0) grow like ||A^(c-1)||^2 (1e15 for the
+18-vehicle platoon, 1e19 at 24) while the cost stays O(n): in float64 the
+R-sized part of Sigma_W, the residual of Gamma F = eta and the cost of eq.
+(35) are all lost in rounding. Each agent i instead runs its own Kalman
+filter over its local window data (prior eps(anchor) ~ N(0, P(anchor))) and
+uses its innovations e_i (cov(e_i(u)) = N_i(u), block diagonal in time) and
+the estimate z_i = L_i (x^com + x^_i(k|k)) + F^_i e_i. Every quantity is then
+of the size of the filter errors: Gamma^_ij = S_ij (x) cov(e_i, e_j), eta^_i
+= sum_j S_ij cov(L_j (eps(k) - x^_j(k|k)), e_i), the block-Jacobi preconditioner
+S_ii^-1 (x) blockdiag_u N_i(u)^-1 is exact and cheap (Woodbury with the d_x x d_x
+filter covariance when R is diagonal), and the operator is applied by one adjoint (backward) and one
+forward pass of every agent's filter over the noise coordinates
+(eps(anchor), w, v) -- O(n w (d_x^2 + d_x d_y)) per application, no
+window-sized matrix at all. The cost is summed over the independent noises
+(no cancellation), and the gains are mapped back to the local data
+(F_i = L_i B_i + F^_i T_i with B_i, T_i the filter's maps) by one more
+backward pass. The designs use this form when :func:`choose_solver` picks
+CG and :func:`innovations_pays` (every agent filters the whole state: n w d_x^3
+to set up: too much for the UAV formation, d_x = d_y = n with a 2-step window;
+little for the platoon, d_x = n against d_y = n^2 measurements per step).
 """
 
 from __future__ import annotations
@@ -37,15 +63,56 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from .._blas import single_thread_blas
 from .._validation import FloatArray
 from ..exceptions import ArgumentError, ConvergenceError, NotPositiveDefiniteError
 
-__all__ = ["GammaProblem", "DENSE_MAX_BYTES"]
+__all__ = ["GammaProblem", "InnovationsProblem", "WindowModel", "choose_solver", "innovations_pays", "DENSE_MAX_BYTES"]
 
 #: dense Gamma is assembled when it needs at most this much memory
 DENSE_MAX_BYTES = 1 << 30
 
 Method = Literal["auto", "dense", "cg"]
+
+
+def _flop_estimates(S: FloatArray, dz: int, D_loc: int, D: int, cg_iterations: int = 150) -> tuple[float, float]:
+    N = float(dz * D_loc)
+    density = np.count_nonzero(S) / max(S.size, 1)
+    nnz_S = float(np.count_nonzero(S)) if density < 0.25 else float(S.size)
+    dense = N**3 / 3.0 + 2.0 * N**2
+    cg = cg_iterations * 2.0 * (dz * D_loc * float(D) + nnz_S * float(D))
+    return dense, cg
+
+
+def choose_solver(S: FloatArray, idx: list[np.ndarray], dz: int, D: int, method: Method = "auto", dense_max_bytes: int = DENSE_MAX_BYTES) -> str:
+    """The solver for Gamma of a pool of dimension D, "dense" or "cg" (from the sizes alone).
+
+    Dense Cholesky unless Gamma would not fit in ``dense_max_bytes`` or ~150 applications of the
+    operator are estimated to cost fewer flops than the factorization.
+    """
+    if method != "auto":
+        return method
+    D_loc = int(sum(len(ix) for ix in idx))
+    if 8 * (dz * D_loc) ** 2 > dense_max_bytes:
+        return "cg"
+    dense, cg = _flop_estimates(S, dz, D_loc, D)
+    return "cg" if cg < dense else "dense"
+
+
+def innovations_pays(S: FloatArray, idx: list[np.ndarray], dz: int, dx: int, dy: int, w: int) -> bool:
+    """Whether CG in innovation coordinates is estimated cheaper than CG on the window covariance.
+
+    Window covariance: 150 applications of 2 (d_z D_loc D + nnz(S) D) flops plus the block-Jacobi
+    inverses sum d_i^3 (D = w d_y). Innovations: every agent's filter, n w 12 d_x^3, plus 250
+    applications of 12 d_z D_loc d_x + 2 nnz(S) w d_y + 2 n w d_z d_x^2. The platoons (d_x = n,
+    d_y = n^2, w = n - 1) take the innovations, the UAV formation (d_x = d_y = n, w = 2) the window.
+    """
+    d = np.array([len(ix) for ix in idx], dtype=float)
+    D_loc, D, n = float(d.sum()), float(w * dy), float(len(idx))
+    nnz_S = float(np.count_nonzero(S))
+    window = 150 * 2.0 * (dz * D_loc * D + nnz_S * D) + float(np.sum(d**3))
+    innov = n * w * 12.0 * dx**3 + 250 * (12.0 * dz * D_loc * dx + 2.0 * nnz_S * w * dy + 2.0 * n * w * dz * dx**2)
+    return innov < window
 
 
 @dataclass(eq=False)
@@ -131,20 +198,11 @@ class GammaProblem:
     # --- solving -------------------------------------------------------------
     def flop_estimates(self, cg_iterations: int = 150) -> tuple[float, float]:
         """Rough flop counts of the dense Cholesky path and of ``cg_iterations`` operator applications."""
-        N, D = float(self.size), float(self.Sigma.shape[0])
-        nnz_S = float(self._S_op.nnz) if sp.issparse(self._S_op) else float(self.S.size)  # type: ignore[union-attr]
-        dense = N**3 / 3.0 + 2.0 * N**2
-        cg = cg_iterations * 2.0 * (self.dz * self.D_loc * D + nnz_S * D)
-        return dense, cg
+        return _flop_estimates(self.S, self.dz, self.D_loc, self.Sigma.shape[0], cg_iterations)
 
     def choose(self, method: Method = "auto", dense_max_bytes: int = DENSE_MAX_BYTES) -> str:
         """The solver: dense Cholesky unless Gamma would not fit in ``dense_max_bytes`` or the operator is cheaper."""
-        if method != "auto":
-            return method
-        if 8 * self.size**2 > dense_max_bytes:
-            return "cg"
-        dense, cg = self.flop_estimates()
-        return "cg" if cg < dense else "dense"
+        return choose_solver(self.S, self.idx, self.dz, self.Sigma.shape[0], method, dense_max_bytes)
 
     def solve(
         self,
@@ -222,3 +280,325 @@ class GammaProblem:
         """<F, Gamma F>."""
         x = self.flatten(F)
         return float(x @ self.apply_flat(x)) if x.size else 0.0
+
+
+# ---------------------------------------------------------------------------
+# Gamma F = eta in the agents' Kalman-innovation coordinates
+# ---------------------------------------------------------------------------
+@dataclass(eq=False)
+class WindowModel:
+    """The window u = 0..w-1: eps(u+1) = A[u] eps(u) + w(u), y~(u) = C[u] eps(u) + v(u), eps(0) ~ N(0, P0).
+
+    w(u) ~ N(0, Q[u]) and v(u) ~ N(0, R[u]) independent; the pool of :class:`GammaProblem` is
+    vec(y~(0), ..., y~(w-1)), position u d_y + r for row r of step u.
+    """
+
+    A: list[FloatArray]
+    Q: list[FloatArray]
+    C: list[FloatArray]
+    R: list[FloatArray]
+    P0: FloatArray
+
+    @property
+    def steps(self) -> int:
+        return len(self.C)
+
+
+# a noise vector, or rows of them: (eps(0): (k, dx), w: (w-1, k, dx), v: (w, k, dy))
+_Noise = tuple[FloatArray, FloatArray, FloatArray]
+
+
+@dataclass(eq=False)
+class _InnovationCov:
+    """N^-1 for one step's innovation covariance N = H P H' + R_rows.
+
+    R_rows diagonal: Woodbury, N^-1 = R^-1 - B M^-1 B' with B = R^-1 H P^1/2 (k x d_x) and
+    M = I + P^1/2' H' R^-1 H P^1/2 (d_x x d_x, eigenvalues >= 1): O(k d_x) per row. Otherwise N^-1 dense.
+    """
+
+    r_inv: FloatArray | None
+    B: FloatArray | None
+    M_inv: FloatArray | None
+    N_inv: FloatArray | None
+
+    def right(self, X: FloatArray) -> FloatArray:
+        """X N^-1 (N symmetric) for rows X (., k)."""
+        if self.N_inv is not None:
+            return X @ self.N_inv
+        assert self.r_inv is not None and self.B is not None and self.M_inv is not None
+        return X * self.r_inv - ((X @ self.B) @ self.M_inv) @ self.B.T
+
+    @classmethod
+    def of(cls, H: FloatArray, P: FloatArray, Rr: FloatArray) -> "_InnovationCov":
+        rd = np.diag(Rr).copy()
+        if np.all(rd > 0) and not np.any(Rr - np.diag(rd)):
+            lam, V = np.linalg.eigh(P)
+            HPc = H @ (V * np.sqrt(np.clip(lam, 0.0, None)))  # H P^1/2
+            B = HPc / rd[:, None]
+            M = np.eye(P.shape[0]) + HPc.T @ B
+            return cls(1.0 / rd, B, np.linalg.inv(0.5 * (M + M.T)), None)
+        N = H @ P @ H.T + Rr
+        try:
+            cf = sla.cho_factor(0.5 * (N + N.T), lower=True, check_finite=False)
+        except np.linalg.LinAlgError:
+            raise NotPositiveDefiniteError("Gamma: an agent's innovation covariance is not positive definite; check R_i > 0") from None
+        return cls(None, None, None, sla.cho_solve(cf, np.eye(N.shape[0]), check_finite=False))
+
+
+@dataclass(eq=False)
+class _LocalFilter:
+    order: np.ndarray  # idx positions in time order
+    # per step u: (rows, position in e, count, H, N^-1, K, I - K H)
+    steps: list[tuple[np.ndarray, int, int, FloatArray, _InnovationCov | None, FloatArray, FloatArray]]
+
+
+@dataclass(eq=False)
+class InnovationsProblem:
+    """MTMSE gains of one window step by CG in the agents' innovation coordinates (module docstring).
+
+    Parameters
+    ----------
+    S : (n d_z, n d_z) array
+    L : (n d_z, d_x) array
+    model : WindowModel
+    idx : list of int arrays
+        Agent i's local measurements as positions in the window pool (as for :class:`GammaProblem`).
+    dz : int
+    """
+
+    S: FloatArray
+    L: FloatArray
+    model: WindowModel
+    idx: list[np.ndarray]
+    dz: int
+    iterations: int = field(default=0, init=False)
+    method_used: str = field(default="cg", init=False)
+
+    def __post_init__(self) -> None:
+        self.n = len(self.idx)
+        m = self.model
+        self.w, self.dx, self.dy = m.steps, m.P0.shape[0], m.C[0].shape[0]
+        self.d = np.array([len(ix) for ix in self.idx], dtype=int)
+        self.offsets = np.concatenate([[0], np.cumsum(self.d)]).astype(int)
+        self.D_loc = int(self.offsets[-1])
+        with single_thread_blas():
+            self.filters = [self._filter(np.asarray(ix, dtype=int)) for ix in self.idx]
+        self._R_sp = [sp.csr_matrix(R) for R in m.R]  # block diagonal (per agent) in the designs
+
+    @property
+    def size(self) -> int:
+        return self.dz * self.D_loc
+
+    def _filter(self, ix: np.ndarray) -> _LocalFilter:
+        m, dx = self.model, self.dx
+        u_of, r_of = ix // self.dy, ix % self.dy
+        order = np.lexsort((r_of, u_of))
+        u_sorted, r_sorted = u_of[order], r_of[order]
+        steps = []
+        P, pos = np.asarray(m.P0, dtype=float), 0
+        I = np.eye(dx)
+        for u in range(self.w):
+            rows = r_sorted[u_sorted == u]
+            k = rows.size
+            if k:
+                H = m.C[u][rows]
+                Rr = m.R[u][np.ix_(rows, rows)]
+                Ninv: _InnovationCov | None = _InnovationCov.of(H, P, Rr)
+                K = Ninv.right(P @ H.T)  # type: ignore[union-attr]  # P H' N^-1
+                G = I - K @ H
+                P = G @ P @ G.T + K @ Rr @ K.T  # Joseph form
+            else:
+                H, Ninv, K, G = np.zeros((0, dx)), None, np.zeros((dx, 0)), I
+            steps.append((rows, pos, k, H, Ninv, K, G))
+            pos += k
+            if u < self.w - 1:
+                P = m.A[u] @ P @ m.A[u].T + m.Q[u]
+                P = 0.5 * (P + P.T)
+        return _LocalFilter(order, steps)
+
+    # --- the filters as maps between noise coordinates and innovations ----------
+    def _noise_zeros(self, k: int) -> _Noise:
+        return np.zeros((k, self.dx)), np.zeros((max(self.w - 1, 0), k, self.dx)), np.zeros((self.w, k, self.dy))
+
+    def _forward(self, i: int, psi: _Noise) -> FloatArray:
+        """e_i (rows, d_i in time order) for the noise realizations psi (rows)."""
+        e0, wn, vn = psi
+        out = np.empty((e0.shape[0], int(self.d[i])))
+        xi = e0  # eps(u) - x^_i(u|u-1)
+        for u, (rows, pos, k, H, _, K, G) in enumerate(self.filters[i].steps):
+            if k:
+                vr = vn[u][:, rows]
+                out[:, pos : pos + k] = xi @ H.T + vr
+                xi = xi @ G.T - vr @ K.T
+            if u < self.w - 1:
+                xi = xi @ self.model.A[u].T + wn[u]
+        return out
+
+    def _adjoint(self, i: int, phi: FloatArray | None, terminal: FloatArray, acc: _Noise) -> None:
+        """Add to ``acc`` the noise sensitivities of phi e_i + terminal (eps(w-1) - x^_i(w-1|w-1)) (rows)."""
+        e0, wn, vn = acc
+        lam = terminal
+        for u in range(self.w - 1, -1, -1):
+            rows, pos, k, H, _, K, G = self.filters[i].steps[u]
+            if u < self.w - 1:
+                wn[u] += lam
+                lp = lam @ self.model.A[u]
+            else:
+                lp = terminal
+            if k:
+                if phi is not None:
+                    g = phi[:, pos : pos + k]
+                    vn[u][:, rows] += g - lp @ K
+                    lam = g @ H + lp @ G
+                else:
+                    vn[u][:, rows] -= lp @ K
+                    lam = lp @ G
+            else:
+                lam = lp
+        e0 += lam
+
+    def _data_adjoint(self, i: int, phi: FloatArray, terminal: FloatArray) -> FloatArray:
+        """Coefficients on agent i's local data (time order) of phi e_i + terminal x^_i(w-1|w-1)."""
+        out = np.empty((phi.shape[0], int(self.d[i])))
+        mu = terminal
+        for u in range(self.w - 1, -1, -1):
+            rows, pos, k, H, _, K, G = self.filters[i].steps[u]
+            mp = terminal if u == self.w - 1 else mu @ self.model.A[u]
+            if k:
+                ge = phi[:, pos : pos + k] + mp @ K
+                out[:, pos : pos + k] = ge
+                mu = mp - ge @ H
+            else:
+                mu = mp
+        return out
+
+    def _sensitivities(self, Fhat: list[FloatArray] | None, terminal: bool) -> _Noise:
+        """Rows (j, a): noise sensitivities of Fhat_j[a] e_j (+ L_j[a] (eps(k) - x^_j(k|k)) when ``terminal``)."""
+        dz = self.dz
+        acc = self._noise_zeros(self.n * dz)
+        for j in range(self.n):
+            sl = slice(j * dz, (j + 1) * dz)
+            term = self.L[sl] if terminal else np.zeros((dz, self.dx))
+            self._adjoint(j, Fhat[j] if Fhat is not None else None, term, (acc[0][sl], acc[1][:, sl], acc[2][:, sl]))
+        return acc
+
+    def _weight(self, psi: _Noise, mix: bool = True) -> _Noise:
+        """S psi Lambda, Lambda = blockdiag(P0, Q, R): the noise covariance."""
+        e0, wn, vn = psi
+        m, S = self.model, self.S
+        if mix:
+            e0, wn, vn = S @ e0, np.matmul(S, wn), np.matmul(S, vn)
+        wq = np.stack([wn[u] @ m.Q[u] for u in range(self.w - 1)]) if self.w > 1 else wn
+        return e0 @ m.P0, wq, np.stack([np.asarray(self._R_sp[u] @ vn[u].T).T for u in range(self.w)])
+
+    def _to_agents(self, psi: _Noise) -> list[FloatArray]:
+        dz = self.dz
+        return [
+            self._forward(i, (psi[0][i * dz : (i + 1) * dz], psi[1][:, i * dz : (i + 1) * dz], psi[2][:, i * dz : (i + 1) * dz]))
+            for i in range(self.n)
+        ]
+
+    def flatten(self, F: list[FloatArray]) -> FloatArray:
+        return np.concatenate([np.asarray(f).reshape(self.dz, -1) for f in F], axis=1).ravel() if self.D_loc else np.zeros(0)
+
+    def unflatten(self, x: FloatArray) -> list[FloatArray]:
+        M = np.asarray(x).reshape(self.dz, self.D_loc)
+        return [M[:, self.offsets[i] : self.offsets[i + 1]] for i in range(self.n)]
+
+    def apply_flat(self, x: FloatArray) -> FloatArray:
+        """Gamma^ x in innovation coordinates."""
+        return self.flatten(self._to_agents(self._weight(self._sensitivities(self.unflatten(x), terminal=False))))
+
+    def _noise_cost(self, X: _Noise) -> float:
+        """sum Tr(S X Lambda X') over the noise blocks: non-negative terms, no cancellation."""
+        XL = self._weight(X, mix=False)
+        S = self.S
+        J = float(np.sum(S * (X[0] @ XL[0].T)))
+        for a, b in zip(X[1], XL[1]):
+            J += float(np.sum(S * (a @ b.T)))
+        for a, b in zip(X[2], XL[2]):
+            J += float(np.sum(S * (a @ b.T)))
+        return J
+
+    # --- solving -------------------------------------------------------------
+    def solve(self, *, rtol: float = 1e-12, max_iter: int | None = None) -> tuple[list[FloatArray], float]:
+        """Gains F_i on the local data (idx order, (d_z, d_i) each) and their team cost.
+
+        Runs on one BLAS thread: every product is small (at most d_y x d_x), and OpenBLAS's second
+        thread made the 14-vehicle platoon 3x slower on the shared 2-core machine.
+        """
+        with single_thread_blas():
+            return self._solve(rtol, max_iter)
+
+    def _solve(self, rtol: float, max_iter: int | None) -> tuple[list[FloatArray], float]:
+        dz, n = self.dz, self.n
+        Xi = self._sensitivities(None, terminal=True)  # L_j (eps(k) - x^_j(k|k))
+        b = self.flatten(self._to_agents(self._weight(Xi)))
+        x = np.zeros_like(b)
+        if b.size and np.any(b):
+            S_inv = [np.linalg.inv(self.S[i * dz : (i + 1) * dz, i * dz : (i + 1) * dz]) for i in range(n)]
+
+            def prec(v: FloatArray) -> FloatArray:  # block Jacobi: S_ii^-1 X blockdiag_u(N_u^-1) = Gamma_ii^-1
+                out = []
+                for i, X in enumerate(self.unflatten(v)):
+                    Y = np.empty_like(X)
+                    for _rows, pos, k, _H, Ninv, _K, _G in self.filters[i].steps:
+                        if k:
+                            Y[:, pos : pos + k] = Ninv.right(X[:, pos : pos + k])  # type: ignore[union-attr]
+                    out.append(S_inv[i] @ Y)
+                return self.flatten(out)
+
+            N = self.size
+            count = [0]
+
+            def cb(_: FloatArray) -> None:
+                count[0] += 1
+
+            A = spla.LinearOperator((N, N), matvec=self.apply_flat, dtype=float)
+            M = spla.LinearOperator((N, N), matvec=prec, dtype=float)
+            maxiter = max_iter if max_iter is not None else max(1000, 10 * int(np.sqrt(N)))
+            x, info = spla.cg(A, b, rtol=rtol, atol=0.0, maxiter=maxiter, M=M, callback=cb)
+            self.iterations = count[0]
+            if info != 0:
+                res = float(np.linalg.norm(self.apply_flat(x) - b)) / max(float(np.linalg.norm(b)), 1e-300)
+                raise ConvergenceError(
+                    f"Gamma F = eta (innovation coordinates): conjugate gradients stopped after {count[0]} iterations with relative "
+                    f"residual {res:.3g} (asked {rtol:g}); raise max_iter or use method='dense' if Gamma fits in memory"
+                )
+        Fhat = self.unflatten(x)
+        Psi = self._sensitivities(Fhat, terminal=False)
+        J = self._noise_cost((Xi[0] - Psi[0], Xi[1] - Psi[1], Xi[2] - Psi[2]))
+        F = []
+        for i, f in enumerate(Fhat):
+            coef = self._data_adjoint(i, f, self.L[i * dz : (i + 1) * dz])
+            Fi = np.empty_like(coef)
+            Fi[:, self.filters[i].order] = coef
+            F.append(Fi)
+        return F, J
+
+    def gains_cost(self, F: list[FloatArray]) -> float:
+        """Team cost of z_i = L_i x^com + F_i y~_i for any gains on the local data (idx order), without eq. (35)'s cancellation.
+
+        The error L eps(k) - F y~ has the noise sensitivities X_j = sum_{u >= j} Y_u Phi(u, j) (Y: L at the last step minus
+        F C), computed backwards Z_j = Y_j + Z_{j+1} A[j], each as small as the error itself.
+        """
+        dz, m = self.dz, self.model
+        nz = self.n * dz
+        Y = np.zeros((self.w, nz, self.dx))
+        V = np.zeros((self.w, nz, self.dy))
+        for i, ix in enumerate(self.idx):
+            ix = np.asarray(ix, dtype=int)
+            u_of, r_of = ix // self.dy, ix % self.dy
+            Fi = np.asarray(F[i]).reshape(dz, -1)
+            for u in np.unique(u_of):
+                sel = u_of == u
+                Y[u, i * dz : (i + 1) * dz] -= Fi[:, sel] @ m.C[u][r_of[sel]]
+                V[u, i * dz : (i + 1) * dz][:, r_of[sel]] -= Fi[:, sel]
+        Y[self.w - 1] += self.L
+        Z = Y[self.w - 1]
+        X = np.empty_like(Y)
+        X[self.w - 1] = Z
+        for j in range(self.w - 2, -1, -1):
+            Z = Y[j] + Z @ m.A[j]
+            X[j] = Z
+        return self._noise_cost((X[0], X[1:], V))

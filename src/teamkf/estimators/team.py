@@ -50,7 +50,7 @@ from ..models import LinearGaussianSystem, TeamCost
 from ..network.information import InformationStructure
 from .base import Design, Packet
 from .checks import check_model
-from .gamma import DENSE_MAX_BYTES, GammaProblem
+from .gamma import DENSE_MAX_BYTES, GammaProblem, InnovationsProblem, WindowModel, choose_solver, innovations_pays
 from .kalman import kalman_covariances, predictor_errors, steady_state
 from .registry import Family, Option, _register_builtin
 
@@ -269,6 +269,23 @@ def _solve_step(
         if want == "mmse":
             F = Fm
     return F, J, J_mmse
+
+
+def _solve_step_innovations(
+    system: LinearGaussianSystem, cost: TeamCost, k: int, anchor: int, P_anchor: FloatArray, idx: list[np.ndarray], dz: int
+) -> tuple[list[FloatArray], float, dict[str, Any]]:
+    """MTMSE gains and cost of one step by CG in the agents' innovation coordinates (:class:`InnovationsProblem`)."""
+    w = k - anchor + 1
+    model = WindowModel(
+        A=[system.A_at(anchor + u) for u in range(w - 1)],
+        Q=[system.Q_at(anchor + u) for u in range(w - 1)],
+        C=[system.C_stack(anchor + u) for u in range(w)],
+        R=[system.R_stack(anchor + u) for u in range(w)],
+        P0=np.asarray(P_anchor, dtype=float),
+    )
+    prob = InnovationsProblem(cost.S_at(k), cost.L_at(k), model, idx, dz)
+    F, J = prob.solve()
+    return F, J, {"method": "cg", "size": prob.size, "iterations": prob.iterations, "coordinates": "innovations"}
 
 
 # ---------------------------------------------------------------------------
@@ -513,12 +530,17 @@ def _design(
     info: dict[str, Any] = {"common_lag": c, "local_dims": st.local_dims(system.dy)}
 
     def step(k: int, a: int, P_a: FloatArray, record: bool = True) -> tuple[tuple, float]:
-        Sigma_W, Theta_W, P0 = window_covariances(system, k, a, P_a)
         idx = [_local_index(system, st, i, k, a) for i in range(n)]
         ginfo: dict[str, Any] = {}
-        F, J, Jm = _solve_step(
-            cost.S_at(k), cost.L_at(k), Sigma_W, Theta_W, P0, idx, dz, method=method, dense_max_bytes=dense_max_bytes, want=want, gamma_info=ginfo
-        )
+        w, dy, S = k - a + 1, system.dy_total, cost.S_at(k)
+        if want == "mtmse" and choose_solver(S, idx, dz, w * dy, method, dense_max_bytes) == "cg" and innovations_pays(S, idx, dz, system.dx, dy, w):
+            F, J, ginfo = _solve_step_innovations(system, cost, k, a, P_a, idx, dz)  # no window-sized matrix
+            Jm = float("nan")
+        else:
+            Sigma_W, Theta_W, P0 = window_covariances(system, k, a, P_a)
+            F, J, Jm = _solve_step(
+                cost.S_at(k), cost.L_at(k), Sigma_W, Theta_W, P0, idx, dz, method=method, dense_max_bytes=dense_max_bytes, want=want, gamma_info=ginfo
+            )
         if ginfo and record:
             info["gamma"] = ginfo  # the last (largest) step
         return tuple(F), (J if kind == "mtmse" else Jm)
