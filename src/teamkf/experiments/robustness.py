@@ -117,6 +117,11 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
 
         plt = _pyplot()
         fig, axes = plt.subplots(len(SCENARIOS), len(Js), figsize=(4.2 * len(Js), 3.6 * len(SCENARIOS)), squeeze=False)
+        # one colour and marker per estimator in every panel (the panels do not all have the same estimators)
+        names = sorted({name for (_, _, name) in curves})
+        cmap = plt.get_cmap("tab10")
+        style = {name: (cmap(q % 10), "os^vDP*Xhp"[q % 10], "-" if q < 10 else "--") for q, name in enumerate(names)}
+        handles: dict[str, Any] = {}
         for a, sname in enumerate(SCENARIOS):
             for b, J in enumerate(Js):
                 ax = axes[a][b]
@@ -125,14 +130,16 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
                         continue
                     pts.sort()
                     x = np.array([q[0] for q in pts])
-                    (line,) = ax.plot(x, [q[1] for q in pts], "o-", label=name, ms=3)
-                    ax.fill_between(x, [q[2] for q in pts], [q[3] for q in pts], alpha=0.15, color=line.get_color())
+                    color, marker, dash = style[name]
+                    (line,) = ax.plot(x, [q[1] for q in pts], dash, marker=marker, color=color, label=name, ms=3)
+                    ax.fill_between(x, [q[2] for q in pts], [q[3] for q in pts], alpha=0.15, color=color)
+                    handles.setdefault(name, line)
                 ax.set_yscale("log")
                 ax.set_xlabel("packet-drop probability p")
                 ax.set_ylabel("J_T (Monte Carlo, 95 % CI)")
                 ax.set_title(f"{sname}, jitter <= {J}")
-        axes[0][0].legend(fontsize=7)
-        fig.tight_layout()
+        fig.tight_layout(rect=(0, 0, 0.86, 1))
+        fig.legend([handles[k] for k in names], names, loc="center right", fontsize=8, frameon=False)
         save_figure(fig, out_dir, "robustness", figures)
     skipped_txt = "; ".join(f"{k} ({v})" for k, v in notes_skipped.items())
     return ExperimentResult(
