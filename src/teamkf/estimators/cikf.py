@@ -134,7 +134,7 @@ import time
 import warnings
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Any, Literal, Sequence
+from typing import Any, Callable, Literal, Sequence
 
 import numpy as np
 import scipy.linalg as sla
@@ -169,7 +169,7 @@ G_RTOL = 1e-10
 DEFAULT_RCOND = 1e-9
 
 Form = Literal["filter", "predictor"]
-Method = Literal["structured", "dense"]
+Method = Literal["structured", "joint", "dense"]
 
 
 # ---------------------------------------------------------------------------
@@ -1015,21 +1015,22 @@ def _is_mse(cost: TeamCost, N: int, M: int, T: int) -> bool:
 
 
 def _theorem4_pseudo(
-    P: FloatArray, n: int, nb: Sequence[int], r: int, Ct: FloatArray, Rn: FloatArray, rcond: float, how: str
+    P4: FloatArray, n: int, nb: Sequence[int], r: int, Ct: FloatArray, Rn: FloatArray, rcond: float, how: str
 ) -> tuple[FloatArray, FloatArray]:
-    """Theorem 4's B̂^n = Σ_{eν̃} Σ_ν̃^+ in reduced coordinates: returns (B_cons (r, d r), B_u (r, M_n))."""
+    """Theorem 4's B̂^n = Σ_{eν̃} Σ_ν̃^+ in reduced coordinates: returns (B_cons (r, d r), B_u (r, M_n)).
+
+    ``P4`` is P_{k|k-1} as (N, r, N, r) blocks (a view; only agent n's closed neighbourhood is read).
+    """
     d, mn = len(nb), Ct.shape[0]
     dr = d * r
-    Pnn = P[n * r : (n + 1) * r, n * r : (n + 1) * r]
+    Pnn = P4[n, :, n, :]
     Snu = np.empty((dr + mn, dr + mn))
     Sey = np.empty((r, dr + mn))
     if d:
-        N = P.shape[0] // r
-        P4 = P.reshape(N, r, N, r)
         nba = np.asarray(nb, dtype=np.intp)
         Pnl4 = P4[n][:, nba, :]  # (r, d, r): [P^{n l_1} ... P^{n l_d}]; P^{l n} = (P^{n l})' (P symmetric)
         PlnT = Pnl4.transpose(1, 2, 0)  # (d, r, r): P^{l_q n}
-        Pll4 = P4[nba][:, :, nba, :]  # (d, r, d, r)
+        Pll4 = P4[nba[:, None], :, nba[None, :], :].transpose(0, 2, 1, 3)  # (d, r, d, r): P^{l_q l_s}
         # [Σ_ν̃]_{qs} = P^{nn} - P^{n l_s} - P^{l_q n} + P^{l_q l_s}
         S4 = Snu[:dr, :dr].reshape(d, r, d, r)
         np.subtract(Pnn[None, :, None, :], Pnl4[None], out=S4)
@@ -1115,7 +1116,7 @@ def _iterate(
         else:
             Bc_k, Bu_k = [], []
             for n in range(N):
-                Bc, Bu = _theorem4_pseudo(P, n, nbrs[n], r, Ct[n], Rn[n], rcond, pinv)
+                Bc, Bu = _theorem4_pseudo(P.reshape(N, r, N, r), n, nbrs[n], r, Ct[n], Rn[n], rcond, pinv)
                 Bc_k.append(Bc)
                 Bu_k.append(Bu)
         rows = []
@@ -1197,6 +1198,197 @@ def _iterate(
         del Sf
         ops.add_tiled(Sig, VV1)
         if not (np.isfinite(P[0, 0]) and np.isfinite(Sig[0, 0])):
+            raise DivergenceError(
+                f"CIKF gain design: the error covariances overflowed at step {k + 1}; the error dynamics diverge (see tracking_capacity)"
+            )
+    return {
+        "B_cons": tuple(B_cons),
+        "B_innov": tuple(B_innov),
+        "K": K_all,
+        "Sigma_pred": Sp,
+        "Sigma_filt": Sf_all,
+        "P_pred_trace": Ptr,
+        "stage": stage,
+    }
+
+
+# ---------------------------------------------------------------------------
+# Algorithm 2 on the joint covariance of [e; ε] (method="structured", equations="corrected")
+# ---------------------------------------------------------------------------
+#: width of the column panels of the M_k products (columns): the panel of J's e-rows stays in the cache
+_PANEL_COLS = 1024
+
+
+def _ranges(pool: Any, workers: int, fn: Callable[[int, int], None], n: int, *, triangular: bool = False) -> None:
+    """fn(lo, hi) over one contiguous range of range(n) per worker (in ``pool``; inline without one).
+
+    ``triangular``: item i costs ~ n - i (rows of an upper block triangle), the ranges get equal work.
+    The items, hence every BLAS call and its shape, do not depend on the number of workers.
+    """
+    if pool is None or workers <= 1 or n < 2:
+        fn(0, n)
+        return
+    if triangular:
+        c = np.concatenate([[0.0], np.cumsum(np.arange(n, 0, -1, dtype=float))])
+        cuts = [0, *(int(np.searchsorted(c, c[-1] * j / workers)) for j in range(1, workers)), n]
+    else:
+        cuts = np.linspace(0, n, min(workers, n) + 1).round().astype(int).tolist()
+    for fut in [pool.submit(fn, a, b) for a, b in zip(cuts[:-1], cuts[1:]) if b > a]:
+        fut.result()
+
+
+def _joint_stage_cost(cost: TeamCost, k: int, J: FloatArray, maps: FloatArray) -> float:
+    """E[c] = sum(S ∘ W), W = blockdiag(L_n Ψ_n) J blockdiag(L_n Ψ_n)' for agent n's error L_n Ψ_n [e^n; ε^n]."""
+    N, q = maps.shape[0], maps.shape[2]
+    LPsi = np.stack([cost.L_block(n, k) for n in range(N)]) @ maps  # (N, d_z, q)
+    dz = LPsi.shape[1]
+    Y = np.matmul(LPsi, J.reshape(N, q, N * q)).reshape(N * dz, N, q)  # blockdiag(L Ψ) J
+    W = np.matmul(Y.transpose(1, 0, 2), LPsi.transpose(0, 2, 1))  # (N, N d_z, d_z): column blocks of W
+    return float(np.sum(cost.S_at(k) * W.transpose(1, 0, 2).reshape(N * dz, N * dz)))
+
+
+def _iterate_joint(
+    system: LinearGaussianSystem,
+    model: PseudoStateModel,
+    nbrs: Sequence[Sequence[int]],
+    cost: TeamCost,
+    T: int,
+    rcond: float,
+    form: str,
+    fixed: CIKFDesign | None,
+    pinv: str,
+    pool: Any = None,
+    workers: int = 1,
+) -> dict[str, Any]:
+    r"""Algorithm 2 with the corrected eqs. (41)-(47) as one recursion on J = cov([e; ε]), in reduced coordinates.
+
+    J is N q x N q with q = r + M, agent-major: block (n, m) is E[[e^n; ε^n][e^m; ε^m]'] =
+    [[P^{nm}, Π'^{nm}], [Π^{nm}, Σ^{nm}]] (``J4 = J.reshape(N, q, N, q)``). One step is two maps:
+
+    * the update (41)-(42): [e_{k|k}; ε_{k|k-1}] = blockrows(M_k on e, I on ε) [e; ε] - [B^I v; 0], so
+      J_f = [[M P M' + B^I D̄ B^I', M Π'], [Π M', Σ]]: M_k acts on the e-rows of J only (Γ' = M Π', eq. 41);
+    * the gain K^n and, (43)-(47) fused, the prediction [e; ε]_{k+1|k} = Φ [e_{k|k}; ε_{k|k-1}] + [G_r; I] w with
+      Φ_n = [[Ã + Ǎ K^n, Ǎ F^n], [A K^n, A F^n]], F^n = I - K^n G_r (since ε_{k|k} = F ε + K e_{k|k}), so
+      J_{k+1|k} = Φ J_f Φ' + (1 1') ⊗ ([G_r; I] V [G_r; I]'): one q x q map per agent on both sides.
+
+    Symmetry is used throughout: M P M' and Φ J_f Φ' are computed on the upper block triangle and
+    mirrored. J is updated in place (column panels for M_k, row panels for Φ), so the memory is J and
+    (M_k P)' (N r x N r). Σ_{k|k} is never formed as a whole: its diagonal blocks are [K F] J_f^{nn} [K F]'.
+    """
+    N, M, r = system.n_agents, system.dx, model.rank
+    q = r + M
+    A, Vq, S0 = system.A_at(0), system.Q_at(0), system.Sigma_x
+    Gr, At, Ac = model.G_r, model.A_tilde_r, model.A_check_r
+    Ct = model.C_tilde
+    Rn = [system.R_at(n, 0) for n in range(N)]
+    mse_like = _is_mse(cost, N, M, T)
+    Gx = np.vstack([Gr, np.eye(M)])  # [e; ε] = [G_r; I] x for x(0) - x̄_0 and for w(k)
+    J = np.tile(_sym(Gx @ S0 @ Gx.T), (N, N))  # (1 1') ⊗ cov([G_r x0; x0])
+    Wn = _sym(Gx @ Vq @ Gx.T)  # the noise block added to every block of J, (45)-(47)
+    J4, J3 = J.reshape(N, q, N, q), J.reshape(N, q, N * q)
+    hoods = [np.asarray([n, *nbrs[n]], dtype=np.intp) for n in range(N)]
+    width = max(1, _PANEL_COLS // q)  # agents per column panel of the M_k products
+    n_panels = -(-N // width)
+    ZtE = np.empty((N, r, N, r))  # (M_k P)' = P M_k', (N, r, N, r) blocks
+    diag = np.arange(N)
+    eyeM, eyer = np.eye(M), np.eye(r)
+    Psi_pred = np.broadcast_to(np.hstack([np.zeros((M, r)), eyeM]), (N, M, q))  # ε^n = [0 I][e^n; ε^n]
+    B_cons, B_innov = [], []
+    K_all = np.empty((T, N, M, r))
+    Sp, Sf_all = np.empty((T, N, M, M)), np.empty((T, N, M, M))
+    Ptr = np.empty((T, N))
+    stage = np.empty(T)
+    for k in range(T):
+        Sp[k] = J4[diag, r:, diag, r:]
+        Ptr[k] = np.trace(J4[diag, :r, diag, :r], axis1=1, axis2=2)
+        if form == "predictor":
+            stage[k] = float(np.trace(Sp[k], axis1=1, axis2=2).sum()) if mse_like else _joint_stage_cost(cost, k, J, Psi_pred)
+        # --- Theorem 4: consensus + innovation gains B̂^n (from P_{k|k-1} = the e-e blocks of J) ---
+        if fixed is not None:
+            Bc_k, Bu_k = list(fixed.B_cons[k]), list(fixed.B_innov[k])
+        else:
+            P4 = J4[:, :r, :, :r]
+            Bc_k, Bu_k = [], []
+            for n in range(N):
+                Bc, Bu = _theorem4_pseudo(P4, n, nbrs[n], r, Ct[n], Rn[n], rcond, pinv)
+                Bc_k.append(Bc)
+                Bu_k.append(Bu)
+        rows = []  # block rows of M_k = I - B^C - B^I D̃_H over the closed neighbourhoods [n, l_1, ..., l_d]
+        for n in range(N):
+            d = len(nbrs[n])
+            row = np.empty((r, (d + 1) * r))
+            row[:, :r] = eyer - Bu_k[n] @ Ct[n] - (Bc_k[n].reshape(r, d, r).sum(axis=1) if d else 0.0)
+            row[:, r:] = Bc_k[n]
+            rows.append(row)
+        B_cons.append(tuple(Bc_k))
+        B_innov.append(tuple(Bu_k))
+
+        # --- (41), (42): M_k on the e-rows of J (column panels, in place), then M P M' = M (M P)' ---
+        def update(lo: int, hi: int, rows: list[FloatArray] = rows) -> None:
+            Z = np.empty((N, r, width, q))
+            for p in range(lo, hi):
+                j0, j1 = p * width, min((p + 1) * width, N)
+                Zp = Z[:, :, : j1 - j0]
+                for n in range(N):  # one GEMM per agent on its neighbourhood's e-rows of the panel
+                    np.matmul(rows[n], J4[hoods[n], :r, j0:j1, :].reshape(-1, (j1 - j0) * q), out=Zp[n].reshape(r, -1))
+                J4[:, :r, j0:j1, r:] = Zp[..., r:]  # Γ' = M Π'  (41)
+                for j in range(j0, j1):
+                    J4[j, r:, j:, :r] = Zp[j:, :, j - j0, r:].transpose(2, 0, 1)  # Γ, upper block triangle
+                    ZtE[j] = Zp[:, :, j - j0, :r].transpose(2, 0, 1)  # (M P)' = P M'
+
+        _ranges(pool, workers, update, n_panels)
+
+        def sandwich(lo: int, hi: int, rows: list[FloatArray] = rows) -> None:
+            for n in range(lo, hi):  # block row n of M P M' from the diagonal on: M_n (M P)'[hood(n), m >= n]
+                h = hoods[n]
+                Y = (rows[n] @ ZtE[h, :, n:, :].reshape(h.size * r, (N - n) * r)).reshape(r, N - n, r)
+                J4[n, :r, n:, :r] = Y
+                J4[n + 1 :, :r, n, :r] = Y[:, 1:].transpose(1, 2, 0)
+
+        _ranges(pool, workers, sandwich, N, triangular=True)
+        for n in range(N):  # (42): + B^I D̄_H B^I' = B_u^n R_n B_u^n' on the diagonal
+            nz = Bu_k[n] @ Rn[n] @ Bu_k[n].T
+            Pnn = J4[n, :r, n, :r]
+            Pnn[...] = 0.5 * (Pnn + Pnn.T) + 0.5 * (nz + nz.T)
+        # --- Theorem 4: state gains K^n from the diagonal blocks of J_f ---
+        Jd = J4[diag, :, diag, :]  # (N, q, q): [[P_f^{nn}, Γ'^{nn}], [Γ^{nn}, Σ^{nn}_{k|k-1}]]
+        if fixed is not None:
+            Kk = np.array(fixed.K[k])
+        else:
+            Kk = np.empty((N, M, r))
+            for n in range(N):
+                Sd, Gd, Pfd = Jd[n, r:, r:], Jd[n, :r, r:], Jd[n, :r, :r]
+                GrS = Gr @ Sd
+                S_nu = GrS @ Gr.T - Gr @ Gd.T - Gd @ Gr.T + Pfd  # G Σ G - G Γ - Γ' G + P_f
+                Kk[n] = _psd_solve(GrS.T - Gd.T, S_nu, rcond, pinv)  # (Σ G - Γ) Σ_ν^+
+        K_all[k] = Kk
+        F = eyeM - Kk @ Gr  # (N, M, M)
+        KF = np.concatenate([Kk, F], axis=2)  # ε_{k|k} = [K F] [e_{k|k}; ε_{k|k-1}], (N, M, q)
+        Sf = KF @ Jd @ KF.transpose(0, 2, 1)  # (43), diagonal blocks
+        Sf_all[k] = 0.5 * (Sf + Sf.transpose(0, 2, 1))
+        if form == "filter":
+            stage[k] = float(np.trace(Sf_all[k], axis1=1, axis2=2).sum()) if mse_like else _joint_stage_cost(cost, k, J, KF)
+        if k + 1 == T:
+            break
+        # --- (43)-(47) fused: J <- Φ J_f Φ' + (1 1') ⊗ W, upper block triangle by row panels, mirrored ---
+        Phi = np.empty((N, q, q))
+        Phi[:, :r, :r] = At + Ac @ Kk
+        Phi[:, :r, r:] = Ac @ F
+        Phi[:, r:, :r] = A @ Kk
+        Phi[:, r:, r:] = A @ F
+        PhiT = np.ascontiguousarray(Phi.transpose(0, 2, 1))
+
+        def predict(lo: int, hi: int, Phi: FloatArray = Phi, PhiT: FloatArray = PhiT) -> None:
+            for i in range(lo, hi):
+                Y = Phi[i] @ J3[i, :, i * q :]  # Φ_i J_f^{i, j >= i}, (q, (N - i) q)
+                blocks = J4[i, :, i:, :].transpose(1, 0, 2)  # (N - i, q, q) view of the blocks (i, j >= i)
+                np.matmul(Y.reshape(q, N - i, q).transpose(1, 0, 2), PhiT[i:], out=blocks)  # (Φ_i J_f^{ij}) Φ_j'
+                blocks += Wn
+                _sym(blocks[0])
+                J4[i + 1 :, :, i, :] = blocks[1:].transpose(0, 2, 1)
+
+        _ranges(pool, workers, predict, N, triangular=True)
+        if not (np.isfinite(J[0, 0]) and np.isfinite(J[r, r])):
             raise DivergenceError(
                 f"CIKF gain design: the error covariances overflowed at step {k + 1}; the error dynamics diverge (see tracking_capacity)"
             )
@@ -1312,8 +1504,14 @@ def design_cikf(
     cost.require_horizon(T)
     if form not in ("filter", "predictor"):
         raise ShapeError(f"form: expected 'filter' or 'predictor', found {form!r}")
-    if method not in ("structured", "dense"):
-        raise ShapeError(f"method: expected 'structured' or 'dense', found {method!r}")
+    if method not in ("structured", "joint", "dense"):
+        raise ShapeError(f"method: expected 'structured', 'joint' or 'dense', found {method!r}")
+    if method == "joint" and equations != "corrected":
+        raise ArgumentError(
+            f"equations: method='joint' runs the corrected eqs. (41)-(47) only (it propagates cov([e; ε]) of the filter), "
+            f"found equations={equations!r}; use method='structured'",
+            argument="equations",
+        )
     if equations not in ("corrected", "printed", "printed-43", "printed-45"):
         raise ShapeError(f"equations: expected 'corrected' or 'printed' ('printed-43', 'printed-45': one of the two), found {equations!r}")
     if isinstance(rcond, bool) or not isinstance(rcond, (int, float, np.floating)) or not 0.0 < float(rcond) < 1.0:
@@ -1344,8 +1542,11 @@ def design_cikf(
     if threads is not None:
         threads = V.positive_int(threads, "threads")
     with blas_threads(None if threads is None else 1), _worker_pool(threads) as pool:
-        ops = Ops(N, r, hoods, r_idx, pool, threads or 1)
-        res = _iterate(system, model, nbrs, cost, T, rcond, form, ops, gains, equations, pinv)
+        if method == "joint":
+            res = _iterate_joint(system, model, nbrs, cost, T, rcond, form, gains, pinv, pool, threads or 1)
+        else:
+            ops = Ops(N, r, hoods, r_idx, pool, threads or 1)
+            res = _iterate(system, model, nbrs, cost, T, rcond, form, ops, gains, equations, pinv)
     info = {
         "rank_G": r,
         "G_invertible": model.invertible,
