@@ -790,11 +790,14 @@ class CIKFDesign(Design):
         groups = _agent_groups(self.neighbors, [c.shape[0] for c in m.C_tilde], parts=threads)
         offs = np.concatenate([[0], np.cumsum([c.shape[0] for c in m.C_tilde])])
         ystack = np.concatenate([np.asarray(y, dtype=float) for y in ys], axis=2)  # type: ignore[union-attr]  # (R, T, sum M_n)
-        out = np.empty((n_runs, T, N * dz))
+        # zero-filled, not np.empty: the strided first writes below would otherwise fault the fresh pages in
+        # one by one (measured: 1.6 s of CPU for the 640 MB of 1000 runs x 32 steps at M = N = 50, against 0.2 s)
+        out = np.zeros((n_runs, T, N * dz))
         Gr, Atr = m.G_r, m.A_tilde_r
         chk = _CheckA(m, A)  # Ǎ_r = Aw Wt (rank M - r)
         Lb = None if identity_L else [np.stack([cost.L_block(n, k) for n in range(N)]) for k in range(T)]
         yf = np.empty((N, r, R_))
+        spare = (np.empty_like(yh), np.empty_like(xh))
         xf = np.empty((N, M, R_))
         cuts = np.linspace(0, N, min(threads, N) + 1).round().astype(int)
         with _worker_pool(threads if threads > 1 else None) as pool:
@@ -812,20 +815,14 @@ class CIKFDesign(Design):
                 rows_k = self.m_rows(k)
                 yk = np.ascontiguousarray(ystack[:, k].T)  # (sum M_n, R)
                 wk = np.ascontiguousarray(w[:, k].T) if errors and k + 1 < T else None  # type: ignore[index]  # (M, R)
-                yh_next = np.empty_like(yh)
-                xh_next = np.empty_like(xh)
+                yh_next, xh_next = spare  # two buffers each, swapped every step (no fresh pages per step)
 
                 def consensus(
                     part: Sequence[tuple[np.ndarray, np.ndarray]], yh: FloatArray = yh, rows_k: Any = rows_k, Bu_k: Any = Bu_k, yk: FloatArray = yk
                 ) -> None:
-                    tmp = np.empty((r, R_))
                     for agents, hood in part:
-                        for n, h in zip(agents, hood):  # M_k's block row over the closed neighbourhood, block by block
-                            row = rows_k[n]
-                            np.matmul(row[:, :r], yh[n], out=yf[n])
-                            for q in range(1, h.size):
-                                np.matmul(row[:, q * r : (q + 1) * r], yh[h[q]], out=tmp)
-                                yf[n] += tmp
+                        for n, h in zip(agents, hood):  # M_k's block row times the neighbourhood's (d + 1) r x n_runs rows
+                            np.matmul(rows_k[n], yh[h].reshape(-1, R_), out=yf[n])
                         mn = offs[agents[0] + 1] - offs[agents[0]]
                         if mn:
                             Bu = np.stack([Bu_k[n] for n in agents])
@@ -865,6 +862,7 @@ class CIKFDesign(Design):
 
                 run([lambda p=p: consensus(p) for p in groups])
                 run([lambda a=a, b=b: update(a, b) for a, b in zip(cuts[:-1], cuts[1:]) if b > a])
+                spare = (yh, xh)
                 yh, xh = yh_next, xh_next
         return out
 
