@@ -1280,6 +1280,7 @@ def _iterate_joint(
     Ct = model.C_tilde
     Rn = [system.R_at(n, 0) for n in range(N)]
     mse_like = _is_mse(cost, N, M, T)
+    full_gamma = form == "filter" and not mse_like  # the stage cost then reads the whole J_f
     Gx = np.vstack([Gr, np.eye(M)])  # [e; ε] = [G_r; I] x for x(0) - x̄_0 and for w(k)
     J = np.tile(_sym(Gx @ S0 @ Gx.T), (N, N))  # (1 1') ⊗ cov([G_r x0; x0])
     Wn = _sym(Gx @ Vq @ Gx.T)  # the noise block added to every block of J, (45)-(47)
@@ -1306,11 +1307,14 @@ def _iterate_joint(
             Bc_k, Bu_k = list(fixed.B_cons[k]), list(fixed.B_innov[k])
         else:
             P4 = J4[:, :r, :, :r]
-            Bc_k, Bu_k = [], []
-            for n in range(N):
-                Bc, Bu = _theorem4_pseudo(P4, n, nbrs[n], r, Ct[n], Rn[n], rcond, pinv)
-                Bc_k.append(Bc)
-                Bu_k.append(Bu)
+            gains4: list[Any] = [None] * N
+
+            def theorem4(lo: int, hi: int, P4: FloatArray = P4, gains4: list[Any] = gains4) -> None:
+                for n in range(lo, hi):
+                    gains4[n] = _theorem4_pseudo(P4, n, nbrs[n], r, Ct[n], Rn[n], rcond, pinv)
+
+            _ranges(pool, workers, theorem4, N)
+            Bc_k, Bu_k = [g[0] for g in gains4], [g[1] for g in gains4]
         rows = []  # block rows of M_k = I - B^C - B^I D̃_H over the closed neighbourhoods [n, l_1, ..., l_d]
         for n in range(N):
             d = len(nbrs[n])
@@ -1331,7 +1335,8 @@ def _iterate_joint(
                     np.matmul(rows[n], J4[hoods[n], :r, j0:j1, :].reshape(-1, (j1 - j0) * q), out=Zp[n].reshape(r, -1))
                 J4[:, :r, j0:j1, r:] = Zp[..., r:]  # Γ' = M Π'  (41)
                 for j in range(j0, j1):
-                    J4[j, r:, j:, :r] = Zp[j:, :, j - j0, r:].transpose(2, 0, 1)  # Γ, upper block triangle
+                    m0 = 0 if full_gamma else j  # Γ: the upper block triangle is all that (43)-(47) read
+                    J4[j, r:, m0:, :r] = Zp[m0:, :, j - j0, r:].transpose(2, 0, 1)
                     ZtE[j] = Zp[:, :, j - j0, :r].transpose(2, 0, 1)  # (M P)' = P M'
 
         _ranges(pool, workers, update, n_panels)
@@ -1354,11 +1359,16 @@ def _iterate_joint(
             Kk = np.array(fixed.K[k])
         else:
             Kk = np.empty((N, M, r))
-            for n in range(N):
-                Sd, Gd, Pfd = Jd[n, r:, r:], Jd[n, :r, r:], Jd[n, :r, :r]
-                GrS = Gr @ Sd
-                S_nu = GrS @ Gr.T - Gr @ Gd.T - Gd @ Gr.T + Pfd  # G Σ G - G Γ - Γ' G + P_f
-                Kk[n] = _psd_solve(GrS.T - Gd.T, S_nu, rcond, pinv)  # (Σ G - Γ) Σ_ν^+
+            GrS = Gr @ Jd[:, r:, r:]  # G Σ^{nn}, (N, r, M)
+            GrG = Gr @ Jd[:, r:, :r]  # G Γ^{nn}
+            S_nu = GrS @ Gr.T - GrG - GrG.transpose(0, 2, 1) + Jd[:, :r, :r]  # G Σ G - G Γ - Γ' G + P_f
+            S_xnu = GrS.transpose(0, 2, 1) - Jd[:, r:, :r]  # Σ G - Γ
+
+            def state_gains(lo: int, hi: int, Kk: FloatArray = Kk, S_xnu: FloatArray = S_xnu, S_nu: FloatArray = S_nu) -> None:
+                for n in range(lo, hi):
+                    Kk[n] = _psd_solve(S_xnu[n], S_nu[n], rcond, pinv)  # (Σ G - Γ) Σ_ν^+
+
+            _ranges(pool, workers, state_gains, N)
         K_all[k] = Kk
         F = eyeM - Kk @ Gr  # (N, M, M)
         KF = np.concatenate([Kk, F], axis=2)  # ε_{k|k} = [K F] [e_{k|k}; ε_{k|k-1}], (N, M, q)
