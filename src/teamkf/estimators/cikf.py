@@ -762,44 +762,49 @@ class CIKFDesign(Design):
     def _recursion_impl(
         self, ys: Sequence[FloatArray] | None, x0: FloatArray | None, w: FloatArray | None, n_runs: int, T: int, form: str
     ) -> FloatArray:
-        """Algorithm 1 on data (``ys``) or its error recursion (30)-(33) on the primitive noises (x0, w, ys = v).
+        r"""Algorithm 1 on data (``ys``) or its error recursion (30)-(33) on the primitive noises (x0, w, ys = v).
 
-        Runs-last layout (N, dim, n_runs): agent n's closed neighbourhood is a gather along the first axis
-        that is already the (d + 1) r x n_runs operand of one GEMM with its block row of M_k, and agents
-        with the same neighbourhood size and measurement size are batched into one ``matmul``:
+        Runs-last layout. The pseudo-state parts live in ``Y`` (N, r, n_runs); ``X`` (N, r + M, n_runs) holds,
+        per agent, [ŷ^n_{k|k}; x̂^n_{k|k-1}] (errors: [e^n_{k|k}; ε^n_{k|k-1}]). One step is
 
-            ŷ^n_{k|k} = [M_k]_{n, hood(n)} ŷ_{hood(n)} + B_u^n y_n(k)        (data; M_k = I - B^C - B^I D̃_H)
-            e^n_{k|k} = [M_k]_{n, hood(n)} e_{hood(n)} - B_u^n v_n(k)        (errors)
+            X[n, :r] = [M_k]_{n, hood(n)} Y[hood(n)] ± B_u^n y_n(k)       (21) / (30): one GEMM per agent on
+                                                                          its gathered neighbourhood
+            [Y[n]; X[n, r:]] <- Φ^n_k X[n] (+ [G_r; I] w(k))              (22)-(24) / (31)-(33) fused
+
+        with Φ^n = [[Ã + Ǎ K^n, Ǎ F^n], [A K^n, A F^n]], F^n = I - K^n G_r (x̂_{k|k} = K ŷ_{k|k} + F x̂_{k|k-1}):
+        one (r + M) x (r + M) GEMM per agent instead of five products and their passes over memory.
+        The filter form's output x̂^n_{k|k} = [K^n F^n] X[n] costs one more GEMM per agent.
         """
         m, sys, cost = self.model, self.system, self.cost
         N, M, r = self.n_agents, sys.dx, m.rank
+        q = r + M
         A = sys.A_at(0)
+        Gr, At, Ac = m.G_r, m.A_tilde_r, m.A_check_r
         errors = x0 is not None
         R_ = n_runs
+        Y = np.empty((N, r, R_))
+        X = np.empty((N, q, R_))
         if errors:
-            yh = np.repeat((m.G_r @ x0.T)[None], N, axis=0)  # type: ignore[union-attr]  # e^n_{0|-1} = G_r (x0 - x̄0)
-            xh = np.repeat(np.ascontiguousarray(x0.T)[None], N, axis=0)  # type: ignore[union-attr]  # ε^n_{0|-1}
+            Y[:] = (Gr @ x0.T)[None]  # type: ignore[union-attr]  # e^n_{0|-1} = G_r (x0 - x̄0)
+            X[:, r:] = x0.T[None]  # type: ignore[union-attr]  # ε^n_{0|-1}
         else:
-            yh = np.zeros((N, r, R_))  # ŷ^n_{0|-1} = G_r x̄_0 = 0
-            xh = np.zeros((N, M, R_))
+            Y[:] = 0.0  # ŷ^n_{0|-1} = G_r x̄_0 = 0
+            X[:, r:] = 0.0
         dz = cost.dz
         identity_L = dz == M and all(
             np.array_equal(cost.L_block(n, k), np.eye(M)) for n in range(N) for k in range(min(T, 1 if not cost.is_time_varying else T))
         )
         threads = self.info.get("threads", 1) or 1
         groups = _agent_groups(self.neighbors, [c.shape[0] for c in m.C_tilde], parts=threads)
+        hoods = [np.asarray([n, *nb], dtype=np.intp) for n, nb in enumerate(self.neighbors)]
         offs = np.concatenate([[0], np.cumsum([c.shape[0] for c in m.C_tilde])])
         ystack = np.concatenate([np.asarray(y, dtype=float) for y in ys], axis=2)  # type: ignore[union-attr]  # (R, T, sum M_n)
         # zero-filled, not np.empty: the strided first writes below would otherwise fault the fresh pages in
         # one by one (measured: 1.6 s of CPU for the 640 MB of 1000 runs x 32 steps at M = N = 50, against 0.2 s)
         out = np.zeros((n_runs, T, N * dz))
-        Gr, Atr = m.G_r, m.A_tilde_r
-        chk = _CheckA(m, A)  # Ǎ_r = Aw Wt (rank M - r)
         Lb = None if identity_L else [np.stack([cost.L_block(n, k) for n in range(N)]) for k in range(T)]
-        yf = np.empty((N, r, R_))
-        spare = (np.empty_like(yh), np.empty_like(xh))
-        xf = np.empty((N, M, R_))
         cuts = np.linspace(0, N, min(threads, N) + 1).round().astype(int)
+        sign = -1.0 if errors else 1.0  # - B_u^n v_n (errors) | + B_u^n y_n (data)
         with _worker_pool(threads if threads > 1 else None) as pool:
 
             def run(tasks: Sequence[Any]) -> None:
@@ -813,57 +818,50 @@ class CIKFDesign(Design):
             for k in range(T):
                 Bu_k = self.B_innov[k]
                 rows_k = self.m_rows(k)
+                Kk = self.K[k]
+                F = np.eye(M) - Kk @ Gr
+                KF = np.concatenate([Kk, F], axis=2)  # x̂_{k|k} = [K F] [ŷ_{k|k}; x̂_{k|k-1}], (N, M, q)
+                last = k + 1 == T
+                if not last:
+                    Phi = np.empty((N, q, q))
+                    Phi[:, :r, :r] = At + Ac @ Kk
+                    Phi[:, :r, r:] = Ac @ F
+                    Phi[:, r:, :r] = A @ Kk
+                    Phi[:, r:, r:] = A @ F
                 yk = np.ascontiguousarray(ystack[:, k].T)  # (sum M_n, R)
-                wk = np.ascontiguousarray(w[:, k].T) if errors and k + 1 < T else None  # type: ignore[index]  # (M, R)
-                yh_next, xh_next = spare  # two buffers each, swapped every step (no fresh pages per step)
+                if errors and not last:
+                    wk = np.ascontiguousarray(w[:, k].T)  # type: ignore[index]  # (M, R)
+                    Gw = Gr @ wk
 
-                def consensus(
-                    part: Sequence[tuple[np.ndarray, np.ndarray]], yh: FloatArray = yh, rows_k: Any = rows_k, Bu_k: Any = Bu_k, yk: FloatArray = yk
-                ) -> None:
+                def consensus(part: Sequence[tuple[np.ndarray, np.ndarray]], rows_k: Any = rows_k, Bu_k: Any = Bu_k, yk: FloatArray = yk) -> None:
                     for agents, hood in part:
-                        for n, h in zip(agents, hood):  # M_k's block row times the neighbourhood's (d + 1) r x n_runs rows
-                            np.matmul(rows_k[n], yh[h].reshape(-1, R_), out=yf[n])
+                        for n in agents:  # M_k's block row times the neighbourhood's (d + 1) r x n_runs rows
+                            np.matmul(rows_k[n], Y[hoods[n]].reshape(-1, R_), out=X[n, :r])
                         mn = offs[agents[0] + 1] - offs[agents[0]]
                         if mn:
                             Bu = np.stack([Bu_k[n] for n in agents])
                             Yv = np.stack([yk[offs[n] : offs[n] + mn] for n in agents])
-                            if errors:
-                                yf[agents] -= np.matmul(Bu, Yv)  # - B_u^n v_n
-                            else:
-                                yf[agents] += np.matmul(Bu, Yv)  # + B_u^n y_n
+                            X[agents, :r] += sign * np.matmul(Bu, Yv)
 
-                def update(
-                    lo: int, hi: int, k: int = k, xh: FloatArray = xh, yh_next: FloatArray = yh_next, xh_next: FloatArray = xh_next, wk: Any = wk
-                ) -> None:
-                    # ν = ŷ_f - G_r x̂ (data) | G_r ε - e_f (errors);  x̂_f = x̂ + K ν | ε_f = ε - K ν
-                    nu = np.matmul(Gr, xh[lo:hi])
-                    if errors:
-                        nu -= yf[lo:hi]
-                        np.subtract(xh[lo:hi], np.matmul(self.K[k, lo:hi], nu), out=xf[lo:hi])
-                    else:
-                        np.subtract(yf[lo:hi], nu, out=nu)
-                        np.add(xh[lo:hi], np.matmul(self.K[k, lo:hi], nu), out=xf[lo:hi])
-                    src = xf[lo:hi] if form == "filter" else xh[lo:hi]
+                def update(lo: int, hi: int, k: int = k, KF: FloatArray = KF, last: bool = last) -> None:
+                    src = np.matmul(KF[lo:hi], X[lo:hi]) if form == "filter" else X[lo:hi, r:]  # (hi - lo, M, R)
                     if Lb is not None:
                         src = np.matmul(Lb[k][lo:hi], src)
-                    # transposed into the run-major output in column blocks (cache-friendly)
-                    s2 = src.reshape(-1, R_)
-                    for j in range(0, s2.shape[0], 128):
-                        j2 = min(j + 128, s2.shape[0])
-                        out[:, k, lo * dz + j : lo * dz + j2] = s2[j:j2].T
-                    if k + 1 < T:
-                        np.matmul(Atr, yf[lo:hi], out=yh_next[lo:hi])
-                        if not chk.zero:
-                            yh_next[lo:hi] += np.matmul(chk.Aw, np.matmul(chk.Wt, xf[lo:hi]))
-                        np.matmul(A, xf[lo:hi], out=xh_next[lo:hi])
-                        if wk is not None:
-                            yh_next[lo:hi] += (Gr @ wk)[None]
-                            xh_next[lo:hi] += wk[None]
+                    o = out[:, k, lo * dz : hi * dz].reshape(R_, hi - lo, dz)
+                    for i in range(0, R_, 64):  # transposed into the run-major output, 64 runs at a time
+                        o[i : i + 64] = src[:, :, i : i + 64].transpose(2, 0, 1)
+                    tmp = np.empty((q, R_))
+                    for n in range(lo, hi):
+                        if not last:
+                            np.matmul(Phi[n], X[n], out=tmp)  # [ŷ_{k+1|k}; x̂_{k+1|k}] = Φ^n [ŷ_{k|k}; x̂_{k|k-1}]
+                            Y[n] = tmp[:r]
+                            X[n, r:] = tmp[r:]
+                            if errors:
+                                Y[n] += Gw
+                                X[n, r:] += wk
 
                 run([lambda p=p: consensus(p) for p in groups])
                 run([lambda a=a, b=b: update(a, b) for a, b in zip(cuts[:-1], cuts[1:]) if b > a])
-                spare = (yh, xh)
-                yh, xh = yh_next, xh_next
         return out
 
     def simulate(self, y: Any, *, form: Form | None = None) -> FloatArray:
