@@ -821,20 +821,19 @@ class CIKFDesign(Design):
                 Kk = self.K[k]
                 F = np.eye(M) - Kk @ Gr
                 KF = np.concatenate([Kk, F], axis=2)  # x̂_{k|k} = [K F] [ŷ_{k|k}; x̂_{k|k-1}], (N, M, q)
-                last = k + 1 == T
-                if not last:
+                Phi = None
+                if k + 1 < T:
                     Phi = np.empty((N, q, q))
                     Phi[:, :r, :r] = At + Ac @ Kk
                     Phi[:, :r, r:] = Ac @ F
                     Phi[:, r:, :r] = A @ Kk
                     Phi[:, r:, r:] = A @ F
                 yk = np.ascontiguousarray(ystack[:, k].T)  # (sum M_n, R)
-                if errors and not last:
-                    wk = np.ascontiguousarray(w[:, k].T)  # type: ignore[index]  # (M, R)
-                    Gw = Gr @ wk
+                wk = np.ascontiguousarray(w[:, k].T) if errors and k + 1 < T else None  # type: ignore[index]  # (M, R)
+                Gw = None if wk is None else Gr @ wk
 
                 def consensus(part: Sequence[tuple[np.ndarray, np.ndarray]], rows_k: Any = rows_k, Bu_k: Any = Bu_k, yk: FloatArray = yk) -> None:
-                    for agents, hood in part:
+                    for agents, _ in part:
                         for n in agents:  # M_k's block row times the neighbourhood's (d + 1) r x n_runs rows
                             np.matmul(rows_k[n], Y[hoods[n]].reshape(-1, R_), out=X[n, :r])
                         mn = offs[agents[0] + 1] - offs[agents[0]]
@@ -843,22 +842,31 @@ class CIKFDesign(Design):
                             Yv = np.stack([yk[offs[n] : offs[n] + mn] for n in agents])
                             X[agents, :r] += sign * np.matmul(Bu, Yv)
 
-                def update(lo: int, hi: int, k: int = k, KF: FloatArray = KF, last: bool = last) -> None:
+                def update(
+                    lo: int,
+                    hi: int,
+                    k: int = k,
+                    KF: FloatArray = KF,
+                    Phi: FloatArray | None = Phi,
+                    wk: FloatArray | None = wk,
+                    Gw: FloatArray | None = Gw,
+                ) -> None:
                     src = np.matmul(KF[lo:hi], X[lo:hi]) if form == "filter" else X[lo:hi, r:]  # (hi - lo, M, R)
                     if Lb is not None:
                         src = np.matmul(Lb[k][lo:hi], src)
                     o = out[:, k, lo * dz : hi * dz].reshape(R_, hi - lo, dz)
                     for i in range(0, R_, 64):  # transposed into the run-major output, 64 runs at a time
                         o[i : i + 64] = src[:, :, i : i + 64].transpose(2, 0, 1)
+                    if Phi is None:  # the last step: no prediction
+                        return
                     tmp = np.empty((q, R_))
                     for n in range(lo, hi):
-                        if not last:
-                            np.matmul(Phi[n], X[n], out=tmp)  # [ŷ_{k+1|k}; x̂_{k+1|k}] = Φ^n [ŷ_{k|k}; x̂_{k|k-1}]
-                            Y[n] = tmp[:r]
-                            X[n, r:] = tmp[r:]
-                            if errors:
-                                Y[n] += Gw
-                                X[n, r:] += wk
+                        np.matmul(Phi[n], X[n], out=tmp)  # [ŷ_{k+1|k}; x̂_{k+1|k}] = Φ^n [ŷ_{k|k}; x̂_{k|k-1}]
+                        Y[n] = tmp[:r]
+                        X[n, r:] = tmp[r:]
+                        if wk is not None and Gw is not None:  # + [G_r; I] w(k)
+                            Y[n] += Gw
+                            X[n, r:] += wk
 
                 run([lambda p=p: consensus(p) for p in groups])
                 run([lambda a=a, b=b: update(a, b) for a, b in zip(cuts[:-1], cuts[1:]) if b > a])
@@ -1280,9 +1288,10 @@ def _iterate_joint(
     mse_like = _is_mse(cost, N, M, T)
     full_gamma = form == "filter" and not mse_like  # the stage cost then reads the whole J_f
     Gx = np.vstack([Gr, np.eye(M)])  # [e; ε] = [G_r; I] x for x(0) - x̄_0 and for w(k)
-    J = np.tile(_sym(Gx @ S0 @ Gx.T), (N, N))  # (1 1') ⊗ cov([G_r x0; x0])
-    Wn = _sym(Gx @ Vq @ Gx.T)  # the noise block added to every block of J, (45)-(47)
+    J = np.empty((N * q, N * q))
     J4, J3 = J.reshape(N, q, N, q), J.reshape(N, q, N * q)
+    J4[...] = _sym(Gx @ S0 @ Gx.T)[None, :, None, :]  # (1 1') ⊗ cov([G_r x0; x0]) (no tiled temporaries)
+    Wn = _sym(Gx @ Vq @ Gx.T)  # the noise block added to every block of J, (45)-(47)
     hoods = [np.asarray([n, *nbrs[n]], dtype=np.intp) for n in range(N)]
     width = max(1, _PANEL_COLS // q)  # agents per column panel of the M_k products
     n_panels = -(-N // width)
