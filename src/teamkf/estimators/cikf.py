@@ -1316,7 +1316,10 @@ def _iterate_joint(
     hoods = [np.asarray([n, *nbrs[n]], dtype=np.intp) for n in range(N)]
     width = max(1, _PANEL_COLS // q)  # agents per column panel of the M_k products
     n_panels = -(-N // width)
-    ZtE = np.empty((N, r, N, r))  # (M_k P)' = P M_k', (N, r, N, r) blocks
+    by_size: dict[int, list[int]] = {}
+    for n in range(N):
+        by_size.setdefault(len(nbrs[n]), []).append(n)
+    groups = [(np.asarray(a, dtype=np.intp), np.stack([hoods[n] for n in a])) for _, a in sorted(by_size.items())]
     diag = np.arange(N)
     eyeM, eyer = np.eye(M), np.eye(r)
     Psi_pred = np.broadcast_to(np.hstack([np.zeros((M, r)), eyeM]), (N, M, q))  # ε^n = [0 I][e^n; ε^n]
@@ -1361,22 +1364,30 @@ def _iterate_joint(
                 Zp = Z[:, :, : j1 - j0]
                 for n in range(N):  # one GEMM per agent on its neighbourhood's e-rows of the panel
                     np.matmul(rows[n], J4[hoods[n], :r, j0:j1, :].reshape(-1, (j1 - j0) * q), out=Zp[n].reshape(r, -1))
-                J4[:, :r, j0:j1, r:] = Zp[..., r:]  # Γ' = M Π'  (41)
+                J4[:, :r, j0:j1, :] = Zp  # M P (replaced by M P M' below) and Γ' = M Π'  (41)
                 for j in range(j0, j1):
                     m0 = 0 if full_gamma else j  # Γ: the upper block triangle is all that (43)-(47) read
                     J4[j, r:, m0:, :r] = Zp[m0:, :, j - j0, r:].transpose(2, 0, 1)
-                    ZtE[j] = Zp[:, :, j - j0, :r].transpose(2, 0, 1)  # (M P)' = P M'
 
         _ranges(pool, workers, update, n_panels)
+        rowsT_g = [np.stack([rows[m].T for m in agents]) for agents, _ in groups]  # M_m', by neighbourhood size
 
-        def sandwich(lo: int, hi: int, rows: list[FloatArray] = rows) -> None:
-            for n in range(lo, hi):  # block row n of M P M' from the diagonal on: M_n (M P)'[hood(n), m >= n]
-                h = hoods[n]
-                Y = (rows[n] @ ZtE[h, :, n:, :].reshape(h.size * r, (N - n) * r)).reshape(r, N - n, r)
-                J4[n, :r, n:, :r] = Y
-                J4[n + 1 :, :r, n, :r] = Y[:, 1:].transpose(1, 2, 0)
+        def sandwich(lo: int, hi: int, rowsT_g: list[FloatArray] = rowsT_g) -> None:
+            for n in range(lo, hi):  # block row n of M P M' = (M P) M' from the diagonal on, in place of (M P)[n]
+                MPn = J4[n, :r, :, :r].copy()  # (r, N, r)
+                for (agents, hood), RgT in zip(groups, rowsT_g):
+                    sel = agents >= n
+                    if sel.any():  # (M P M')[n, m] = (M P)[n, hood(m)] M_m'
+                        X = MPn[:, hood[sel], :].transpose(1, 0, 2, 3).reshape(int(sel.sum()), r, -1)
+                        J4[n, :r, agents[sel], :r] = np.matmul(X, RgT[sel])  # (int, advanced) index: (g, r, r)
 
         _ranges(pool, workers, sandwich, N, triangular=True)
+
+        def mirror(lo: int, hi: int) -> None:  # the lower block triangle of M P M'
+            for n in range(lo, hi):
+                J4[n + 1 :, :r, n, :r] = J4[n, :r, n + 1 :, :r].transpose(1, 2, 0)
+
+        _ranges(pool, workers, mirror, N, triangular=True)
         for n in range(N):  # (42): + B^I D̄_H B^I' = B_u^n R_n B_u^n' on the diagonal
             nz = Bu_k[n] @ Rn[n] @ Bu_k[n].T
             Pnn = J4[n, :r, n, :r]
