@@ -1359,11 +1359,13 @@ def _iterate_joint(
         # --- (41), (42): M_k on the e-rows of J (column panels, in place), then M P M' = M (M P)' ---
         def update(lo: int, hi: int, rows: list[FloatArray] = rows) -> None:
             Z = np.empty((N, r, width, q))
+            E = np.empty((N, r, width * q))
             for p in range(lo, hi):
                 j0, j1 = p * width, min((p + 1) * width, N)
-                Zp = Z[:, :, : j1 - j0]
+                Zp, Ep = Z[:, :, : j1 - j0], E[:, :, : (j1 - j0) * q]
+                Ep[...] = J4[:, :r, j0:j1, :].reshape(N, r, -1)  # the panel's e-rows, contiguous (cache-resident)
                 for n in range(N):  # one GEMM per agent on its neighbourhood's e-rows of the panel
-                    np.matmul(rows[n], J4[hoods[n], :r, j0:j1, :].reshape(-1, (j1 - j0) * q), out=Zp[n].reshape(r, -1))
+                    np.matmul(rows[n], Ep[hoods[n]].reshape(-1, Ep.shape[2]), out=Zp[n].reshape(r, -1))
                 J4[:, :r, j0:j1, :] = Zp  # M P (replaced by M P M' below) and Γ' = M Π'  (41)
                 for j in range(j0, j1):
                     m0 = 0 if full_gamma else j  # Γ: the upper block triangle is all that (43)-(47) read
