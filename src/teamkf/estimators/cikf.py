@@ -1244,6 +1244,10 @@ def _iterate(
 _PANEL_COLS = 512
 
 
+#: largest (M_k P)' kept as a separate array by method="joint" (bytes): 37 MiB at M = N = 50, 489 MiB at 100
+_MPT_BYTES = 256 * 2**20
+
+
 def _ranges(pool: Any, workers: int, fn: Callable[[int, int], None], n: int, *, triangular: bool = False) -> None:
     """fn(lo, hi) over one contiguous range of range(n) per worker (in ``pool``; inline without one).
 
@@ -1316,6 +1320,9 @@ def _iterate_joint(
     hoods = [np.asarray([n, *nbrs[n]], dtype=np.intp) for n in range(N)]
     width = max(1, _PANEL_COLS // q)  # agents per column panel of the M_k products
     n_panels = -(-N // width)
+    # (M_k P)' as its own (N, r, N, r) array when small (M P M' then takes one large GEMM per agent); else M P is
+    # written in place of P and M P M' formed row by row in place (smaller GEMMs, no extra N r x N r array)
+    MPt = np.empty((N, r, N, r)) if (N * r) ** 2 * 8 <= _MPT_BYTES else None
     by_size: dict[int, list[int]] = {}
     for n in range(N):
         by_size.setdefault(len(nbrs[n]), []).append(n)
@@ -1358,21 +1365,29 @@ def _iterate_joint(
 
         # --- (41), (42): M_k on the e-rows of J (column panels, in place), then M P M' = M (M P)' ---
         def update(lo: int, hi: int, rows: list[FloatArray] = rows) -> None:
-            Z = np.empty((N, r, width, q))
             E = np.empty((N, r, width * q))
             for p in range(lo, hi):
                 j0, j1 = p * width, min((p + 1) * width, N)
-                Zp, Ep = Z[:, :, : j1 - j0], E[:, :, : (j1 - j0) * q]
+                Ep = E[:, :, : (j1 - j0) * q]
                 Ep[...] = J4[:, :r, j0:j1, :].reshape(N, r, -1)  # the panel's e-rows, contiguous (cache-resident)
-                for n in range(N):  # one GEMM per agent on its neighbourhood's e-rows of the panel
-                    np.matmul(rows[n], Ep[hoods[n]].reshape(-1, Ep.shape[2]), out=Zp[n].reshape(r, -1))
-                J4[:, :r, j0:j1, :] = Zp  # M P (replaced by M P M' below) and Γ' = M Π'  (41)
+                for n in range(N):  # one GEMM per agent on its neighbourhood's e-rows, written back in place:
+                    # [M P, M Π'] (M P is replaced by M P M' below; Γ' = M Π', eq. 41)
+                    np.matmul(rows[n], Ep[hoods[n]].reshape(-1, Ep.shape[2]), out=J4[n, :r, j0:j1, :].reshape(r, -1))
                 for j in range(j0, j1):
                     m0 = 0 if full_gamma else j  # Γ: the upper block triangle is all that (43)-(47) read
-                    J4[j, r:, m0:, :r] = Zp[m0:, :, j - j0, r:].transpose(2, 0, 1)
+                    J4[j, r:, m0:, :r] = J4[m0:, :r, j, r:].transpose(2, 0, 1)
+                    if MPt is not None:
+                        MPt[j] = J4[:, :r, j, :r].transpose(2, 0, 1)  # (M P)' = P M'
 
         _ranges(pool, workers, update, n_panels)
         rowsT_g = [np.stack([rows[m].T for m in agents]) for agents, _ in groups]  # M_m', by neighbourhood size
+
+        def sandwich_out(lo: int, hi: int, rows: list[FloatArray] = rows) -> None:
+            assert MPt is not None
+            for n in range(lo, hi):  # block row n of M P M' = M_n (M P)'[hood(n), m >= n]: one GEMM per agent
+                h = hoods[n]
+                Y = rows[n] @ MPt[h, :, n:, :].reshape(h.size * r, (N - n) * r)
+                J4[n, :r, n:, :r] = Y.reshape(r, N - n, r)
 
         def sandwich(lo: int, hi: int, rowsT_g: list[FloatArray] = rowsT_g) -> None:
             for n in range(lo, hi):  # block row n of M P M' = (M P) M' from the diagonal on, in place of (M P)[n]
@@ -1383,7 +1398,7 @@ def _iterate_joint(
                         X = MPn[:, hood[sel], :].transpose(1, 0, 2, 3).reshape(int(sel.sum()), r, -1)
                         J4[n, :r, agents[sel], :r] = np.matmul(X, RgT[sel])  # (int, advanced) index: (g, r, r)
 
-        _ranges(pool, workers, sandwich, N, triangular=True)
+        _ranges(pool, workers, sandwich if MPt is None else sandwich_out, N, triangular=True)
 
         def mirror(lo: int, hi: int) -> None:  # the lower block triangle of M P M'
             for n in range(lo, hi):
