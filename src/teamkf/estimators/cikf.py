@@ -128,7 +128,7 @@ covariance J = cov([e; ε]) (N(r + M) square, agent-major): the update
 applied on both sides; both two-sided products are computed on the upper
 block triangle only, in place (``_iterate_joint``). At M = N = 50 that is
 12.2 GFLOP per step against 14.4 for the block-operator form, in fewer and
-larger GEMMs, and J plus (M_k P)' is all the memory. It differs from the
+larger GEMMs, and J (plus (M_k P)' when small) is all the memory. It differs from the
 default only in the rounding: Σ, P, the stage costs agree to ~1e-12, but
 Theorem 4's consensus gains only to ~1e-8, because Σ_ν̃ is formed by
 cancellation (the default itself moves that much when P is scaled by
@@ -1301,8 +1301,9 @@ def _iterate_joint(
       J_{k+1|k} = Φ J_f Φ' + (1 1') ⊗ ([G_r; I] V [G_r; I]'): one q x q map per agent on both sides.
 
     Symmetry is used throughout: M P M' and Φ J_f Φ' are computed on the upper block triangle and
-    mirrored. J is updated in place (column panels for M_k, row panels for Φ), so the memory is J and
-    (M_k P)' (N r x N r). Σ_{k|k} is never formed as a whole: its diagonal blocks are [K F] J_f^{nn} [K F]'.
+    mirrored. J is updated in place (column panels for M_k, row panels for Φ), so the memory is J, plus
+    (M_k P)' (N r x N r) while that is at most ``_MPT_BYTES`` (above, M P M' is formed row by row in place of
+    M P). Σ_{k|k} is never formed as a whole: its diagonal blocks are [K F] J_f^{nn} [K F]'.
     """
     N, M, r = system.n_agents, system.dx, model.rank
     q = r + M
