@@ -2,12 +2,15 @@
 
     PYTHONPATH=src python3 benchmarks/bench_cikf.py                 # everything, M = N = 50
     PYTHONPATH=src python3 benchmarks/bench_cikf.py --size 20 --dense-steps 4 --json
-    PYTHONPATH=src python3 benchmarks/bench_cikf.py --size 100 --steps 3 --runs 0 --dense-steps 0   # scale
+    PYTHONPATH=src python3 benchmarks/bench_cikf.py --size 100 --steps 2 --runs 0 --dense-steps 0   # scale
 
 Cases (one process, in this order)
 ----------------------------------
-design          Algorithm 2 with the block-structured products, T = 32 steps, with ``--threads`` worker
-                threads (default 2; one BLAS thread each) and with 1 thread; peak resident memory.
+design          Algorithm 2, T = 32 steps, ``--method`` (default "joint": one recursion on cov([e; ε]), fused
+                and symmetric; "structured": the block-operator products, bit-compatible with the frozen
+                reference), with ``--threads`` worker threads (default 2; one BLAS thread each) and with 1
+                thread; wall and CPU (process) time, peak resident memory. With ``--method joint`` the
+                structured design is also timed on min(T, 4) steps, and the two MSE curves compared.
 design-dense    an independent, straightforward dense implementation of the same recursion
                 (``_dense_design`` below): every operator (M_k, B^I, K, F, I ⊗ A, I ⊗ Ã, I ⊗ Ǎ) formed as a
                 dense matrix once per step and applied with plain numpy matmuls (BLAS with its default
@@ -122,13 +125,37 @@ def _dense_errors(d, paths) -> np.ndarray:
     return out
 
 
+def _reset_peak_rss() -> bool:
+    """Reset the kernel's peak-RSS mark of this process (Linux >= 4.0), so that the next reading is one phase's peak."""
+    try:
+        with open("/proc/self/clear_refs", "w") as fh:
+            fh.write("5")
+        return True
+    except OSError:
+        return False
+
+
+def _peak_rss_MiB() -> float:
+    """VmHWM (peak resident set size since the last reset) where /proc has it, else ru_maxrss (since the start)."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return float(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--size", type=int, default=50, help="M = N (default 50, the paper's)")
     ap.add_argument("--steps", type=int, default=32, help="design horizon T (default 32: i = 0..30)")
     ap.add_argument("--runs", type=int, default=1000)
     ap.add_argument("--dense-steps", type=int, default=2, help="steps of the dense design baseline (0: skip)")
-    ap.add_argument("--threads", type=int, default=2, help="worker threads of the structured design and its Monte Carlo")
+    ap.add_argument("--threads", type=int, default=2, help="worker threads of the design and its Monte Carlo")
+    ap.add_argument("--method", choices=("joint", "structured"), default="joint", help="design_cikf(method=...) (default joint)")
+    ap.add_argument("--compare-steps", type=int, default=4, help="steps of the structured design timed beside the joint one (0: skip)")
     ap.add_argument("--runtime-runs", type=int, default=1000, help="runs through run_graph (0 to skip)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
@@ -148,18 +175,33 @@ def main() -> None:
     }
     res["load_before"] = os.getloadavg()
     sysm, graph = random_field(args.size, args.size, rng=0)
-    design_cikf(sysm, None, graph, 1)  # warm caches (the default cost, imports)
+    design_cikf(sysm, None, graph, 1, method=args.method)  # warm caches (the default cost, imports)
 
-    t = time.perf_counter()
-    d = design_cikf(sysm, None, graph, args.steps, form="predictor", threads=args.threads)
+    res["process_peak_rss_before_design_MiB"] = _peak_rss_MiB()  # the model, the graph, the default TeamCost.mse
+    res["design_peak_rss_reset"] = _reset_peak_rss()
+    t, c = time.perf_counter(), time.process_time()
+    d = design_cikf(sysm, None, graph, args.steps, form="predictor", threads=args.threads, method=args.method)
     res["design_s"] = time.perf_counter() - t
+    res["design_cpu_s"] = time.process_time() - c
+    res["design_method"] = args.method
     res["design_threads"] = args.threads
-    res["design_peak_rss_MiB"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    res["design_peak_rss_MiB"] = _peak_rss_MiB()  # during the design (whole process if the reset was refused)
     res["design_per_step_s"] = res["design_s"] / args.steps
+    short = min(args.steps, 4)
     if args.threads != 1:
-        t = time.perf_counter()
-        design_cikf(sysm, None, graph, min(args.steps, 4), form="predictor", threads=1)
-        res["design_1thread_per_step_s"] = (time.perf_counter() - t) / min(args.steps, 4)
+        t, c = time.perf_counter(), time.process_time()
+        design_cikf(sysm, None, graph, short, form="predictor", threads=1, method=args.method)
+        res["design_1thread_per_step_s"] = (time.perf_counter() - t) / short
+        res["design_1thread_cpu_per_step_s"] = (time.process_time() - c) / short
+    if args.method == "joint" and args.compare_steps:
+        short = min(args.steps, args.compare_steps)
+        t, c = time.perf_counter(), time.process_time()
+        ds = design_cikf(sysm, None, graph, short, form="predictor", threads=args.threads, method="structured")
+        res["design_structured_per_step_s"] = (time.perf_counter() - t) / short
+        res["design_structured_cpu_per_step_s"] = (time.process_time() - c) / short
+        ref = ds.mse("predictor")
+        res["design_joint_vs_structured_max_rel_diff_mse"] = float(np.max(np.abs(d.mse("predictor")[:short] - ref) / np.abs(ref)))
+        del ds
     if args.dense_steps:
         t = time.perf_counter()
         dense = _dense_design(sysm, graph, args.dense_steps)
@@ -175,9 +217,10 @@ def main() -> None:
     t = time.perf_counter()
     paths = sample_paths(sysm, args.steps, args.runs, rng=1)
     res["mc_sample_s"] = time.perf_counter() - t
-    t = time.perf_counter()
+    t, c = time.perf_counter(), time.process_time()
     e = d.errors(paths)
     res["mc_errors_s"] = time.perf_counter() - t
+    res["mc_errors_cpu_s"] = time.process_time() - c
     t = time.perf_counter()
     z = d.simulate(paths.y)
     res["mc_simulate_s"] = time.perf_counter() - t
@@ -205,16 +248,22 @@ def main() -> None:
         return
     print(f"CIKF at M = N = {args.size}, T = {args.steps}, {args.runs} runs ({res['cpus']} CPUs); load {res['load_before']} -> {res['load_after']}")
     print(
-        f"  gain design (structured, {args.threads} threads): {res['design_s']:.1f} s  ({res['design_per_step_s']:.2f} s/step; "
-        f"1 thread: {res.get('design_1thread_per_step_s', float('nan')):.2f} s/step); peak RSS {res['design_peak_rss_MiB']:.0f} MiB"
+        f"  gain design ({args.method}, {args.threads} threads): {res['design_s']:.1f} s wall, {res['design_cpu_s']:.1f} s CPU "
+        f"({res['design_per_step_s']:.2f} s/step; 1 thread: {res.get('design_1thread_per_step_s', float('nan')):.2f} s/step); "
+        f"peak RSS {res['design_peak_rss_MiB']:.0f} MiB"
     )
+    if "design_structured_per_step_s" in res:
+        print(
+            f"  structured design ({args.threads} threads, first {min(args.steps, args.compare_steps)} steps): {res['design_structured_per_step_s']:.2f} s/step; "
+            f"MSE max relative difference {res['design_joint_vs_structured_max_rel_diff_mse']:.1e}"
+        )
     if args.dense_steps:
         print(
             f"  dense numpy baseline:      {res['design_dense_per_step_s']:.2f} s/step on the first {args.dense_steps} steps: "
             f"structured x{res['design_dense_ratio']:.1f} faster (max relative difference of the MSE {res['design_dense_max_rel_diff']:.1e})"
         )
     print(
-        f"  Monte Carlo: sample {res['mc_sample_s']:.2f} s, errors {res['mc_errors_s']:.2f} s, simulate {res['mc_simulate_s']:.2f} s, "
+        f"  Monte Carlo: sample {res['mc_sample_s']:.2f} s, errors {res['mc_errors_s']:.2f} s ({res['mc_errors_cpu_s']:.2f} s CPU), simulate {res['mc_simulate_s']:.2f} s, "
         f"dense errors {res['mc_dense_errors_s']:.2f} s (x{res['mc_dense_ratio']:.1f}, same: {res['mc_dense_agrees']})"
     )
     if args.runtime_runs:
