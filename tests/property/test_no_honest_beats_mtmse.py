@@ -3,7 +3,7 @@ and MTMSE is optimal over all such estimators, so at every step its stage cost i
 the centralized filter (every measurement at once) is <= MTMSE. A violation is a bug in one of them."""
 
 import numpy as np
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from teamkf import CommGraph, LinearGaussianSystem, TeamCost, design_centralized, design_mtmse
@@ -13,6 +13,7 @@ from teamkf.estimators.hcmci import design_hcmci
 from teamkf.estimators.icf import design_icf
 from teamkf.estimators.kcf import design_kcf
 from teamkf.estimators.local import design_local
+from teamkf.exceptions import ArgumentError
 
 HONEST = {
     "local": design_local,
@@ -43,6 +44,7 @@ def _instance(seed, n, dx, p, max_delay, unstable):
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@example(seed=451660, n=2, dx=2, p=0.4, max_delay=3, unstable=False)  # A with an eigenvalue 1e-5: compensation refused
 @given(
     seed=st.integers(0, 2**31 - 1),
     n=st.integers(2, 4),
@@ -59,5 +61,9 @@ def test_no_honest_variant_beats_mtmse(seed, n, dx, p, max_delay, unstable):
     tol = 1e-9 * np.maximum(1.0, np.abs(opt))
     assert np.all(cen <= opt + tol), ("centralized", cen - opt)
     for name, f in HONEST.items():
-        sc = f(sys_, cost, g, T, variant="honest").stage_costs
+        try:
+            sc = f(sys_, cost, g, T, variant="honest").stage_costs
+        except ArgumentError as exc:  # delay compensation through a nearly singular A: refused, with the reason
+            assert exc.argument == "system.A" and "condition number" in str(exc), exc
+            continue
         assert np.all(sc >= opt - tol), (name, np.min(sc - opt), int(np.argmin(sc - opt)))

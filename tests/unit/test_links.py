@@ -241,3 +241,17 @@ def test_cli_network_flags(capsys):
     assert "network.p_drop" in capsys.readouterr().err
     assert main(argv + ["--jitter", "-1"]) == 2
     assert "network.jitter" in capsys.readouterr().err
+
+
+def test_same_drops_on_dask_as_in_one_process(platoon):
+    """Determinism: the same seed gives the same link events, counts and costs on a local Dask cluster."""
+    pytest.importorskip("distributed")
+    sc, ds = platoon
+    lm = LinkModel(p_drop=0.3, jitter=1, outages=[(1, 2, 3, 6)])
+    sub = {"mtmse": ds["mtmse"], "kcf": ds["kcf"]}
+    serial = monte_carlo(sub, 15, 8, rng=11, path="runtime", graph=sc.graph, links=lm, batch=2, chunk=2)
+    dask = monte_carlo(sub, 15, 8, rng=11, path="runtime", graph=sc.graph, links=lm, batch=2, chunk=2, scheduler="local")
+    for name in sub:
+        np.testing.assert_array_equal(serial[name].stage_mean, dask[name].stage_mean)
+        assert serial[name].links.counts == dask[name].links.counts
+        assert serial[name].links.missed == dask[name].links.missed

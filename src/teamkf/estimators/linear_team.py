@@ -552,8 +552,21 @@ def compensated_measurement(system: LinearGaussianSystem, j: int, s: int, k: int
             "use the 'ideal' variant or a model with invertible A",
             argument="system.A",
         ) from exc
-    Rt = R + Ct @ process_noise(system, k, s) @ Ct.T
-    return Ct, np.asarray(0.5 * (Rt + Rt.T), dtype=float)
+    Rt = np.asarray(R + Ct @ process_noise(system, k, s) @ Ct.T, dtype=float)
+    Rt = 0.5 * (Rt + Rt.T)
+    if np.all(np.isfinite(Rt)):
+        try:
+            np.linalg.cholesky(Rt)
+        except np.linalg.LinAlgError:
+            from ..exceptions import ArgumentError
+
+            raise ArgumentError(
+                f"system.A: the delay compensation of y_{j}({s}) at step {k} inverts Φ({k}, {s}), whose condition number is "
+                f"{np.linalg.cond(Phi):.1e}: the compensated noise covariance R̃ = R + C̃ Q C̃ᵀ is not positive definite in floating "
+                "point; use the 'ideal' variant, shorter delays, or a model whose A is well conditioned",
+                argument="system.A",
+            ) from None
+    return Ct, Rt
 
 
 def compensate_information(system: LinearGaussianSystem, Y: FloatArray, s: int, k: int) -> tuple[FloatArray, FloatArray]:
