@@ -1237,7 +1237,7 @@ def _iterate(
 
 
 # ---------------------------------------------------------------------------
-# Algorithm 2 on the joint covariance of [e; ε] (method="structured", equations="corrected")
+# Algorithm 2 on the joint covariance of [e; ε] (method="joint", equations="corrected")
 # ---------------------------------------------------------------------------
 #: width of the column panels of the M_k products (columns; fixed, so that the numbers do not depend on the
 #: thread count): the panel of J's e-rows stays in the cache, and there are enough panels to share
