@@ -31,6 +31,7 @@ def main() -> None:
     from teamkf import design_mtmse
     from teamkf.estimators.registry import get_family
     from teamkf.experiments._common import uav
+    from teamkf.experiments.leaderboard import FAMILIES
     from teamkf.simulation.monte_carlo import monte_carlo
 
     system, cost, graph = uav(args.n, float(args.n**2))
@@ -48,14 +49,7 @@ def main() -> None:
     t_ref, ref = best(lambda: design_mtmse(system, cost, graph, T))
     rows = [{"design": "mtmse (reference)", "seconds": t_ref, "ratio": 1.0, "J_T": ref.total_cost}]
     designs = {}
-    for fam, variants in (
-        ("local", ("honest",)),
-        ("diffusion", ("honest", "ideal")),
-        ("ci", ("honest", "ideal")),
-        ("kcf", ("honest", "ideal")),
-        ("icf", ("honest", "ideal")),
-        ("hcmci", ("honest", "ideal")),
-    ):
+    for fam, variants in FAMILIES:  # the leaderboard's families and variants
         for v in variants:
             with np.errstate(over="ignore", invalid="ignore"):
                 t, d = best(lambda fam=fam, v=v: get_family(fam).design(system, cost, graph, T, variant=v))

@@ -208,9 +208,7 @@ def design_ci(
     check_information_form(system, "ci")
     check_graph(graph, system.n_agents)
     variant = check_variant(variant, "variant")
-    T = _horizon(horizon, "ci")
-    system.require_horizon(T)
-    cost.require_horizon(T)
+    T = _horizon(horizon, "ci", system, cost)
     alg = CIAlgorithm(system, cost, graph, T, honest=(variant == "honest"))
     return finish_design("ci", alg, variant)
 

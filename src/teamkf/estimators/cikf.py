@@ -1225,15 +1225,7 @@ def _iterate(
             raise DivergenceError(
                 f"CIKF gain design: the error covariances overflowed at step {k + 1}; the error dynamics diverge (see tracking_capacity)"
             )
-    return {
-        "B_cons": tuple(B_cons),
-        "B_innov": tuple(B_innov),
-        "K": K_all,
-        "Sigma_pred": Sp,
-        "Sigma_filt": Sf_all,
-        "P_pred_trace": Ptr,
-        "stage": stage,
-    }
+    return _schedules(B_cons, B_innov, K_all, Sp, Sf_all, Ptr, stage)
 
 
 # ---------------------------------------------------------------------------
@@ -1246,6 +1238,11 @@ _PANEL_COLS = 512
 
 #: largest (M_k P)' kept as a separate array by method="joint" (bytes): 37 MiB at M = N = 50, 489 MiB at 100
 _MPT_BYTES = 256 * 2**20
+
+
+def _schedules(B_cons: list, B_innov: list, K: Any, Sp: Any, Sf: Any, Ptr: Any, stage: Any) -> dict[str, Any]:
+    """What Algorithm 2 returns, whichever recursion ran it (gains, covariances, traces, stage costs)."""
+    return {"B_cons": tuple(B_cons), "B_innov": tuple(B_innov), "K": K, "Sigma_pred": Sp, "Sigma_filt": Sf, "P_pred_trace": Ptr, "stage": stage}
 
 
 def _ranges(pool: Any, workers: int, fn: Callable[[int, int], None], n: int, *, triangular: bool = False) -> None:
@@ -1457,15 +1454,7 @@ def _iterate_joint(
             raise DivergenceError(
                 f"CIKF gain design: the error covariances overflowed at step {k + 1}; the error dynamics diverge (see tracking_capacity)"
             )
-    return {
-        "B_cons": tuple(B_cons),
-        "B_innov": tuple(B_innov),
-        "K": K_all,
-        "Sigma_pred": Sp,
-        "Sigma_filt": Sf_all,
-        "P_pred_trace": Ptr,
-        "stage": stage,
-    }
+    return _schedules(B_cons, B_innov, K_all, Sp, Sf_all, Ptr, stage)
 
 
 @lru_cache(maxsize=8)

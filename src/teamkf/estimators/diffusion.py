@@ -287,20 +287,22 @@ def design_diffusion(
     check_model(system, cost)
     check_graph(graph, system.n_agents)
     variant = check_variant(variant, "variant")
-    T = _horizon(horizon, "diffusion")
-    system.require_horizon(T)
-    cost.require_horizon(T)
+    T = _horizon(horizon, "diffusion", system, cost)
     c = diffusion_weights(graph, weights, key="diffusion.weights")
     alg = DiffusionAlgorithm(system, cost, graph, T, c, honest=(variant == "honest"))
     return finish_design("diffusion", alg, variant, {"weights": weights if isinstance(weights, str) else "explicit"})
 
 
-def _horizon(horizon: Any, family: str) -> int:
+def _horizon(horizon: Any, family: str, system: LinearGaussianSystem, cost: TeamCost) -> int:
+    """The finite horizon T of a baseline design, checked against the model's and the cost's horizons."""
     if horizon is None:
         raise ArgumentError(
             f"horizon: the {family!r} family has a finite-horizon design only, found horizon=None; give a number of steps T", argument="horizon"
         )
-    return V.positive_int(horizon, "horizon")
+    T = V.positive_int(horizon, "horizon")
+    system.require_horizon(T)
+    cost.require_horizon(T)
+    return T
 
 
 FAMILY = _register_builtin(

@@ -217,9 +217,7 @@ def design_hcmci(
     check_graph(graph, system.n_agents)
     variant = check_variant(variant, "variant")
     L = check_iterations(iterations, "iterations")
-    T = _horizon(horizon, "hcmci")
-    system.require_horizon(T)
-    cost.require_horizon(T)
+    T = _horizon(horizon, "hcmci", system, cost)
     alg = HCMCIAlgorithm(system, cost, graph, T, L, honest=(variant == "honest"))
     return finish_design("hcmci", alg, variant, {"iterations": alg.L, "omega": alg.omega})
 

@@ -231,9 +231,7 @@ def design_icf(
     variant = check_variant(variant, "variant")
     K = check_iterations(iterations, "iterations")
     eps = consensus_rate(graph, epsilon, key="icf.epsilon")
-    T = _horizon(horizon, "icf")
-    system.require_horizon(T)
-    cost.require_horizon(T)
+    T = _horizon(horizon, "icf", system, cost)
     alg = ICFAlgorithm(system, cost, graph, T, eps, K, honest=(variant == "honest"))
     return finish_design("icf", alg, variant, {"epsilon": eps, "iterations": alg.K})
 

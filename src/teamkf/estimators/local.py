@@ -64,9 +64,7 @@ def design_local(
     if graph is not None:
         check_graph(graph, system.n_agents)
     variant = check_variant(variant, "variant")
-    T = _horizon(horizon, "local")
-    system.require_horizon(T)
-    cost.require_horizon(T)
+    T = _horizon(horizon, "local", system, cost)
     alg = LocalAlgorithm(system, cost, graph, T, np.eye(system.n_agents), honest=True)
     return finish_design("local", alg, variant)
 

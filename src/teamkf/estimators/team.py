@@ -208,11 +208,16 @@ def window_covariances(system: LinearGaussianSystem, k: int, anchor: int, P_anch
     return 0.5 * (Sigma_W + Sigma_W.T), Theta_W, Pi
 
 
+def _window_positions(system: LinearGaussianSystem, anchor: int, pairs: Sequence[tuple[int, int]]) -> np.ndarray:
+    """Positions of the measurements y_j(s), (j, s) in ``pairs`` (in that order), in the window y(anchor:k)."""
+    dy_tot, off = system.dy_total, system.offsets
+    parts = [(s - anchor) * dy_tot + off[j] + np.arange(system.dy[j]) for (j, s) in pairs]
+    return np.concatenate(parts).astype(int) if parts else np.zeros(0, dtype=int)
+
+
 def _local_index(system: LinearGaussianSystem, structure: InformationStructure, i: int, k: int, anchor: int) -> np.ndarray:
     """Positions of agent i's local measurements (in local_pairs order) in the window y(anchor:k)."""
-    dy_tot, off = system.dy_total, system.offsets
-    parts = [(s - anchor) * dy_tot + off[j] + np.arange(system.dy[j]) for (j, s) in structure.local_pairs(i, k)]
-    return np.concatenate(parts).astype(int) if parts else np.zeros(0, dtype=int)
+    return _window_positions(system, anchor, structure.local_pairs(i, k))
 
 
 def _eta(S: FloatArray, L: FloatArray, Theta_W: FloatArray, idx: list[np.ndarray], dz: int) -> list[FloatArray]:
@@ -748,13 +753,7 @@ class TeamAgent:
         held = tuple(sorted(key for key in buf if a <= key[1] <= k))
         key = (a, k, held, tuple(wanted))
         if key not in self._fill_gains:
-            dy_tot, off = sys.dy_total, sys.offsets
-
-            def pos(keys: Sequence[tuple[int, int]]) -> np.ndarray:
-                parts = [(s - a) * dy_tot + off[j] + np.arange(sys.dy[j]) for (j, s) in keys]
-                return np.concatenate(parts).astype(int) if parts else np.zeros(0, dtype=int)
-
-            h, m = pos(held), pos(wanted)
+            h, m = _window_positions(sys, a, held), _window_positions(sys, a, wanted)
             if h.size:
                 P_a = sys.Sigma_x if a == 0 else (self.design.P_pred if self.design.horizon is None else self.design.P_pred[a])
                 Sigma_W, _, _ = window_covariances(sys, k, a, P_a)
