@@ -121,19 +121,23 @@ its closed neighbourhood for M_k, batched GEMMs for the block-diagonal
 factors. No NM x NM matrix is ever multiplied by another as a dense matrix
 (``method="dense"`` does exactly that, as the benchmark's baseline).
 
-``method="joint"`` runs the same equations as one recursion on the joint
-covariance J = cov([e; ε]) (N(r + M) square, agent-major): the update
-(41)-(42) is M_k on the e-rows of J, and (43)-(47) collapse into one
-(r + M) x (r + M) map per agent, Φ^n = [[Ã + Ǎ K^n, Ǎ F^n], [A K^n, A F^n]],
-applied on both sides; both two-sided products are computed on the upper
-block triangle only, in place (``_iterate_joint``). At M = N = 50 that is
-12.2 GFLOP per step against 14.4 for the block-operator form, in fewer and
-larger GEMMs, and J (plus (M_k P)' when small) is all the memory. It differs from the
-default only in the rounding: Σ, P, the stage costs agree to ~1e-12, but
-Theorem 4's consensus gains only to ~1e-8, because Σ_ν̃ is formed by
-cancellation (the default itself moves that much when P is scaled by
-1 + 2^-52, see ``tests/unit/test_cikf_joint.py``). The default keeps the
-block-operator arithmetic that ``tests/unit/test_cikf_reference.py`` pins.
+``method="joint"`` (the default for the corrected equations) runs the same
+equations as one recursion on the joint covariance J = cov([e; ε])
+(N(r + M) square, agent-major): the update (41)-(42) is M_k on the e-rows
+of J, and (43)-(47) collapse into one (r + M) x (r + M) map per agent,
+Φ^n = [[Ã + Ǎ K^n, Ǎ F^n], [A K^n, A F^n]], applied on both sides; both
+two-sided products are computed on the upper block triangle only, in place
+(``_iterate_joint``). At M = N = 50 that is 12.2 GFLOP per step against 14.4
+for the block-operator form, in fewer and larger GEMMs, and J (plus
+(M_k P)' when small) is all the memory. Theorem 4's per-agent pivoted
+Cholesky factorizations run on the worker threads with the GIL released
+(``teamkf._lapack``). ``method="structured"`` keeps the block-operator
+arithmetic that ``tests/unit/test_cikf_reference.py`` pins entry by entry.
+The two differ only in the rounding: Σ, P, the stage costs and the errors
+agree to ~1e-12, but Theorem 4's consensus gains only to ~1e-8, because
+Σ_ν̃ is formed by cancellation (the structured method itself moves that much
+when P is scaled by 1 + 2^-52, see ``tests/unit/test_cikf_joint.py``), so
+gains are compared by what they produce.
 
 References
 ----------
@@ -1474,7 +1478,7 @@ def design_cikf(
     *,
     form: Form = "filter",
     rcond: float = DEFAULT_RCOND,
-    method: Method = "structured",
+    method: Method | None = None,
     check: bool = True,
     gains: CIKFDesign | None = None,
     equations: Literal["corrected", "printed", "printed-43", "printed-45"] = "corrected",
@@ -1499,14 +1503,16 @@ def design_cikf(
         ẑ_n(k) = L_n x̂^n_{k|k} (default) or L_n x̂^n_{k|k-1} (the paper's Fig. 4 plots the predictor).
     rcond : float in (0, 1)
         Relative cut-off of the pseudo-inverses of Theorem 4 (module docstring; default 1e-9).
-    method : "structured" (default), "joint" or "dense"
-        "structured": the block products of eqs. (41)-(47) one by one (the arithmetic pinned by
-        ``tests/unit/test_cikf_reference.py``). "joint": one recursion on cov([e; ε]) with the update and
-        the prediction fused into one map per agent and symmetric halves (module docstring; about 1.5-1.7x
-        faster, memory N(r + M) squared; covariances and costs agree with "structured" to ~1e-12, the
-        consensus gains to the ~1e-8 to which Theorem 4 determines them; corrected equations only).
-        "dense" forms M_k, K, F, I ⊗ Ã, ... as dense NM x NM matrices — the same numbers as
-        "structured", much slower (the benchmark's baseline).
+    method : "joint", "structured", "dense" or None (default)
+        None: "joint" for the corrected equations, "structured" for the printed ones.
+        "joint": one recursion on cov([e; ε]) with the update and the prediction fused into one map per
+        agent and symmetric halves (module docstring; about 1.7-2x faster than "structured", memory
+        N(r + M) squared; corrected equations only). "structured": the block products of eqs. (41)-(47)
+        one by one, the arithmetic of the frozen reference (``tests/unit/test_cikf_reference.py``).
+        The two agree to ~1e-12 on everything the gains produce (covariances, costs, errors); the consensus
+        gains themselves agree only to the ~1e-8 to which Theorem 4 determines them (module docstring).
+        "dense" forms M_k, K, F, I ⊗ Ã, ... as dense NM x NM matrices: the numbers of "structured", much
+        slower (the benchmark's baseline).
     check : bool
         Check that (A, H) is detectable (Assumption 4).
     gains : CIKFDesign, optional
@@ -1566,6 +1572,8 @@ def design_cikf(
     cost.require_horizon(T)
     if form not in ("filter", "predictor"):
         raise ShapeError(f"form: expected 'filter' or 'predictor', found {form!r}")
+    if method is None:
+        method = "joint" if equations == "corrected" else "structured"
     if method not in ("structured", "joint", "dense"):
         raise ShapeError(f"method: expected 'structured', 'joint' or 'dense', found {method!r}")
     if method == "joint" and equations != "corrected":
@@ -1823,10 +1831,10 @@ FAMILY = _register_builtin(
             ),
             Option(
                 name="method",
-                default="structured",
-                check=lambda v, k: V.choice(v, k, ("structured", "joint", "dense")),
-                doc='"structured": eqs. (41)-(47) block by block; "joint": one fused recursion on cov([e; ε]), about 1.7x faster '
-                '(same covariances and costs to ~1e-12); "dense": dense operators (a baseline)',
+                default="joint",
+                check=lambda v, k: V.choice(v, k, ("joint", "structured", "dense")),
+                doc='"joint": one fused recursion on cov([e; ε]); "structured": eqs. (41)-(47) block by block, about 1.7-2x '
+                'slower (same covariances and costs to ~1e-12); "dense": dense operators (a baseline)',
             ),
         ),
         example="design_cikf(system, cost, graph, horizon=32)",

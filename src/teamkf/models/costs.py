@@ -181,10 +181,27 @@ class TeamCost:
 
     @classmethod
     def mse(cls, n_agents: int, dx: int) -> "TeamCost":
-        """Plain MSE: each agent estimates the whole state, S = I, L = 1 (x) I."""
+        """Plain MSE: each agent estimates the whole state, S = I, L = 1 (x) I.
+
+        S = I is positive definite by construction, so it is not validated (an eigen-decomposition of an
+        n d_x square matrix: 2.4 GiB of memory at n = d_x = 100), and it is a read-only Toeplitz view of
+        2 n d_x numbers rather than a dense array (763 MiB at n = d_x = 100): S[i, j] = u[m - 1 - i + j]
+        with u = e_{m-1}. NumPy reads it as any array; code that needs it contiguous copies it.
+        """
         n = V.positive_int(n_agents, "n_agents")
         dx = V.positive_int(dx, "dx")
-        return cls(S=np.eye(n * dx), L=np.kron(np.ones((n, 1)), np.eye(dx)), n_agents=n)
+        m = n * dx
+        u = np.zeros(2 * m - 1)
+        u[m - 1] = 1.0
+        u.setflags(write=False)
+        S = np.lib.stride_tricks.as_strided(u[m - 1 :], shape=(1, m, m), strides=(0, -u.itemsize, u.itemsize), writeable=False)
+        L = np.kron(np.ones((n, 1)), np.eye(dx))[None]
+        L.setflags(write=False)
+        self = object.__new__(cls)  # the checks of __post_init__ hold by construction
+        object.__setattr__(self, "S", S)
+        object.__setattr__(self, "L", L)
+        object.__setattr__(self, "n_agents", n)
+        return self
 
 
 def _nonneg(x: Any, name: str) -> float:
