@@ -1338,31 +1338,32 @@ def _iterate_joint(
     Sp, Sf_all = np.empty((T, N, M, M)), np.empty((T, N, M, M))
     Ptr = np.empty((T, N))
     stage = np.empty(T)
+    noise = np.empty((N, r, r))  # (42): B^I D̄_H B^I' = B_u^n R_n B_u^n', the diagonal blocks of the step
     for k in range(T):
         Sp[k] = J4[diag, r:, diag, r:]
         Ptr[k] = np.trace(J4[diag, :r, diag, :r], axis1=1, axis2=2)
         if form == "predictor":
             stage[k] = float(np.trace(Sp[k], axis1=1, axis2=2).sum()) if mse_like else _joint_stage_cost(cost, k, J, Psi_pred)
-        # --- Theorem 4: consensus + innovation gains B̂^n (from P_{k|k-1} = the e-e blocks of J) ---
-        if fixed is not None:
-            Bc_k, Bu_k = list(fixed.B_cons[k]), list(fixed.B_innov[k])
-        else:
-            P4 = J4[:, :r, :, :r]
-            gains4: list[Any] = [None] * N
+        # --- Theorem 4: consensus + innovation gains B̂^n (from P_{k|k-1} = the e-e blocks of J), M_k's block rows ---
+        Bc_k: list[Any] = [None] * N
+        Bu_k: list[Any] = [None] * N
+        rows: list[Any] = [None] * N  # block rows of M_k = I - B^C - B^I D̃_H over the closed neighbourhoods [n, l_1, ..., l_d]
 
-            def theorem4(lo: int, hi: int, P4: FloatArray = P4, gains4: list[Any] = gains4) -> None:
-                for n in range(lo, hi):
-                    gains4[n] = _theorem4_pseudo(P4, n, nbrs[n], r, Ct[n], Rn[n], rcond, pinv)
+        def gains_and_rows(lo: int, hi: int, k: int = k, rows: list[Any] = rows, Bc_k: list[Any] = Bc_k, Bu_k: list[Any] = Bu_k) -> None:
+            for n in range(lo, hi):
+                if fixed is None:
+                    Bc_k[n], Bu_k[n] = _theorem4_pseudo(J4[:, :r, :, :r], n, nbrs[n], r, Ct[n], Rn[n], rcond, pinv)
+                else:
+                    Bc_k[n], Bu_k[n] = fixed.B_cons[k][n], fixed.B_innov[k][n]
+                d = len(nbrs[n])
+                row = np.empty((r, (d + 1) * r))
+                row[:, :r] = eyer - Bu_k[n] @ Ct[n] - (Bc_k[n].reshape(r, d, r).sum(axis=1) if d else 0.0)
+                row[:, r:] = Bc_k[n]
+                rows[n] = row
+                nz = Bu_k[n] @ Rn[n] @ Bu_k[n].T
+                noise[n] = 0.5 * (nz + nz.T)
 
-            _ranges(pool, workers, theorem4, N, weights=t4_cost)
-            Bc_k, Bu_k = [g[0] for g in gains4], [g[1] for g in gains4]
-        rows = []  # block rows of M_k = I - B^C - B^I D̃_H over the closed neighbourhoods [n, l_1, ..., l_d]
-        for n in range(N):
-            d = len(nbrs[n])
-            row = np.empty((r, (d + 1) * r))
-            row[:, :r] = eyer - Bu_k[n] @ Ct[n] - (Bc_k[n].reshape(r, d, r).sum(axis=1) if d else 0.0)
-            row[:, r:] = Bc_k[n]
-            rows.append(row)
+        _ranges(pool, workers, gains_and_rows, N, weights=t4_cost if fixed is None else None)
         B_cons.append(tuple(Bc_k))
         B_innov.append(tuple(Bu_k))
 
@@ -1383,7 +1384,10 @@ def _iterate_joint(
                         MPt[j] = J4[:, :r, j, :r].transpose(2, 0, 1)  # (M P)' = P M'
 
         _ranges(pool, workers, update, n_panels)
-        rowsT_g = [np.stack([rows[m].T for m in agents]) for agents, _ in groups]  # M_m', by neighbourhood size
+
+        def add_noise(n: int) -> None:  # (42) on the diagonal block of row n, once M P M' is there
+            Pnn = J4[n, :r, n, :r]
+            Pnn[...] = 0.5 * (Pnn + Pnn.T) + noise[n]
 
         def sandwich_out(lo: int, hi: int, rows: list[FloatArray] = rows) -> None:
             assert MPt is not None
@@ -1391,8 +1395,10 @@ def _iterate_joint(
                 h = hoods[n]
                 Y = rows[n] @ MPt[h, :, n:, :].reshape(h.size * r, (N - n) * r)
                 J4[n, :r, n:, :r] = Y.reshape(r, N - n, r)
+                add_noise(n)
 
-        def sandwich(lo: int, hi: int, rowsT_g: list[FloatArray] = rowsT_g) -> None:
+        def sandwich(lo: int, hi: int, rows: list[FloatArray] = rows) -> None:
+            rowsT_g = [np.stack([rows[m].T for m in agents]) for agents, _ in groups]  # M_m', by neighbourhood size
             for n in range(lo, hi):  # block row n of M P M' = (M P) M' from the diagonal on, in place of (M P)[n]
                 MPn = J4[n, :r, :, :r].copy()  # (r, N, r)
                 for (agents, hood), RgT in zip(groups, rowsT_g):
@@ -1400,6 +1406,7 @@ def _iterate_joint(
                     if sel.any():  # (M P M')[n, m] = (M P)[n, hood(m)] M_m'
                         X = MPn[:, hood[sel], :].transpose(1, 0, 2, 3).reshape(int(sel.sum()), r, -1)
                         J4[n, :r, agents[sel], :r] = np.matmul(X, RgT[sel])  # (int, advanced) index: (g, r, r)
+                add_noise(n)
 
         _ranges(pool, workers, sandwich if MPt is None else sandwich_out, N, triangular=True)
 
@@ -1408,10 +1415,6 @@ def _iterate_joint(
                 J4[n + 1 :, :r, n, :r] = J4[n, :r, n + 1 :, :r].transpose(1, 2, 0)
 
         _ranges(pool, workers, mirror, N, triangular=True)
-        for n in range(N):  # (42): + B^I D̄_H B^I' = B_u^n R_n B_u^n' on the diagonal
-            nz = Bu_k[n] @ Rn[n] @ Bu_k[n].T
-            Pnn = J4[n, :r, n, :r]
-            Pnn[...] = 0.5 * (Pnn + Pnn.T) + 0.5 * (nz + nz.T)
         # --- Theorem 4: state gains K^n from the diagonal blocks of J_f ---
         Jd = J4[diag, :, diag, :]  # (N, q, q): [[P_f^{nn}, Γ'^{nn}], [Γ^{nn}, Σ^{nn}_{k|k-1}]]
         if fixed is not None:
