@@ -260,7 +260,7 @@ def main() -> None:
     if args.dense_steps:
         print(
             f"  dense numpy baseline:      {res['design_dense_per_step_s']:.2f} s/step on the first {args.dense_steps} steps: "
-            f"structured x{res['design_dense_ratio']:.1f} faster (max relative difference of the MSE {res['design_dense_max_rel_diff']:.1e})"
+            f"{args.method} x{res['design_dense_ratio']:.1f} faster (max relative difference of the MSE {res['design_dense_max_rel_diff']:.1e})"
         )
     print(
         f"  Monte Carlo: sample {res['mc_sample_s']:.2f} s, errors {res['mc_errors_s']:.2f} s ({res['mc_errors_cpu_s']:.2f} s CPU), simulate {res['mc_simulate_s']:.2f} s, "
