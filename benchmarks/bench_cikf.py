@@ -3,6 +3,7 @@
     PYTHONPATH=src python3 benchmarks/bench_cikf.py                 # everything, M = N = 50
     PYTHONPATH=src python3 benchmarks/bench_cikf.py --size 20 --dense-steps 4 --json
     PYTHONPATH=src python3 benchmarks/bench_cikf.py --size 100 --steps 2 --runs 0 --dense-steps 0   # scale
+    PYTHONPATH=src python3 benchmarks/bench_cikf.py --runs 0 --dense-steps 0 --compare-steps 0 --phases  # where the time goes
 
 Cases (one process, in this order)
 ----------------------------------
@@ -147,6 +148,33 @@ def _peak_rss_MiB() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
+def _phases(sysm, graph, T: int, threads: int) -> dict[str, float]:
+    """Seconds per step of each phase of the joint design (every ``_ranges`` call, by its function's name).
+
+    "serial" is the rest of the wall time: the numpy work between the phases and J's first touch.
+    """
+    import teamkf.estimators.cikf as C
+
+    acc: dict[str, float] = {}
+    ranges = C._ranges
+
+    def timed(pool, workers, fn, n, **kw):
+        t = time.perf_counter()
+        ranges(pool, workers, fn, n, **kw)
+        acc[fn.__name__] = acc.get(fn.__name__, 0.0) + time.perf_counter() - t
+
+    C._ranges = timed
+    try:
+        t = time.perf_counter()
+        C.design_cikf(sysm, None, graph, T, form="predictor", threads=threads, method="joint")
+        wall = time.perf_counter() - t
+    finally:
+        C._ranges = ranges
+    out = {k: v / T for k, v in sorted(acc.items(), key=lambda kv: -kv[1])}
+    out["serial"] = (wall - sum(acc.values())) / T
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--size", type=int, default=50, help="M = N (default 50, the paper's)")
@@ -157,6 +185,7 @@ def main() -> None:
     ap.add_argument("--method", choices=("joint", "structured"), default="joint", help="design_cikf(method=...) (default joint)")
     ap.add_argument("--compare-steps", type=int, default=4, help="steps of the structured design timed beside the joint one (0: skip)")
     ap.add_argument("--runtime-runs", type=int, default=1000, help="runs through run_graph (0 to skip)")
+    ap.add_argument("--phases", action="store_true", help="also time the joint design's phases (the worker-pool calls of _iterate_joint)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
 
@@ -187,6 +216,8 @@ def main() -> None:
     res["design_threads"] = args.threads
     res["design_peak_rss_MiB"] = _peak_rss_MiB()  # during the design (whole process if the reset was refused)
     res["design_per_step_s"] = res["design_s"] / args.steps
+    if args.phases and args.method == "joint":
+        res["design_phases_per_step_s"] = _phases(sysm, graph, args.steps, args.threads)
     short = min(args.steps, 4)
     if args.threads != 1:
         t, c = time.perf_counter(), time.process_time()
@@ -252,6 +283,8 @@ def main() -> None:
         f"({res['design_per_step_s']:.2f} s/step; 1 thread: {res.get('design_1thread_per_step_s', float('nan')):.2f} s/step); "
         f"peak RSS {res['design_peak_rss_MiB']:.0f} MiB"
     )
+    if "design_phases_per_step_s" in res:
+        print("  phases (s/step): " + ", ".join(f"{k} {v:.4f}" for k, v in res["design_phases_per_step_s"].items()))
     if "design_structured_per_step_s" in res:
         print(
             f"  structured design ({args.threads} threads, first {min(args.steps, args.compare_steps)} steps): {res['design_structured_per_step_s']:.2f} s/step; "

@@ -66,11 +66,8 @@ def pstrf_solve(S: FloatArray, S_xy: FloatArray, tol: float) -> tuple[FloatArray
     not modified.
     """
     n = S.shape[0]
-    if not AVAILABLE:  # pragma: no cover
-        c, piv, rank, _ = lapack.dpstrf(S, tol=tol, lower=0)
-        keep = piv[:rank] - 1
-        X = lapack.dpotrs(c[:rank, :rank], np.ascontiguousarray(S_xy[:, keep].T), lower=0)[0].T
-        return np.ascontiguousarray(X), keep
+    if not AVAILABLE:
+        return _pstrf_solve_scipy(S, S_xy, tol)
     a = np.array(S, dtype=np.float64, order="C")  # symmetric: its C-order buffer is S in column-major order
     piv = np.empty(n, dtype=np.intc)
     work = np.empty(2 * n)
@@ -94,3 +91,13 @@ def pstrf_solve(S: FloatArray, S_xy: FloatArray, tol: float) -> tuple[FloatArray
         if info.value != 0:  # pragma: no cover
             raise RuntimeError(f"dpotrs: info = {info.value}")
     return X, keep
+
+
+def _pstrf_solve_scipy(S: FloatArray, S_xy: FloatArray, tol: float) -> tuple[FloatArray, np.ndarray]:
+    """:func:`pstrf_solve` through ``scipy.linalg.lapack`` (holds the GIL): the fallback, and the reference of the tests."""
+    c, piv, rank, _ = lapack.dpstrf(S, tol=tol, lower=0)
+    keep = (piv[:rank] - 1).astype(np.intp)
+    if rank == 0:
+        return np.zeros((S_xy.shape[0], 0)), keep
+    X = lapack.dpotrs(c[:rank, :rank], np.ascontiguousarray(S_xy[:, keep].T), lower=0)[0].T
+    return np.ascontiguousarray(X), keep

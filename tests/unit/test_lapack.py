@@ -12,6 +12,7 @@ from teamkf import _lapack
 
 
 def _scipy(S: np.ndarray, S_xy: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """Written out here from scipy.linalg.lapack, independently of teamkf._lapack's fallback."""
     c, piv, rank, _ = dpstrf(S, tol=tol, lower=0)
     keep = piv[:rank] - 1
     if rank == 0:
@@ -23,8 +24,11 @@ def test_capsules_are_read():
     assert _lapack.AVAILABLE  # the SciPy pinned by the project publishes cython_lapack's capsules
 
 
+@pytest.mark.parametrize("fallback", [False, True])
 @pytest.mark.parametrize("n, rank", [(1, 1), (7, 7), (40, 13), (260, 260), (260, 200), (5, 0)])
-def test_pstrf_solve_equals_scipy(n: int, rank: int):
+def test_pstrf_solve_equals_scipy(n: int, rank: int, fallback: bool, monkeypatch):
+    if fallback:  # SciPy without the cython_lapack capsules: scipy.linalg.lapack, same numbers
+        monkeypatch.setattr(_lapack, "AVAILABLE", False)
     rng = np.random.default_rng(n + rank)
     X = rng.standard_normal((n, rank))
     S = X @ X.T
