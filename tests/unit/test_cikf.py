@@ -205,7 +205,7 @@ def test_gains_are_theorem4_optimal_in_full_coordinates(make):
 
 def test_dense_method_matches_structured():
     sysm, graph = small_field()
-    a = design_cikf(sysm, None, graph, 8)
+    a = design_cikf(sysm, None, graph, 8, method="structured")
     b = design_cikf(sysm, None, graph, 8, method="dense")
     assert np.allclose(a.Sigma_pred, b.Sigma_pred, rtol=1e-9, atol=1e-9)
     assert np.allclose(a.stage_costs, b.stage_costs, rtol=1e-10)

@@ -21,43 +21,10 @@ import pytest
 from teamkf import TeamCost
 from teamkf.estimators.cikf import _mse_cost, design_cikf
 from teamkf.simulation.sampling import sample_paths
-from teamkf.study.random_field import random_field
 
+from ._close import close as _close
+from ._close import compare_to_reference as _compare
 from .cikf_reference import recursion_impl, reference_iterate
-
-RTOL = 1e-10
-
-
-def _close(got, want, what):
-    got, want = np.asarray(got, dtype=float), np.asarray(want, dtype=float)
-    assert got.shape == want.shape, what
-    scale = max(float(np.abs(want).max()), 1e-300)
-    err = float(np.abs(got - want).max()) / scale
-    assert err <= RTOL, f"{what}: max relative difference {err:.2e} > {RTOL:.0e}"
-
-
-def _compare(d, ref, *, gains: bool = True):
-    T = d.horizon
-    if gains:
-        for k in range(T):
-            for n in range(d.n_agents):
-                _close(d.B_cons[k][n], ref["B_cons"][k][n], f"B_cons[{k}][{n}]")
-                _close(d.B_innov[k][n], ref["B_innov"][k][n], f"B_innov[{k}][{n}]")
-        _close(d.K, ref["K"], "K")
-    _close(d.Sigma_pred, ref["Sigma_pred"], "Sigma_pred")
-    _close(d.Sigma_filt, ref["Sigma_filt"], "Sigma_filt")
-    _close(d.P_pred_trace, ref["P_pred_trace"], "P_pred_trace")
-    _close(d.stage_costs, ref["stage"], "stage_costs")
-
-
-@pytest.fixture(scope="module")
-def field12():
-    return random_field(12, 12, rng=0)
-
-
-@pytest.fixture(scope="module")
-def field_singular():
-    return random_field(15, 6, rng=1)  # G singular (some sites unobserved)
 
 
 def _check(d, ref, sysm, graph, T, cost, form, pinv="cholesky"):

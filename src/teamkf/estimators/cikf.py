@@ -1397,8 +1397,10 @@ def _iterate_joint(
                 J4[n, :r, n:, :r] = Y.reshape(r, N - n, r)
                 add_noise(n)
 
-        def sandwich(lo: int, hi: int, rows: list[FloatArray] = rows) -> None:
-            rowsT_g = [np.stack([rows[m].T for m in agents]) for agents, _ in groups]  # M_m', by neighbourhood size
+        # M_m', by neighbourhood size: for the in-place sandwich only, built once for all its workers
+        rowsT_g = [np.stack([rows[m].T for m in agents]) for agents, _ in groups] if MPt is None else []
+
+        def sandwich(lo: int, hi: int, rowsT_g: list[FloatArray] = rowsT_g) -> None:
             for n in range(lo, hi):  # block row n of M P M' = (M P) M' from the diagonal on, in place of (M P)[n]
                 MPn = J4[n, :r, :, :r].copy()  # (r, N, r)
                 for (agents, hood), RgT in zip(groups, rowsT_g):

@@ -115,6 +115,13 @@ def innovations_pays(S: FloatArray, idx: list[np.ndarray], dz: int, dx: int, dy:
     return innov < window
 
 
+def _agent_layout(idx: list[np.ndarray]) -> tuple[int, np.ndarray, np.ndarray, int]:
+    """(n, d, offsets, D_loc): agent i's d_i local unknowns sit at offsets[i]:offsets[i + 1] of D_loc."""
+    d = np.array([len(ix) for ix in idx], dtype=int)
+    offsets = np.concatenate([[0], np.cumsum(d)]).astype(int)
+    return len(idx), d, offsets, int(offsets[-1])
+
+
 @dataclass(eq=False)
 class GammaProblem:
     """Gamma of one step: cost weight ``S`` and pooled innovation covariance ``Sigma``.
@@ -139,10 +146,7 @@ class GammaProblem:
     method_used: str = field(default="", init=False)
 
     def __post_init__(self) -> None:
-        self.n = len(self.idx)
-        self.d = np.array([len(ix) for ix in self.idx], dtype=int)
-        self.offsets = np.concatenate([[0], np.cumsum(self.d)]).astype(int)
-        self.D_loc = int(self.offsets[-1])
+        self.n, self.d, self.offsets, self.D_loc = _agent_layout(self.idx)
         self.idx_all = np.concatenate(self.idx).astype(int) if self.n else np.zeros(0, int)
         self.agent_of = np.repeat(np.arange(self.n), self.d)
         dz = self.dz
@@ -375,12 +379,9 @@ class InnovationsProblem:
     method_used: str = field(default="cg", init=False)
 
     def __post_init__(self) -> None:
-        self.n = len(self.idx)
+        self.n, self.d, self.offsets, self.D_loc = _agent_layout(self.idx)
         m = self.model
         self.w, self.dx, self.dy = m.steps, m.P0.shape[0], m.C[0].shape[0]
-        self.d = np.array([len(ix) for ix in self.idx], dtype=int)
-        self.offsets = np.concatenate([[0], np.cumsum(self.d)]).astype(int)
-        self.D_loc = int(self.offsets[-1])
         with single_thread_blas():
             self.filters = [self._filter(np.asarray(ix, dtype=int)) for ix in self.idx]
         self._R_sp = [sp.csr_matrix(R) for R in m.R]  # block diagonal (per agent) in the designs
