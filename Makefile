@@ -4,12 +4,16 @@ VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv test test-fast lint demo bench typecheck docs docs-clean clean
+.PHONY: venv test test-latest constraints test-fast lint demo bench typecheck docs docs-clean clean
 
-$(STAMP): pyproject.toml
+# Installs are pinned by constraints.txt (the versions CI tests), updated on purpose with `make constraints`.
+# `make test-latest` runs the same checks in .venv-latest against the newest releases.
+CONSTRAINTS ?= -c constraints.txt
+
+$(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	$(BIN)/python -m pip install --quiet $(CONSTRAINTS) -e '.[dev]'
 	touch $(STAMP)
 
 venv: $(STAMP)
@@ -18,6 +22,20 @@ test: $(STAMP) lint
 	$(BIN)/python -m pytest -q $(PYTEST_ARGS)
 	$(BIN)/python -m mypy
 	$(MAKE) docs
+
+# The suite against the newest releases of every dependency (no constraints), in its own venv.
+test-latest:
+	$(MAKE) test VENV=.venv-latest CONSTRAINTS=
+
+# Pin the versions of a fresh newest install into constraints.txt (review the diff, then `make test`).
+constraints:
+	rm -rf .venv-constraints
+	$(PYTHON) -m venv .venv-constraints
+	.venv-constraints/bin/python -m pip install --quiet --upgrade pip
+	.venv-constraints/bin/python -m pip install --quiet -e '.[dev]'
+	{ sed -n '1,2p' constraints.txt; .venv-constraints/bin/python -m pip freeze --exclude-editable | grep -v '^teamkf' | sort -f; } > constraints.txt.new
+	mv constraints.txt.new constraints.txt
+	rm -rf .venv-constraints
 
 # The documentation site: docs/_build/html (warnings are errors; no network needed).
 # -E: every page is read again, so a warning is never hidden by a cached page; sphinx-gallery still
@@ -49,5 +67,5 @@ typecheck: $(STAMP)
 	$(BIN)/python -m mypy
 
 clean:
-	rm -rf $(VENV) build dist src/*.egg-info .pytest_cache .mypy_cache results
+	rm -rf $(VENV) .venv-latest build dist src/*.egg-info .pytest_cache .mypy_cache results
 	$(MAKE) docs-clean

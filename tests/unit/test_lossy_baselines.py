@@ -177,9 +177,21 @@ def test_same_seed_same_estimates(scenarios, designs, sname, name):
     a = run_graph(graph_agents(d), graph, p.y, links=lm, rng=21)
     b = run_graph(graph_agents(d), graph, p.y, links=lm, rng=21)
     np.testing.assert_array_equal(a, b)
-    if name != "local":  # local filters use no message: the link events do not matter
-        c = run_graph(graph_agents(d), graph, p.y, links=lm, rng=22)
-        assert not np.array_equal(a, c)
+    # Another seed draws other link events. Whether they can change the estimates is a property of the design,
+    # not of round-off: if the agents' estimates with every message lost equal (to 1e-9, relative) those with
+    # every message delivered, the messages carry no weight in this design (local filters; honest CI on the
+    # platoon, whose fusion keeps the own estimate), and two seeds must agree to that tolerance; otherwise the
+    # estimates must depend on the seed by more than that tolerance.
+    c = run_graph(graph_agents(d), graph, p.y, links=lm, rng=22)
+    delivered = run_graph(graph_agents(d), graph, p.y)
+    none = run_graph(graph_agents(d), graph, p.y, links=LinkModel(p_drop=1.0), rng=21)
+    scale = max(float(np.max(np.abs(delivered))), 1.0)
+    messages_matter = float(np.max(np.abs(delivered - none))) > 1e-9 * scale
+    gap = float(np.max(np.abs(a - c)))
+    if messages_matter:
+        assert gap > 1e-9 * scale, f"{name}: messages change the estimates, yet two seeds' link events do not"
+    else:
+        assert gap <= 1e-9 * scale, f"{name}: messages carry no weight, yet two seeds differ by {gap:.3g}"
 
 
 @pytest.mark.parametrize("sname", SCENARIOS)
