@@ -1,6 +1,7 @@
 """Progress bars for long loops: tqdm on a terminal, silent everywhere else.
 
-:func:`progress` wraps an iterable. It returns the iterable itself (no cost) unless
+:func:`progress` wraps an iterable; :func:`bar` is the same bar for work that is counted by hand
+(points finished on a cluster, runs, rows). This module is the package's one progress bar. :func:`progress` returns the iterable itself (no cost) unless
 every one of these holds:
 
 * ``enabled`` is not False (the ``progress=`` argument of the calling function),
@@ -27,7 +28,7 @@ from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from typing import Any, TypeVar
 
-__all__ = ["progress", "set_quiet", "quiet", "progress_enabled", "DELAY"]
+__all__ = ["progress", "bar", "Bar", "set_quiet", "quiet", "progress_enabled", "DELAY"]
 
 T = TypeVar("T")
 
@@ -106,3 +107,69 @@ def progress(
     from tqdm import tqdm
 
     return tqdm(iterable, desc=desc, total=total, unit=unit, file=out, delay=DELAY if delay is None else delay, leave=False, dynamic_ncols=True)
+
+
+class Bar:
+    """A progress bar updated by hand: ``with bar(total, desc=...) as b: ... b.update(n)``.
+
+    Silent (every method a no-op) under the same rules as :func:`progress`: off a terminal, under
+    ``TEAMKF_PROGRESS=0``, after :func:`set_quiet`, with ``enabled=False``, or without tqdm. On a terminal it
+    shows the count, the rate and the time left (ETA) once the work has run for ``delay`` seconds.
+    """
+
+    def __init__(
+        self,
+        total: int | None,
+        *,
+        desc: str | None = None,
+        unit: str = "it",
+        enabled: bool | None = None,
+        initial: int = 0,
+        stream: Any = None,
+        delay: float | None = None,
+        unit_scale: bool = False,
+    ) -> None:
+        out = sys.stderr if stream is None else stream
+        self._tqdm: Any = None
+        if progress_enabled(enabled, out):
+            from tqdm import tqdm
+
+            self._tqdm = tqdm(
+                total=total,
+                initial=initial,
+                desc=desc,
+                unit=unit,
+                unit_scale=unit_scale,
+                file=out,
+                delay=DELAY if delay is None else delay,
+                leave=False,
+                dynamic_ncols=True,
+                smoothing=0.1,
+            )
+
+    @property
+    def shown(self) -> bool:
+        """True when the bar writes to its stream (a terminal, not silenced)."""
+        return self._tqdm is not None
+
+    def update(self, n: int = 1) -> None:
+        """Count ``n`` more items done."""
+        if self._tqdm is not None:
+            self._tqdm.update(n)
+
+    def close(self) -> None:
+        """Remove the bar (idempotent)."""
+        if self._tqdm is not None:
+            self._tqdm.close()
+            self._tqdm = None
+
+    def __enter__(self) -> "Bar":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+def bar(total: int | None, **kwargs: Any) -> Bar:
+    """A :class:`Bar` over ``total`` items (keywords as :class:`Bar`)."""
+    return Bar(total, **kwargs)

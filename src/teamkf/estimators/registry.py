@@ -29,7 +29,7 @@ from __future__ import annotations
 import difflib
 import warnings
 from dataclasses import dataclass, field
-from typing import Any, Callable, Literal, Mapping
+from typing import Any, Callable, Literal, Mapping, Sequence
 
 from .. import _validation as V
 from ..exceptions import ArgumentError, GraphError, TeamkfError
@@ -282,16 +282,71 @@ def get_family(name: Any, key: str = "estimator") -> Family:
     raise ArgumentError(f"{key}: unknown estimator {name!r}; {hint}available: {avail}", argument=key)
 
 
+#: the plug-ins this process loaded, in order: (module name, file path or None, source text or None)
+_PLUGINS: list[tuple[str, str | None, str | None]] = []
+
+
+def loaded_plugins() -> tuple[tuple[str, str | None, str | None], ...]:
+    """The plug-ins loaded in this process: ``(module name, file path or None, source text or None)``.
+
+    A Dask worker, a process pool or an agent process loads the same plug-ins with :func:`load_plugins_into`
+    before it unpickles a design of a plug-in family (:mod:`teamkf.simulation.parallel` does it for every Dask
+    client teamkf opens); a file's source travels with it, so the workers need not see the file.
+    """
+    return tuple(_PLUGINS)
+
+
+def load_plugins_into(plugins: Sequence[tuple[str, str | None, str | None]]) -> None:
+    """Load ``plugins`` (from :func:`loaded_plugins` of another process) here, under the same module names."""
+    import sys
+
+    for name, path, source in plugins:
+        if name in sys.modules:
+            continue
+        if source is None:
+            load_plugin(name)
+        else:
+            _exec_plugin(name, path or f"<plugin {name}>", source)
+
+
+def _plugin_error(spec: str, what: str, exc: BaseException) -> ArgumentError:
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return ArgumentError(f"plugin {spec!r}: {what} raised {type(exc).__name__}: {text} (--debug shows the traceback)", argument="plugin")
+
+
+def _exec_plugin(name: str, path: str, source: str) -> Any:
+    import sys
+    import types
+
+    module = types.ModuleType(name)
+    module.__file__ = path
+    sys.modules[name] = module
+    try:
+        exec(compile(source, path, "exec"), module.__dict__)
+    except BaseException as exc:
+        sys.modules.pop(name, None)
+        if isinstance(exc, (KeyboardInterrupt, SystemExit, TeamkfError)):
+            raise
+        raise _plugin_error(path, "importing it", exc) from exc
+    try:
+        import cloudpickle
+
+        cloudpickle.register_pickle_by_value(module)
+    except (ImportError, ValueError):  # no cloudpickle: the workers load the plug-in themselves
+        pass
+    _PLUGINS.append((name, path, source))
+    return module
+
+
 def load_plugin(spec: str) -> Any:
     """Import a module that registers families: a module name (``mypkg.filters``) or a ``.py`` file path.
 
-    A file is imported under the name ``teamkf_plugin_<stem>`` and, when
-    cloudpickle is installed (it comes with Dask), its functions are pickled by
-    value, so that the families it registers also run on Dask workers.
+    A file is imported under the name ``teamkf_plugin_<stem>``; its source is remembered
+    (:func:`loaded_plugins`) so that Dask workers load the same module. An exception while importing it
+    becomes one :class:`~teamkf.exceptions.ArgumentError` naming the plug-in (the original is chained).
     Returns the module.
     """
     import importlib
-    import importlib.util
     import sys
     from pathlib import Path
 
@@ -304,27 +359,25 @@ def load_plugin(spec: str) -> Any:
         name = f"teamkf_plugin_{path.stem}"
         if name in sys.modules:
             return sys.modules[name]
-        loader_spec = importlib.util.spec_from_file_location(name, path)
-        if loader_spec is None or loader_spec.loader is None:
-            raise ArgumentError(f"plugin: cannot import {spec!r} as a Python module", argument="plugin")
-        module = importlib.util.module_from_spec(loader_spec)
-        sys.modules[name] = module
         try:
-            loader_spec.loader.exec_module(module)
-        except BaseException:
-            sys.modules.pop(name, None)
-            raise
-        try:
-            import cloudpickle
-
-            cloudpickle.register_pickle_by_value(module)
-        except (ImportError, ValueError):  # no cloudpickle: in-process runs only
-            pass
-        return module
+            source = path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ArgumentError(f"plugin: cannot read {spec!r} as UTF-8 Python source ({exc})", argument="plugin") from None
+        return _exec_plugin(name, str(path.resolve()), source)
+    if spec in sys.modules:
+        return sys.modules[spec]
     try:
-        return importlib.import_module(spec)
-    except ImportError as exc:
-        raise ArgumentError(f"plugin: cannot import module {spec!r} ({exc}); check the name or give a .py file", argument="plugin") from None
+        module = importlib.import_module(spec)
+    except ModuleNotFoundError as exc:
+        if exc.name and spec.startswith(exc.name):
+            raise ArgumentError(f"plugin: cannot import module {spec!r} ({exc}); check the name or give a .py file", argument="plugin") from None
+        raise _plugin_error(spec, "importing it", exc) from exc
+    except (KeyboardInterrupt, SystemExit, TeamkfError):
+        raise
+    except BaseException as exc:
+        raise _plugin_error(spec, "importing it", exc) from exc
+    _PLUGINS.append((spec, None, None))
+    return module
 
 
 def load_env_plugins() -> None:

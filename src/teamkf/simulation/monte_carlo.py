@@ -36,7 +36,6 @@ variance (n S2 - S1²) / (n (n - 1)), evaluated exactly and rounded once.
 from __future__ import annotations
 
 import math
-import sys
 from dataclasses import dataclass
 from typing import Any, Iterator, Literal, Mapping, Sequence
 
@@ -349,14 +348,10 @@ def _chunks(n_blocks: int, per_chunk: int) -> list[tuple[int, int]]:
 
 
 def _progress(total: int, enabled: bool | None) -> Any:
-    """A tqdm bar over runs (silent when stderr is not a terminal or tqdm is missing)."""
-    if enabled is False:
-        return None
-    try:
-        from tqdm.auto import tqdm
-    except ImportError:  # pragma: no cover
-        return None
-    return tqdm(total=total, unit="run", unit_scale=True, desc="Monte Carlo", disable=None if enabled is None else not enabled, file=sys.stderr)
+    """The package's progress bar over runs (:mod:`teamkf._progress`: silent off a terminal, quiet or TEAMKF_PROGRESS=0)."""
+    from .._progress import bar
+
+    return bar(total, desc="Monte Carlo", unit="run", unit_scale=True, enabled=enabled)
 
 
 def _serial(spec: _Spec, chunks: list[tuple[int, int]], bar: Any) -> Iterator[dict[str, Any]]:

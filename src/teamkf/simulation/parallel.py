@@ -117,7 +117,44 @@ def local_cluster(n_workers: int | None = None, **kwargs: Any) -> Any:
 
 
 def _open_client(scheduler: Any, n_workers: int | None) -> tuple[Any, list[Any]]:
-    """A Dask client for ``scheduler`` and the objects this run owns (closed at the end)."""
+    """A Dask client for ``scheduler`` and the objects this run owns (closed at the end).
+
+    The plug-ins loaded in this process (``--plugin``, ``TEAMKF_PLUGINS``, :func:`~teamkf.estimators.registry.load_plugin`)
+    are loaded on every worker, present and future (a ``WorkerPlugin``), before any task of a plug-in family
+    is unpickled there.
+    """
+    client, owned = _connect(scheduler, n_workers)
+    from ..estimators.registry import loaded_plugins
+
+    plugins = loaded_plugins()
+    if plugins:
+        try:
+            client.register_plugin(_plugin_loader(plugins), name="teamkf-plugins-" + str(abs(hash(plugins))))
+        except BaseException:
+            for obj in owned:
+                obj.close()
+            raise
+    return client, owned
+
+
+def _plugin_loader(plugins: Any) -> Any:
+    """A Dask ``WorkerPlugin`` that loads the driver's teamkf plug-ins on a worker when it starts."""
+    from distributed.diagnostics.plugin import WorkerPlugin
+
+    from ..estimators.registry import load_plugins_into
+
+    class TeamkfPlugins(WorkerPlugin):
+        def __init__(self, plugins: Any) -> None:
+            self.plugins = plugins
+
+        def setup(self, worker: Any) -> None:
+            load_plugins_into(self.plugins)
+
+    return TeamkfPlugins(plugins)
+
+
+def _connect(scheduler: Any, n_workers: int | None) -> tuple[Any, list[Any]]:
+    """A Dask client for ``scheduler`` and the objects this run owns (closed at the end), before plug-ins."""
     distributed = V.require("distributed", "dask")
     if isinstance(scheduler, distributed.Client):
         return scheduler, []

@@ -1,23 +1,18 @@
-"""Evaluate one scenario: analytic costs and, optionally, Monte Carlo, as plain rows.
+"""The rows of one evaluation (the unit of work of a sweep point): :func:`evaluate_point`.
 
-This is the unit of work of a sweep point and of ``teamkf evaluate``. Which
-estimators have an analytic cost comes from the registry
-(:attr:`Family.analytic_cost <teamkf.estimators.registry.Family.analytic_cost>`).
+A thin view of :func:`teamkf.study.evaluation.evaluate`, which owns the
+vocabulary of the rows (:data:`~teamkf.study.evaluation.ROW_KEYS`) and the
+rule for Monte Carlo runs and seeds.
 """
 
 from __future__ import annotations
 
 from typing import Any, Sequence
 
-import numpy as np
-
 from ..estimators.registry import get_family
-from ..simulation.monte_carlo import monte_carlo
+from .evaluation import DEFAULT_MC_RUNS, evaluate
 
 __all__ = ["evaluate_point", "is_analytic", "DEFAULT_MC_RUNS"]
-
-#: Monte Carlo runs for estimators without a closed form when none are asked for (the paper uses 1000)
-DEFAULT_MC_RUNS = 1000
 
 
 def is_analytic(estimator: str) -> bool:
@@ -25,61 +20,10 @@ def is_analytic(estimator: str) -> bool:
     return bool(get_family(estimator).analytic_cost)
 
 
-def __getattr__(name: str) -> Any:  # 0.1 name: the tuple of analytic estimators, now from the registry
-    if name == "ANALYTIC":
-        from ..estimators.registry import families
+def evaluate_point(scenario: Any, estimators: Sequence[str] | None = None, runs: int = 0, seed: int | None = 0) -> list[dict[str, Any]]:
+    """The rows of :func:`~teamkf.study.evaluation.evaluate` (one per estimator), as plain dicts.
 
-        return tuple(n for n, f in families().items() if f.analytic_cost)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def evaluate_point(scenario: Any, estimators: Sequence[str] | None = None, runs: int = 0, seed: int = 0) -> list[dict[str, Any]]:
-    """One row per estimator.
-
-    Row keys: ``estimator``, ``method`` ("analytic" or "monte-carlo"),
-    ``total_cost`` (finite horizon) or ``average_cost`` (infinite horizon),
-    ``ci95_low``, ``ci95_high`` (None for analytic values), ``runs``, ``seed``;
-    with ``runs > 0`` analytic estimators also get ``mc_cost``, ``mc_ci95_low``, ``mc_ci95_high``.
-    Estimators without an analytic cost are simulated with ``runs`` runs
-    (:data:`DEFAULT_MC_RUNS` when ``runs`` is 0).
-    Deterministic: the same (scenario, estimators, runs, seed) gives the same rows anywhere.
-    A population scenario gives one exact row, estimator ``"bulk"``, with its
-    ``average_cost`` (the average LQ cost per agent; NaN when the memory-n
-    closed loop diverges, and a DivergenceError where the exact filter does).
+    Deterministic: the same (scenario, estimators, runs, seed) gives the same rows anywhere. See
+    :mod:`teamkf.study.evaluation` for the keys and the Monte Carlo rule.
     """
-    if not hasattr(scenario, "designs"):  # a [population] scenario: exact statistics (study.population)
-        return [_population_row(scenario, seed)]
-    names = tuple(scenario.estimators if estimators is None else estimators)
-    with np.errstate(over="ignore", invalid="ignore"):  # a diverging design: its cost is not finite (inf/NaN in the row)
-        designs = scenario.designs(names)
-    key = "total_cost" if scenario.horizon is not None else "average_cost"
-    analytic = {n for n, d in designs.items() if d.has_analytic_cost}
-    mc_runs = runs or (DEFAULT_MC_RUNS if len(analytic) < len(designs) else 0)
-    mc_opts = scenario.monte_carlo_options() if hasattr(scenario, "monte_carlo_options") else {}  # [network]: unreliable links
-    mc = monte_carlo(designs, scenario.horizon, mc_runs, rng=seed, **mc_opts) if (mc_runs and scenario.horizon is not None) else {}
-    rows: list[dict[str, Any]] = []
-    for name, d in designs.items():
-        row: dict[str, Any] = {"estimator": name, "runs": int(runs), "seed": int(seed)}
-        if name in analytic:
-            row.update({"method": "analytic", key: d.cost_value, "ci95_low": None, "ci95_high": None})
-            if name in mc:
-                lo, hi = mc[name].ci95
-                row.update({"mc_cost": mc[name].total_mean, "mc_ci95_low": lo, "mc_ci95_high": hi})
-        else:
-            lo, hi = mc[name].ci95
-            row.update({"method": "monte-carlo", key: mc[name].total_mean, "ci95_low": lo, "ci95_high": hi, "runs": mc_runs})
-        rows.append(row)
-    return rows
-
-
-def _population_row(scenario: Any, seed: int) -> dict[str, Any]:
-    out = scenario.evaluate()
-    return {
-        "estimator": scenario.estimators[0],
-        "method": "exact",
-        "average_cost": float(out["average_cost"]),
-        "ci95_low": None,
-        "ci95_high": None,
-        "runs": 0,
-        "seed": int(seed),
-    }
+    return [dict(r) for r in evaluate(scenario, estimators, runs=runs, seed=seed).rows]

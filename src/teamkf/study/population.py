@@ -10,11 +10,12 @@ from __future__ import annotations
 import difflib
 import math
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any, ClassVar, Mapping
 
 from .._validation import positive_int
 from ..exceptions import ScenarioError, TeamkfError
 from ..models.population import PopulationModel, cdma_population
+from .protocol import ScenarioBase
 
 __all__ = ["PopulationScenario", "population_from_dict", "evaluate_population", "POPULATION_KEYS", "POPULATION_ESTIMATOR"]
 
@@ -46,8 +47,8 @@ _CDMA_KEYS = ("alpha", "beta", "h_prime")
 # scenario files
 # ---------------------------------------------------------------------------
 @dataclass(frozen=True)
-class PopulationScenario:
-    """A validated ``[population]`` scenario: name, horizon T and the model."""
+class PopulationScenario(ScenarioBase):
+    """A validated ``[population]`` scenario (kind ``"population"``): name, horizon T and the model."""
 
     name: str
     horizon: int
@@ -55,6 +56,19 @@ class PopulationScenario:
     description: str = ""
     raw: Mapping[str, Any] = field(default_factory=dict, repr=False, compare=False)
     source: str = "<dict>"
+
+    kind: ClassVar[str] = "population"
+    simulates: ClassVar[bool] = False
+
+    def updated(self, values: Mapping[str, Any]) -> "PopulationScenario":
+        """A new population scenario with dotted keys replaced, e.g. ``{"population.memory": 3}``."""
+        from .scenario import set_dotted
+
+        d: Mapping[str, Any] = self.raw
+        for key, value in values.items():
+            d = set_dotted(d, key, value)
+        out = population_from_dict(d)
+        return PopulationScenario(out.name, out.horizon, out.model, out.description, out.raw, self.source)
 
     @property
     def estimators(self) -> tuple[str, ...]:

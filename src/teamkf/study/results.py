@@ -278,6 +278,7 @@ _FIXED_COLUMNS = (
     "point_id",
     "point_index",
     "estimator",
+    "label",
     "method",
     "total_cost",
     "average_cost",
@@ -288,6 +289,7 @@ _FIXED_COLUMNS = (
     "mc_ci95_high",
     "runs",
     "seed",
+    "diverged",
     "sweep_seed",
     "teamkf_version",
 )

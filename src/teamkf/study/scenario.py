@@ -49,7 +49,7 @@ import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, ClassVar, Mapping, Sequence
 
 import numpy as np
 
@@ -57,6 +57,7 @@ from .. import _validation as V
 from ..exceptions import ScenarioError, TeamkfError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network import CommGraph, InformationStructure
+from .protocol import ScenarioBase
 
 __all__ = [
     "Scenario",
@@ -105,8 +106,8 @@ def _fail(key: str, message: str) -> ScenarioError:
 # the scenario
 # ---------------------------------------------------------------------------
 @dataclass(frozen=True, eq=False)
-class Scenario:
-    """A validated scenario: everything needed to design and compare estimators.
+class Scenario(ScenarioBase):
+    """A validated team scenario (kind ``"team"``): everything needed to design and compare estimators.
 
     Attributes
     ----------
@@ -137,6 +138,8 @@ class Scenario:
     options: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     families: Mapping[str, Any] = field(repr=False, default_factory=dict)
 
+    kind: ClassVar[str] = "team"
+
     @property
     def n_agents(self) -> int:
         return self.system.n_agents
@@ -153,7 +156,7 @@ class Scenario:
         ``[<estimator>]`` table (defaults otherwise).
         """
         T = self.horizon if horizon == "scenario" else horizon
-        fam = self.families.get(estimator) or _family(estimator, "estimator")
+        fam = self.family(estimator)
         opts = self.options.get(estimator)
         if opts is None:
             opts = _family_options(fam, {})
@@ -165,6 +168,10 @@ class Scenario:
             if exc.argument in ("horizon", "graph"):
                 raise _fail(exc.argument, f"{estimator}: {exc.detail}") from exc
             raise
+
+    def family(self, name: str) -> Any:
+        """The registry record of estimator ``name`` (the scenario's own records first: they travel with it to Dask workers)."""
+        return self.families.get(name) or _family(name, "estimator")
 
     def designs(self, estimators: Sequence[str] | None = None, horizon: Any = "scenario") -> dict[str, Any]:
         """Design every estimator of the scenario (or of ``estimators``), in order: name -> design."""
@@ -180,6 +187,12 @@ class Scenario:
     def links(self) -> Any:
         """The ``[network]`` table as a :class:`~teamkf.simulation.links.LinkModel`, or None (reliable links)."""
         return _links(self.raw["network"], self.graph) if "network" in self.raw else None
+
+    @property
+    def has_lossy_links(self) -> bool:
+        """True when the ``[network]`` table makes links drop, jitter or fail."""
+        lm = self.links
+        return lm is not None and not lm.trivial
 
     def monte_carlo_options(self) -> dict[str, Any]:
         """Keywords for ``monte_carlo``: with unreliable links, the runtime path over the scenario's graph."""

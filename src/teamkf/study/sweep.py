@@ -47,13 +47,16 @@ Point ``k`` of the Cartesian product (in grid order) has
 - ``point_id``: the first 12 hex digits of the SHA-256 of the canonical JSON
   (sorted keys, no spaces) of its parameters ``{key: value}``; stable across
   runs, machines and grid orders;
-- ``seed``: ``SeedSequence(seed).spawn(n_points)[k].generate_state(1,
-  uint64)[0] >> 1`` (a 63-bit integer, so that it fits a signed Parquet
-  column), passed to :func:`~teamkf.study.evaluate.evaluate_point`. A
-  point's numbers therefore depend only on the sweep file and ``k``, never on
-  the worker that ran it or on the order in which points finish: serial and
-  Dask runs give identical numbers. ``teamkf evaluate`` on the point's
-  scenario with ``--monte-carlo RUNS --seed <point seed>`` reproduces them.
+- ``seed``: the sweep's ``seed`` itself for point 0, and
+  ``SeedSequence(seed).spawn(n_points)[k].generate_state(1, uint64)[0] >> 1``
+  for point k >= 1 (a 63-bit integer, so that it fits a signed Parquet
+  column), passed to :func:`~teamkf.study.evaluation.evaluate`. A point's
+  numbers therefore depend only on the sweep file and ``k``, never on the
+  worker that ran it or on the order in which points finish: serial and Dask
+  runs give identical numbers. ``teamkf evaluate`` on the point's scenario
+  with ``--monte-carlo RUNS --seed <point seed>`` reproduces them; a one-point
+  sweep with ``runs = R, seed = S`` gives exactly the numbers of
+  ``teamkf evaluate --monte-carlo R --seed S``.
 
 Results folder
 --------------
@@ -132,6 +135,7 @@ import numpy as np
 
 from .. import _validation as V
 from .._blas import single_thread_blas
+from .._progress import bar as _progress_bar
 from ..exceptions import ScenarioError, TeamkfError
 from ..simulation.parallel import WORKER_ENV, _cpu_count, _open_client, local_cluster  # noqa: F401  (public here since 0.1)
 from .evaluate import evaluate_point, is_analytic  # noqa: F401  (evaluate_point is looked up by _module_evaluate)
@@ -159,7 +163,7 @@ A_SCALE = "system.A_scale"
 
 
 _SWEEP_KEYS = ("scenario", "runs", "seed", "estimators", "grid", "name", "description")
-_FORMAT = "teamkf-sweep-results/1"
+_FORMAT = "teamkf-sweep-results/2"  # 2: the rows of teamkf.study.evaluation (label, diverged; point 0 runs with the sweep's seed)
 _MAX_SEED = 2**63 - 1
 
 
@@ -248,7 +252,8 @@ class SweepSpec:
         out = []
         for k, (values, child) in enumerate(zip(combos, children)):
             params = dict(zip(keys, values))
-            out.append(SweepPoint(k, point_id(params), params, int(child.generate_state(1, dtype=np.uint64)[0] >> np.uint64(1))))
+            seed = self.seed if k == 0 else int(child.generate_state(1, dtype=np.uint64)[0] >> np.uint64(1))
+            out.append(SweepPoint(k, point_id(params), params, seed))
         return tuple(out)
 
     def scenario_for(self, point: SweepPoint | Mapping[str, Any]) -> Scenario:
@@ -377,7 +382,7 @@ def sweep_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", source:
         raise _fail("seed", f"expected an integer seed between 0 and 2**63 - 1, found {seed}")
 
     scenario, base = _base_scenario(data["scenario"], Path(base_dir))
-    if not hasattr(base, "designs"):  # a [population] scenario: one exact filter, nothing simulated
+    if not base.simulates:  # a [population] scenario: one exact filter, nothing simulated
         if runs:
             raise _fail("runs", f"expected 0 for a population scenario (evaluated exactly, nothing is simulated), found {runs}")
         if "estimators" in data:
@@ -389,7 +394,7 @@ def sweep_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", source:
         estimators = _estimators(data["estimators"], {**_families(), **base.families})
     else:
         estimators = tuple(base.estimators)
-    if runs == 0 and hasattr(base, "designs"):
+    if runs == 0 and base.simulates:
         for idx, e in enumerate(estimators):
             if not is_analytic(e):
                 raise _fail(f"estimators[{idx}]", f"{e!r} has no analytic cost; set runs >= 2 to evaluate it by Monte Carlo")
@@ -516,7 +521,7 @@ def _check_points(spec: SweepSpec) -> tuple[str, ...]:
             sc = spec.scenario_for(p)
         except ScenarioError as exc:
             raise ScenarioError(f"{exc} (at grid point {p.index}: {p.describe()})") from None
-        horizons.add(sc.horizon is None or not hasattr(sc, "designs"))  # a population reports its average cost
+        horizons.add(sc.horizon is None or not sc.simulates)  # a population reports its average cost
         if spec.runs and sc.horizon is None:
             raise _fail(
                 "runs",
@@ -611,13 +616,13 @@ def run_sweep(
     points = spec.points
     todo = [p for p in points if p.point_id not in done]
     writer = _Writer(spec, out, pa)
-    bar = _Progress(len(points), len(points) - len(todo), False, f"sweep {spec.name}")
+    bar = _progress_bar(len(points), initial=len(points) - len(todo), enabled=False, desc=f"sweep {spec.name}", unit="point")
     n_ok = 0
 
     def start() -> None:
         nonlocal bar
         writer.create()
-        bar = _Progress(len(points), len(points) - len(todo), progress, f"sweep {spec.name}")
+        bar = _progress_bar(len(points), initial=len(points) - len(todo), enabled=None if progress else False, desc=f"sweep {spec.name}", unit="point")
 
     def finish(p: SweepPoint, rows: list[dict[str, Any]]) -> None:
         nonlocal n_ok
@@ -765,6 +770,7 @@ class _Writer:
             pa.field("point_id", pa.string()),
             pa.field("point_index", pa.int64()),
             pa.field("estimator", pa.string()),
+            pa.field("label", pa.string()),
             pa.field("method", pa.string()),
         ]
         fields += [pa.field(k, pa.float64()) for k in spec.cost_keys]
@@ -774,6 +780,7 @@ class _Writer:
         fields += [
             pa.field("runs", pa.int64()),
             pa.field("seed", pa.int64()),
+            pa.field("diverged", pa.bool_()),
             pa.field("sweep_seed", pa.int64()),
             pa.field("teamkf_version", pa.string()),
         ]
@@ -822,7 +829,7 @@ class _Writer:
                 if name in r and name not in base and name not in ("point_id", "point_index"):
                     rec[name] = r[name]
             rec.setdefault("runs", spec.runs)
-            rec.setdefault("seed", p.seed)
+            rec["seed"] = p.seed  # the point's seed: teamkf evaluate --seed <it> repeats the point
             rec["sweep_seed"] = spec.seed
             rec["teamkf_version"] = self.version
             recs.append(rec)
@@ -839,71 +846,3 @@ class _Writer:
         return final
 
 
-class _Progress:
-    """Points done / total, rate and time left on stderr: tqdm when installed, else a text line."""
-
-    def __init__(self, total: int, initial: int, enabled: bool, desc: str, stream: Any = None) -> None:
-        self.total, self.n, self.n0, self.desc = total, initial, initial, desc
-        self.enabled = enabled
-        self.stream = stream if stream is not None else sys.stderr
-        self.t0 = time.perf_counter()
-        self.last = -1e9
-        self.bar: Any = None
-        if not enabled:
-            return
-        try:
-            from tqdm import tqdm
-        except ImportError:
-            tqdm = None
-        if tqdm is not None:
-            self.bar = tqdm(total=total, initial=initial, desc=desc, unit="point", file=self.stream, smoothing=0.1)
-        else:
-            self._text(force=True)
-
-    def _tty(self) -> bool:
-        try:
-            return bool(self.stream.isatty())
-        except (AttributeError, ValueError):
-            return False
-
-    def _text(self, force: bool = False) -> None:
-        now = time.perf_counter()
-        tty = self._tty()
-        if not force and self.n < self.total and now - self.last < (0.2 if tty else 10.0):
-            return
-        self.last = now
-        elapsed, done = now - self.t0, self.n - self.n0
-        line = f"{self.desc}: {self.n}/{self.total} points ({100.0 * self.n / max(self.total, 1):.0f} %)"
-        if done > 0 and elapsed > 0:
-            rate = done / elapsed
-            line += f", {rate:.3g} points/s, {_duration((self.total - self.n) / rate)} left"
-        self.stream.write(f"\r{line}\x1b[K" if tty else f"{line}\n")
-        self.stream.flush()
-
-    def update(self) -> None:
-        self.n += 1
-        if not self.enabled:
-            return
-        if self.bar is not None:
-            self.bar.update(1)
-        else:
-            self._text()
-
-    def close(self) -> None:
-        if not self.enabled:
-            return
-        if self.bar is not None:
-            self.bar.close()
-        elif self._tty():
-            self.stream.write("\n")
-            self.stream.flush()
-        self.enabled = False
-
-
-def _duration(s: float) -> str:
-    s = max(0.0, s)
-    if s < 60:
-        return f"{s:.0f} s"
-    if s < 3600:
-        return f"{int(s // 60)} min {int(s % 60):02d} s"
-    return f"{int(s // 3600)} h {int(s % 3600 // 60):02d} min"
