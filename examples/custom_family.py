@@ -58,6 +58,7 @@ FAMILY = teamkf.register_family(
     uses="graph",
     horizons={"finite"},
     analytic_cost=False,
+    lossy_links=True,  # its step averages whatever arrived: a lost message is simply not averaged
     replace=True,
 )
 

@@ -215,12 +215,13 @@ def _warn(message: str) -> None:
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
+    """``teamkf evaluate``: parse, call :func:`teamkf.study.evaluation.evaluate`, then print, write or plot its rows."""
     from . import _validation as V
-    from .study.evaluate import DEFAULT_MC_RUNS
+    from .study.evaluation import check_capabilities, evaluate
 
     sc = _apply_network_flags(_load(args.scenario), args)
     plot_to = _check_output(args.plot, "--plot", _PLOT_SUFFIXES) if args.plot else None
-    if not hasattr(sc, "designs"):  # a [population] scenario: exact statistics, nothing simulated
+    if not sc.simulates:  # a [population] scenario: exact statistics, nothing simulated
         if args.monte_carlo:
             raise ArgumentError("--monte-carlo: a population scenario is evaluated exactly; nothing needs simulating", argument="--monte-carlo")
         if plot_to is not None:
@@ -230,99 +231,43 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         if args.seed is not None:
             _warn("--seed is ignored: a population scenario is evaluated exactly, nothing is sampled")
         return _cmd_population(sc, args)
-    runs = args.monte_carlo
-    if runs is not None:
-        if sc.horizon is None:
-            raise ArgumentError(
-                f"horizon: --monte-carlo needs a finite horizon, but scenario {sc.name!r} has none (steady state); add horizon = T to the scenario",
-                argument="horizon",
-            )
-        if runs < 2:
-            raise ArgumentError(f"--monte-carlo: expected at least 2 runs (for a confidence interval), found {runs}", argument="--monte-carlo")
+    runs = args.monte_carlo or 0
+    if runs == 1:
+        raise ArgumentError("--monte-carlo: expected at least 2 runs (for a confidence interval), found 1", argument="--monte-carlo")
+    if runs and sc.horizon is None:
+        raise ArgumentError(
+            f"horizon: --monte-carlo needs a finite horizon, but scenario {sc.name!r} has none (steady state); add horizon = T to the scenario",
+            argument="horizon",
+        )
+    names = sc.estimators
+    mc_only = [n for n in names if not sc.family(n).analytic_cost]
+    check_capabilities(sc, names if runs else mc_only, simulate=bool(runs or mc_only))
     if plot_to is not None:
         V.require("matplotlib", "plot")  # fail before the work, with the install command
-
-    with np.errstate(over="ignore", invalid="ignore"):  # a diverging design is reported below (warning, "diverged", null)
-        designs = sc.designs()
-    mc_only = [name for name, d in designs.items() if not d.has_analytic_cost]
-    simulate = designs
-    if runs is None and mc_only:
-        runs, simulate = DEFAULT_MC_RUNS, {name: designs[name] for name in mc_only}
-    if args.seed is not None and runs is None:
+    if args.seed is not None and not runs and not mc_only:
         _warn("--seed is ignored without Monte Carlo (every estimator of this scenario has an analytic cost); add --monte-carlo RUNS")
-    seed = args.seed
-    mc: dict[str, Any] = {}
-    if runs is not None:
-        from .simulation.monte_carlo import monte_carlo
-
-        if seed is None:
-            seed = int(np.random.SeedSequence().entropy % (2**32))  # type: ignore[operator]
-        try:
-            if args.scheduler not in (None, "serial", "local"):
-                _check_scheduler(args.scheduler)
-            mc = monte_carlo(
-                simulate, sc.horizon, runs, rng=seed, scheduler=args.scheduler, **sc.monte_carlo_options()
-            )  # [network]: unreliable links
-        except ArgumentError as exc:
-            raise (exc.rekeyed("--monte-carlo") if exc.argument == "n_runs" else exc) from None
-    for name, d in designs.items():
-        if d.diverged or (name in mc and not np.isfinite(mc[name].total_mean)):
-            _warn(f"{name}: the team cost diverges (not finite){_divergence_step(d, mc.get(name))}; reported as diverged / null")
-
+    if args.scheduler not in (None, "serial", "local"):
+        _check_scheduler(args.scheduler)
+    try:
+        ev = evaluate(sc, runs=runs, seed=args.seed, scheduler=args.scheduler)
+    except ArgumentError as exc:
+        raise (exc.rekeyed("--monte-carlo") if exc.argument in ("n_runs", "runs") else exc) from None
+    for r in ev.rows:
+        if r["diverged"]:
+            d, mc = ev.designs[r["estimator"]], ev.monte_carlo.get(r["estimator"])
+            _warn(f"{r['estimator']}: the team cost diverges (not finite){_divergence_step(d, mc)}; reported as diverged / null")
     notes: list[str] = []
     if plot_to is not None:
-        notes.append(_plot_stage_costs(designs, mc, sc, plot_to))
-
-    control = _control_summary(sc, runs, seed)
+        notes.append(_plot_stage_costs(ev.designs, ev.monte_carlo, sc, plot_to))
     if args.json:
-        out: dict[str, Any] = {"scenario": sc.name, "horizon": sc.horizon, "teamkf_version": _version(), "estimators": {}}
-        if control:
-            out["control"] = control
-        if mc:  # what repeats the Monte Carlo: seed, runs, block and chunk sizes, teamkf version
-            out["monte_carlo"] = {k: v for k, v in next(iter(mc.values())).summary().items() if k in ("runs", "batch", "chunk", "teamkf_version")}
-            out["monte_carlo"]["seed"] = seed  # the --seed given (or drawn and printed): it repeats the run
-        for name, d in designs.items():
-            if name in mc_only:
-                entry = {**mc[name].summary(), **({"variant": d.info["variant"]} if "variant" in d.info else {})}
-            else:
-                entry = {}
-                for k, v in d.cost_summary().items():
-                    entry[k] = v
-                    if k == d.cost_key and name in mc:
-                        lo, hi = mc[name].ci95
-                        entry.update(mc_cost=mc[name].total_mean, mc_ci95=[lo, hi])
-            if any(isinstance(v, float) and not np.isfinite(v) for v in _leaves(entry)):
-                entry["diverged"] = True
-            out["estimators"][name] = entry
-        print(dumps_json(out))
+        print(dumps_json(_evaluation_json(ev)))
         for n in notes:
             print(n, file=sys.stderr)
         return 0
-
-    ref = designs.get("mtmse")
-    ref_value = ref.cost_value if ref is not None else None
-    headers = ["estimator", _cost_label(sc.horizon)]
-    if ref_value is not None:
-        headers.append("vs mtmse")
-    if mc:
-        headers += ["MC mean", "MC 95% CI"]
-    rows = []
-    for name, d in designs.items():
-        v = mc[name].total_mean if name in mc_only else d.cost_value
-        row = [d.label, _fmt(v) + (" (MC)" if name in mc_only and v is not None and np.isfinite(v) else "")]
-        if ref_value is not None:
-            ok = v is not None and np.isfinite(v) and np.isfinite(ref_value) and ref_value != 0
-            row.append(_pct(100.0 * (v - ref_value) / ref_value) if ok else "-")  # type: ignore[operator]
-        if mc:
-            if name in mc:
-                lo, hi = mc[name].ci95
-                row += [_fmt(mc[name].total_mean), f"[{_fmt(lo)}, {_fmt(hi)}]"]
-            else:
-                row += ["", ""]
-        rows.append(row)
     print(_header(sc))
     print()
-    print(format_table(headers, rows))
+    print(_evaluation_table(ev))
+    control = ev.details.get("control")
     if control:
         print("\n  decentralized LQG ([control], one-step delayed sharing, Appendix D):")
         for name, entry in control.items():
@@ -330,11 +275,77 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
                 f"   closed-loop MC {_fmt(entry['mc_cost'])} [{_fmt(entry['mc_ci95'][0])}, {_fmt(entry['mc_ci95'][1])}]" if "mc_cost" in entry else ""
             )
             print(f"    {name:22s} J = {_fmt(entry['total_cost'])}{extra}")
-    if mc:
-        print(f"\n  Monte Carlo: {runs} runs, seed {seed} (online agents on sampled paths; analytic values in the {_cost_label(sc.horizon)} column)")
+    if ev.runs:
+        print(f"\n  Monte Carlo: {ev.runs} runs, seed {ev.seed} (online agents on sampled paths; analytic values in the {_cost_label(sc.horizon)} column)")
     for n in notes:
         print(n)
     return 0
+
+
+def _evaluation_json(ev: Any) -> dict[str, Any]:
+    """``teamkf evaluate --json``: the evaluation's rows under ``estimators`` (the contract of scenario-and-cli.md).
+
+    Each entry is the row (:data:`teamkf.study.evaluation.ROW_KEYS`, strict JSON; keys that do not apply to it
+    left out) with ``stage_costs``, and the contract's list forms ``ci95`` = [ci95_low, ci95_high] and
+    ``mc_ci95`` = [mc_ci95_low, mc_ci95_high] beside the row's own keys.
+    """
+    out: dict[str, Any] = {"scenario": ev.scenario, "horizon": ev.horizon, "teamkf_version": _version(), "schema_version": ev.schema_version}
+    if ev.details.get("control"):
+        out["control"] = ev.details["control"]
+    if ev.monte_carlo:  # what repeats the Monte Carlo: seed, runs, block and chunk sizes, teamkf version
+        first = next(iter(ev.monte_carlo.values()))
+        out["monte_carlo"] = {"runs": ev.runs, "seed": ev.seed, "batch": first.batch, "chunk": first.chunk, "teamkf_version": _version()}
+    out["estimators"] = {}
+    for row in ev.json_rows():
+        name = row["estimator"]
+        entry: dict[str, Any] = {"method": row["method"], ev.cost_key: row[ev.cost_key]}
+        if row["method"] == "monte-carlo":
+            entry.update(ci95=[row["ci95_low"], row["ci95_high"]], ci95_low=row["ci95_low"], ci95_high=row["ci95_high"])
+        if row["mc_cost"] is not None or row["mc_ci95_low"] is not None:
+            entry.update(mc_cost=row["mc_cost"], mc_ci95=[row["mc_ci95_low"], row["mc_ci95_high"]])
+            entry.update(mc_ci95_low=row["mc_ci95_low"], mc_ci95_high=row["mc_ci95_high"])
+        entry.update({k: row[k] for k in ("runs", "seed", "label") if row[k] is not None})
+        d = ev.designs.get(name)
+        if d is not None and "variant" in d.info:
+            entry["variant"] = d.info["variant"]
+        entry["diverged"] = row["diverged"]
+        if "non_finite" in row:
+            entry["non_finite"] = row["non_finite"]
+        if ev.horizon is not None:
+            stages = ev.stage_costs(name)
+            if stages is not None:
+                entry["stage_costs"] = [_json_float(c) for c in stages]
+        out["estimators"][name] = entry
+    return out
+
+
+def _json_float(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
+
+
+def _evaluation_table(ev: Any) -> str:
+    """The text table of an evaluation: cost (analytic, or MC marked), vs mtmse, Monte Carlo mean and interval."""
+    key = ev.cost_key
+    ref = next((r[key] for r in ev.rows if r["estimator"] == "mtmse"), None)
+    headers = ["estimator", _cost_label(ev.horizon)]
+    if ref is not None:
+        headers.append("vs mtmse")
+    if ev.runs:
+        headers += ["MC mean", "MC 95% CI"]
+    rows = []
+    for r in ev.rows:
+        v, mc = r[key], r["method"] == "monte-carlo"
+        shown = "diverged" if r["diverged"] and (v is None or not np.isfinite(v)) else _fmt(v) + (" (MC)" if mc else "")
+        row = [r["label"], shown]
+        if ref is not None:
+            ok = v is not None and np.isfinite(v) and np.isfinite(ref) and ref != 0
+            row.append(_pct(100.0 * (v - ref) / ref) if ok else "-")
+        if ev.runs:
+            lo, hi = (r["ci95_low"], r["ci95_high"]) if mc else (r["mc_ci95_low"], r["mc_ci95_high"])
+            mean = v if mc else r["mc_cost"]
+            row += ["", ""] if mean is None else [_fmt(mean), f"[{_fmt(lo)}, {_fmt(hi)}]"]
+        rows.append(row)
+    return format_table(headers, rows)
 
 
 _PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
@@ -349,38 +360,12 @@ def _strict_rows(out: dict[str, Any]) -> dict[str, Any]:
     return {**out, "rows": rows}
 
 
-def _leaves(x: Any) -> list[Any]:
-    if isinstance(x, dict):
-        return [v for val in x.values() for v in _leaves(val)]
-    if isinstance(x, (list, tuple)):
-        return [v for val in x for v in _leaves(val)]
-    return [x]
-
-
 def _divergence_step(design: Any, mc: Any) -> str:
     stages = design.stage_costs if design.stage_costs is not None else (mc.stage_mean if mc is not None else None)
     if stages is None:
         return ""
     bad = np.flatnonzero(~np.isfinite(np.asarray(stages)))
     return f" from step {int(bad[0])}" if bad.size else ""
-
-
-def _control_summary(sc: Any, runs: int | None, seed: int | None) -> dict[str, Any]:
-    """Analytic (and, with runs, closed-loop Monte Carlo) costs of Theorem 4's controller and of certainty equivalence."""
-    prob = sc.control
-    if prob is None:
-        return {}
-    from .control.lqg import design_lqg, simulate_closed_loop
-
-    out: dict[str, Any] = {}
-    for name, kind in (("optimal", "mtmse"), ("certainty_equivalent", "mmse")):
-        d = design_lqg(prob, sc.horizon, kind=kind)
-        entry: dict[str, Any] = {"method": "analytic", "total_cost": float(d.cost)}
-        if runs:
-            mc = simulate_closed_loop(d, runs, rng=seed)
-            entry.update(mc_cost=mc["mean"], mc_ci95=[mc["mean"] - 1.96 * mc["sem"], mc["mean"] + 1.96 * mc["sem"]])
-        out[name] = entry
-    return out
 
 
 def _plot_stage_costs(designs: dict[str, Any], mc: dict[str, Any], sc: Any, out: Path) -> str:
@@ -406,7 +391,7 @@ def _plot_stage_costs(designs: dict[str, Any], mc: dict[str, Any], sc: Any, out:
 def _cmd_design(args: argparse.Namespace) -> int:
     sc = _load(args.scenario)
     out_path = _check_output(args.out, "--out") if args.out else None
-    if not hasattr(sc, "designs"):  # a [population] scenario
+    if not sc.simulates:  # a [population] scenario: its gains are exact statistics
         if out_path is not None:
             res = sc.evaluate()
             _write_atomic(
@@ -539,10 +524,7 @@ def _cmd_filter(args: argparse.Namespace) -> int:
     if cost_path is not None:
         _check_output(str(cost_path), "--out")
     sc = _load(args.scenario)
-    if not hasattr(sc, "designs"):
-        raise ArgumentError(
-            "SCENARIO: teamkf filter needs a scenario with [system], [[agents]] and a graph, found a population scenario", argument="SCENARIO"
-        )
+    sc.require_simulation("teamkf filter", "SCENARIO")
     names = list(args.estimators) if args.estimators else list(sc.estimators)
     from .estimators.registry import get_family
 
@@ -629,8 +611,7 @@ def _apply_network_flags(sc: Any, args: argparse.Namespace) -> Any:
     vals = {k: v for k, v in (("network.p_drop", getattr(args, "p_drop", None)), ("network.jitter", getattr(args, "jitter", None))) if v is not None}
     if not vals:
         return sc
-    if not hasattr(sc, "updated") or not hasattr(sc, "monte_carlo_options"):
-        raise ArgumentError("--p-drop/--jitter: unreliable links need a scenario with a graph, found a population scenario", argument="--p-drop")
+    sc.require_simulation("unreliable links (--p-drop/--jitter)", "--p-drop")
     if not getattr(args, "monte_carlo", None):
         _warn("--p-drop/--jitter act on the simulated agents; add --monte-carlo RUNS (analytic costs assume reliable links)")
     return sc.updated(vals)

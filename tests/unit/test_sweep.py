@@ -24,7 +24,7 @@ from teamkf.exceptions import ConvergenceError, ScenarioError
 from teamkf.study import sweep as sweep_mod
 from teamkf.study.evaluate import evaluate_point
 from teamkf.study.results import CostCurves, SweepError, SweepResult
-from teamkf.study.sweep import A_SCALE, _Progress, apply_point, load_sweep, point_id, run_sweep, sweep_from_dict
+from teamkf.study.sweep import A_SCALE, apply_point, load_sweep, point_id, run_sweep, sweep_from_dict
 
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGED = ROOT / "src" / "teamkf" / "scenarios"
@@ -128,7 +128,8 @@ estimators = ["mmse", "mtmse"]
     assert len({p.point_id for p in pts}) == 6
     assert pts[3].point_id == point_id({"graph.delay": 2, "cost.lambda": 2.5})
     children = np.random.SeedSequence(11).spawn(6)
-    assert [p.seed for p in pts] == [int(c.generate_state(1, dtype=np.uint64)[0]) >> 1 for c in children]
+    # point 0 runs with the sweep's seed itself (a one-point sweep = teamkf evaluate --seed S); point k its k-th child
+    assert [p.seed for p in pts] == [11] + [int(c.generate_state(1, dtype=np.uint64)[0]) >> 1 for c in children[1:]]
     assert all(0 <= p.seed < 2**63 for p in pts)
     # the same sweep loaded again: same ids and seeds
     assert [(q.point_id, q.seed) for q in load_sweep(p).points] == [(q.point_id, q.seed) for q in pts]
@@ -419,21 +420,47 @@ def test_failed_point_is_one_error_and_keeps_finished_points(tmp_path, capsys, m
     assert len(parts(tmp_path / "o")) == 2
 
 
-def test_progress_text_line_without_tqdm(monkeypatch):
-    monkeypatch.setitem(sys.modules, "tqdm", None)  # import tqdm -> ImportError
+def test_sweep_progress_is_the_package_bar(tmp_path, capsys, monkeypatch):
+    """The sweep counts points on teamkf's one progress bar: silent when stderr is not a terminal (a log file)."""
+    import teamkf._progress as P
+
+    made = []
+    real = P.Bar
+
+    class Spy(real):  # type: ignore[misc, valid-type]
+        def __init__(self, total, **kw):
+            made.append((total, kw))
+            super().__init__(total, **kw)
+
+    monkeypatch.setattr(P, "Bar", Spy)
+    monkeypatch.setattr(sweep_mod, "_progress_bar", lambda total, **kw: Spy(total, **kw))
+    p = write_files(tmp_path, SMALL.format(runs=0))
+    spec = load_sweep(p)
+    run_sweep(spec, tmp_path / "r.parquet", scheduler="serial", progress=True)
+    assert made and made[-1][0] == spec.n_points and made[-1][1]["unit"] == "point"
+    assert capsys.readouterr().err == ""  # stderr is captured (not a terminal): nothing written
+
+
+def test_package_bar_rules(monkeypatch):
+    """teamkf._progress.Bar: written when asked (enabled=True) on any stream, silent with enabled=False or quiet."""
+    import io
+
+    import teamkf._progress as P
+
     buf = io.StringIO()
-    bar = _Progress(4, 1, True, "sweep s", stream=buf)
-    bar.t0 -= 2.0  # pretend 2 s have passed
-    for _ in range(3):
-        bar.update()
-    bar.close()
-    lines = buf.getvalue().strip().splitlines()
-    assert lines[0] == "sweep s: 1/4 points (25 %)"
-    assert lines[-1].startswith("sweep s: 4/4 points (100 %), ") and "points/s" in lines[-1] and lines[-1].endswith("0 s left")
+    with P.bar(3, desc="points", unit="point", enabled=True, stream=buf, delay=0) as b:
+        assert b.shown
+        b.update(3)
+    assert "points" in buf.getvalue() and "0/3" in buf.getvalue()
     quiet = io.StringIO()
-    bar = _Progress(4, 0, False, "x", stream=quiet)
-    bar.update()
-    bar.close()
+    with P.bar(3, enabled=False, stream=quiet) as b:
+        b.update()
+    with P.quiet():
+        with P.bar(3, enabled=True, stream=quiet) as b:
+            assert not b.shown
+    monkeypatch.setenv("TEAMKF_PROGRESS", "0")
+    with P.bar(3, enabled=True, stream=quiet) as b:
+        b.update()
     assert quiet.getvalue() == ""
 
 

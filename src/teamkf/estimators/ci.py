@@ -222,6 +222,7 @@ FAMILY = _register_builtin(
         horizons=frozenset({"finite"}),
         analytic_cost=True,
         options=(Option(name="variant", default="honest", check=check_variant, doc=" | ".join(f"{k!r}: {d}" for k, d in VARIANTS.items())),),
+        lossy_links=True,  # capabilities (registry.Family)
         example="design_ci(system, cost, graph, horizon=100, variant='honest')",
     )
 )

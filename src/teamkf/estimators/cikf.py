@@ -1842,6 +1842,7 @@ FAMILY = _register_builtin(
                 'slower (same covariances and costs to ~1e-12); "dense": dense operators (a baseline)',
             ),
         ),
+        lossy_links=True,  # capabilities (registry.Family)
         example="design_cikf(system, cost, graph, horizon=32)",
     )
 )

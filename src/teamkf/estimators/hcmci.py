@@ -234,6 +234,7 @@ FAMILY = _register_builtin(
             Option(name="iterations", default=5, check=check_iterations, doc="consensus iterations L per step (ideal variant)"),
             Option(name="variant", default="honest", check=check_variant, doc=" | ".join(f"{k!r}: {d}" for k, d in VARIANTS.items())),
         ),
+        lossy_links=True,  # capabilities (registry.Family)
         example="design_hcmci(system, cost, graph, horizon=100, iterations=5, variant='ideal')",
     )
 )

@@ -251,6 +251,7 @@ FAMILY = _register_builtin(
             ),
             Option(name="variant", default="honest", check=check_variant, doc=" | ".join(f"{k!r}: {d}" for k, d in VARIANTS.items())),
         ),
+        lossy_links=True,  # capabilities (registry.Family)
         example="design_icf(system, cost, graph, horizon=100, iterations=5, variant='ideal')",
     )
 )

@@ -733,6 +733,7 @@ FAMILY = _register_builtin(
                 doc=" | ".join(f"{k!r}: {d}" for k, d in VARIANTS.items()),
             ),
         ),
+        lossy_links=True,  # capabilities (registry.Family)
         example="design_kcf(system, cost, graph, horizon=100, epsilon=0.1, variant='honest')",
     )
 )

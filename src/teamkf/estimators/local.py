@@ -85,6 +85,7 @@ FAMILY = _register_builtin(
                 doc="both variants are the same filter (no communication): " + ", ".join(VARIANTS),
             ),
         ),
+        lossy_links=True,  # capabilities (registry.Family)
         example="design_local(system, cost, graph, horizon=100)",
     )
 )

@@ -92,6 +92,15 @@ class Family:
         The family exchanges once per step over edges of delay 1 (CIKF).
     strongly_connected : bool
         The family needs a strongly connected graph.
+    lossy_links : bool
+        Capability: its agents run over links that drop, jitter or fail (each says what a missing message
+        means: a tolerant step). A family without it is refused, in one line, by any command that simulates
+        it over unreliable links.
+    missing_data : bool
+        Capability: its designs filter recorded measurements with gaps (NaN or absent rows: ``teamkf filter``).
+    steady_form : bool
+        Capability: its infinite-horizon designs have a time-invariant form (``Design.steady_form()``) that
+        ``teamkf filter`` streams through a file of any length.
     example : str
         A short Python example (README, docs, ``teamkf --help``).
     """
@@ -105,7 +114,13 @@ class Family:
     analytic_cost: bool = True
     unit_delays: bool = False
     strongly_connected: bool = False
+    lossy_links: bool = False
+    missing_data: bool = False
+    steady_form: bool = False
     example: str = ""
+
+    #: the capability fields, in the order :attr:`capabilities` lists them
+    CAPABILITIES = ("analytic_cost", "lossy_links", "missing_data", "steady_form")
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name.isidentifier() or self.name != self.name.lower():
@@ -118,6 +133,9 @@ class Family:
             raise ArgumentError(f"horizons: expected a non-empty subset of {{'finite', 'infinite'}}, found {set(self.horizons)}", argument="horizons")
         object.__setattr__(self, "horizons", hz)
         object.__setattr__(self, "options", tuple(self.options))
+        for flag in ("analytic_cost", "unit_delays", "strongly_connected", *self.CAPABILITIES):
+            if not isinstance(getattr(self, flag), bool):
+                raise ArgumentError(f"{flag}: expected True or False, found {V.describe(getattr(self, flag))}", argument=flag)
         for o in self.options:
             if not isinstance(o, Option):
                 raise ArgumentError(f"options: expected Option records, found {type(o).__name__}", argument="options")
@@ -126,6 +144,22 @@ class Family:
         cost = "analytic" if self.analytic_cost else "monte-carlo"
         opts = ", ".join(self.option_names)
         return f"Family({self.name!r}, uses={self.uses!r}, horizons={sorted(self.horizons)}, cost={cost!r}, options=[{opts}])"
+
+    @property
+    def capabilities(self) -> tuple[str, ...]:
+        """The capabilities the record declares, e.g. ``("analytic_cost", "lossy_links")``."""
+        return tuple(c for c in self.CAPABILITIES if getattr(self, c))
+
+    def require(self, capability: str, what: str) -> None:
+        """Raise :class:`~teamkf.exceptions.UnsupportedOperationError` (one line) unless the family declares ``capability``."""
+        from ..exceptions import UnsupportedOperationError
+
+        if capability not in self.CAPABILITIES:
+            raise ArgumentError(f"capability: expected one of {', '.join(self.CAPABILITIES)}, found {capability!r}", argument="capability")
+        if not getattr(self, capability):
+            raise UnsupportedOperationError(
+                self.name, what, f"its registry record does not declare {capability}=True (declared: {', '.join(self.capabilities) or 'none'})"
+            )
 
     # --- checks ---------------------------------------------------------------------
     @property
@@ -191,6 +225,7 @@ class Family:
             "horizons": sorted(self.horizons),
             "cost": "analytic" if self.analytic_cost else "monte-carlo",
             "unit_delays": self.unit_delays,
+            "capabilities": list(self.capabilities),
             "options": {o.name: {"default": o.default, "doc": o.doc} for o in self.options},
         }
 

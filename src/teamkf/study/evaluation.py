@@ -62,7 +62,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ..exceptions import ArgumentError, UnsupportedOperationError
+from ..exceptions import ArgumentError
 
 __all__ = ["evaluate", "Evaluation", "ROW_KEYS", "SCHEMA_VERSION", "DEFAULT_MC_RUNS", "check_capabilities"]
 
@@ -183,14 +183,7 @@ def check_capabilities(scenario: Any, estimators: Sequence[str], *, simulate: bo
     if not simulate or not scenario.has_lossy_links:
         return
     for name in estimators:
-        fam = scenario.family(name)
-        if not fam.lossy_links:
-            raise UnsupportedOperationError(
-                name,
-                "unreliable links ([network] p_drop / jitter / outages, --p-drop, --jitter)",
-                "its registry record does not declare lossy_links=True (its agents do not say what a lost message means); "
-                "drop it from the estimators or evaluate over reliable links",
-            )
+        scenario.family(name).require("lossy_links", "unreliable links ([network] p_drop / jitter / outages, --p-drop, --jitter)")
 
 
 def evaluate(

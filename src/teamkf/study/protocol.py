@@ -30,7 +30,7 @@ import abc
 from typing import Any, ClassVar, Mapping, Sequence
 
 from .. import _validation as V
-from ..exceptions import ArgumentError, UnsupportedOperationError
+from ..exceptions import ArgumentError
 
 __all__ = ["ScenarioBase", "scenario_kind", "KINDS"]
 
@@ -69,8 +69,10 @@ class ScenarioBase(abc.ABC):
 
     def designs(self, estimators: Sequence[str] | None = None, horizon: Any = "scenario") -> dict[str, Any]:
         """Design the scenario's estimators: name -> design."""
-        raise UnsupportedOperationError(
-            f"a {self.kind} scenario", "designs()", "it is evaluated by its own exact statistics; use teamkf.study.evaluate(scenario)"
+        raise ArgumentError(
+            f"scenario: a {self.kind} scenario has no estimator designs (it is evaluated by its own exact statistics); "
+            "use teamkf.study.evaluation.evaluate(scenario)",
+            argument="scenario",
         )
 
     def monte_carlo_options(self) -> dict[str, Any]:
