@@ -140,15 +140,19 @@ def _header(sc: Any) -> str:
 # evaluate
 # ---------------------------------------------------------------------------
 def _cmd_population(sc: Any, args: argparse.Namespace) -> int:
-    """evaluate / design of a [population] scenario: exact statistics, nothing simulated."""
-    out = sc.evaluate()
+    """evaluate / design of a [population] scenario: exact statistics, nothing simulated (:func:`teamkf.study.evaluation.evaluate`)."""
+    from .study.evaluation import evaluate
+
+    ev = evaluate(sc)
+    out = dict(ev.details)
     if out.get("diverged"):
         _warn(
             f"{out['filter']} filter: the closed loop diverges (Var x_k beyond 4.5e11 times the noise variance) from step {out['diverged_at']}"
             + ("; the numbers from there on are reported as diverged / null" if not np.isfinite(out["state_variance"]) else "")
         )
     if getattr(args, "json", False):
-        print(dumps_json(out))
+        rows = {r["estimator"]: {k: v for k, v in r.items() if k != "estimator" and v is not None} for r in ev.json_rows()}
+        print(dumps_json({**out, "schema_version": ev.schema_version, "estimators": rows}))
         return 0
     m = sc.model
     if out.get("diverged") and not np.isfinite(out["state_variance"]):
@@ -906,6 +910,25 @@ def _one_line(exc: BaseException) -> str:
     return text or type(exc).__name__
 
 
+def _plugin_frame(exc: BaseException) -> str | None:
+    """``plugin NAME (FILE), in FUNCTION()`` for the innermost traceback frame in a loaded plug-in, or None."""
+    from .estimators.registry import loaded_plugins
+
+    plugins = {name: path for name, path, _ in loaded_plugins()}
+    files = {path: name for name, path in plugins.items() if path}
+    tb, found = exc.__traceback__, None
+    while tb is not None:
+        frame = tb.tb_frame
+        mod = frame.f_globals.get("__name__", "") if isinstance(getattr(frame, "f_globals", None), dict) else ""
+        root = next((p for p in plugins if mod == p or mod.startswith(p + ".")), None)
+        if root is None and frame.f_code.co_filename in files:
+            root = files[frame.f_code.co_filename]
+        if root is not None:
+            found = f"plugin {root}" + (f" ({plugins[root]})" if plugins[root] else "") + f", in {frame.f_code.co_name}()"
+        tb = tb.tb_next
+    return found
+
+
 def _load_plugins(argv: Sequence[str]) -> None:
     """Import the --plugin modules first, so that their families appear in --help and in scenario files."""
     from .estimators.registry import load_plugin
@@ -945,6 +968,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         if getattr(args, "debug", False):
             traceback.print_exc()
         print(f"teamkf: error: {_one_line(exc)}", file=sys.stderr)
+        return 2
+    except Exception as exc:
+        where = _plugin_frame(exc)
+        if where is None:  # not from a user's plug-in: a teamkf bug, shown in full
+            raise
+        if getattr(args, "debug", False):
+            traceback.print_exc()
+        print(f"teamkf: error: {where} raised {type(exc).__name__}: {_one_line(exc)} (--debug shows the traceback)", file=sys.stderr)
         return 2
     except KeyboardInterrupt:  # pragma: no cover - interactive
         print("teamkf: interrupted", file=sys.stderr)

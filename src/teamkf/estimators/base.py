@@ -62,6 +62,7 @@ __all__ = [
     "check_measurements",
     "deliver_structured",
     "pass_messages",
+    "checked_step",
     "json_float",
 ]
 
@@ -124,7 +125,11 @@ class Design(DesignReprMixin, abc.ABC):
     average_cost : float or None
         Long-run average cost per step (steady state), or None.
     info : dict
-        Family-specific facts (variant, solver statistics, ...), plain data.
+        Family-specific facts, plain data; ``info["variant"]`` (when present) names the variant in
+        :attr:`label` and in every table.
+    graph : CommGraph or None
+        The graph the agents talk over (:meth:`graph_agents` on the runtime, lossy links); None when the
+        information structure delivers the measurements.
     """
 
     estimator: str
@@ -134,6 +139,7 @@ class Design(DesignReprMixin, abc.ABC):
     stage_costs: FloatArray | None = None
     average_cost: float | None = None
     info: dict[str, Any] = field(default_factory=dict)
+    graph: Any = None
 
     #: True for a benchmark whose agents hold every y_j(k) at step k (the centralized filter)
     omniscient: ClassVar[bool] = False
@@ -233,8 +239,7 @@ class Design(DesignReprMixin, abc.ABC):
     @property
     def delivery_graph(self) -> CommGraph | None:
         """The graph the agents of this design talk over (None: delivery by the information structure)."""
-        g = getattr(self, "graph", None)
-        return g if g is not None else None
+        return self.graph
 
     def graph_agents(self) -> list[Any]:
         """One message-passing agent per node (default: measurement relays around :meth:`agents`)."""
@@ -457,6 +462,30 @@ def deliver_structured(agents: Sequence[OnlineAgent], ys: Sequence[FloatArray]) 
     return np.stack(out, axis=1)
 
 
+def checked_step(agent: Any, i: int, state: Any, k: int, own: Any, inbox: Any, n_runs: int) -> tuple[Any, Any, Any]:
+    """``agent.step(state, k, own, inbox)``, with its return checked: ``(state, z, payload)``, z of shape (n_runs, d_z).
+
+    A step that returns something else (a user's plug-in, typically) is a :class:`ShapeError` naming the agent's
+    class, the step and what came back, instead of an error deep in the runtime.
+    """
+    out = agent.step(state, k, own, inbox)
+    if not isinstance(out, tuple) or len(out) != 3:
+        raise ShapeError(
+            f"agent {i} ({type(agent).__qualname__}).step at step {k}: expected a tuple (next state, z, payload), found {_describe(out)}"
+        )
+    z = out[1]
+    if not isinstance(z, np.ndarray) or z.ndim != 2 or z.shape[0] != n_runs:
+        shape = f"shape {z.shape}" if isinstance(z, np.ndarray) else _describe(z)
+        raise ShapeError(f"agent {i} ({type(agent).__qualname__}).step at step {k}: expected z of shape ({n_runs}, d_z), one row per run, found {shape}")
+    return out
+
+
+def _describe(x: Any) -> str:
+    from .._validation import describe
+
+    return describe(x)
+
+
 def pass_messages(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray]) -> FloatArray:
     """Run graph agents over ``graph``: own y_i(k) plus in-neighbours' payloads sent at k - τ_ji.
 
@@ -483,7 +512,7 @@ def pass_messages(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArr
                 inbox = []
             else:
                 own = ys[i][:, k]
-            states[i], z, payload = ag.step(states[i], k, own, inbox)
+            states[i], z, payload = checked_step(ag, i, states[i], k, own, inbox, n_runs)
             zs.append(z)
             payloads.append(payload)
         for i in range(n):

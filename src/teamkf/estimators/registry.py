@@ -214,7 +214,17 @@ class Family:
             self.check_graph(graph)
         third = {"structure": structure, "graph": graph, "none": None}[self.uses]
         opts = self.check_options(options or {})
-        return self.design(system, cost, third, horizon, **opts)
+        out = self.design(system, cost, third, horizon, **opts)
+        from .base import Design
+
+        if not isinstance(out, Design):
+            fn = getattr(self.design, "__qualname__", repr(self.design))
+            raise ArgumentError(
+                f"{self.name}: its design function {fn}() returned {V.describe(out)}; a family's design function must return a "
+                "teamkf Design (subclass teamkf.estimators.base.Design; see the plug-in guide)",
+                argument=self.name,
+            )
+        return out
 
     def describe(self) -> dict[str, Any]:
         """Plain data for listings (``teamkf families``, the docs)."""
@@ -314,7 +324,11 @@ def get_family(name: Any, key: str = "estimator") -> Family:
         raise ArgumentError(f"{key}: expected an estimator name (a string), found {V.describe(name)}; available: {avail}", argument=key)
     close = difflib.get_close_matches(name, list(fams), n=1)
     hint = f"did you mean {close[0]!r}? " if close else ""
-    raise ArgumentError(f"{key}: unknown estimator {name!r}; {hint}available: {avail}", argument=key)
+    raise ArgumentError(
+        f"{key}: unknown estimator {name!r}; {hint}available: {avail}; a family of your own registers with --plugin FILE.py, "
+        "the TEAMKF_PLUGINS variable, the 'teamkf.families' entry point or teamkf.register_family (docs: plugins.html)",
+        argument=key,
+    )
 
 
 #: the plug-ins this process loaded, in order: (module name, file path or None, source text or None)
@@ -346,7 +360,7 @@ def load_plugins_into(plugins: Sequence[tuple[str, str | None, str | None]]) -> 
 
 def _plugin_error(spec: str, what: str, exc: BaseException) -> ArgumentError:
     text = " ".join(str(exc).split()) or type(exc).__name__
-    return ArgumentError(f"plugin {spec!r}: {what} raised {type(exc).__name__}: {text} (--debug shows the traceback)", argument="plugin")
+    return ArgumentError(f"plugin: {spec!r} raised {type(exc).__name__} while {what}: {text} (--debug shows the traceback)", argument="plugin")
 
 
 def _exec_plugin(name: str, path: str, source: str) -> Any:
@@ -362,7 +376,7 @@ def _exec_plugin(name: str, path: str, source: str) -> Any:
         sys.modules.pop(name, None)
         if isinstance(exc, (KeyboardInterrupt, SystemExit, TeamkfError)):
             raise
-        raise _plugin_error(path, "importing it", exc) from exc
+        raise _plugin_error(path, "importing", exc) from exc
     try:
         import cloudpickle
 
@@ -406,11 +420,11 @@ def load_plugin(spec: str) -> Any:
     except ModuleNotFoundError as exc:
         if exc.name and spec.startswith(exc.name):
             raise ArgumentError(f"plugin: cannot import module {spec!r} ({exc}); check the name or give a .py file", argument="plugin") from None
-        raise _plugin_error(spec, "importing it", exc) from exc
+        raise _plugin_error(spec, "importing", exc) from exc
     except (KeyboardInterrupt, SystemExit, TeamkfError):
         raise
     except BaseException as exc:
-        raise _plugin_error(spec, "importing it", exc) from exc
+        raise _plugin_error(spec, "importing", exc) from exc
     _PLUGINS.append((spec, None, None))
     return module
 
