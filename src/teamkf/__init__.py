@@ -32,42 +32,96 @@ Examples
 True
 """
 
+from typing import TYPE_CHECKING
+
+from ._lazy import attach
 from ._version import __version__
-from .estimators import (  # baselines
-    CentralizedDesign,
-    CIKFDesign,
-    Design,
-    Family,
-    KCFDesign,
-    LinearTeamDesign,
-    Option,
-    StaticTeamEstimate,
-    TeamDesign,
-    design_centralized,
-    design_ci,
-    design_cikf,
-    design_diffusion,
-    design_hcmci,
-    design_icf,
-    design_kcf,
-    design_local,
-    design_mmse,
-    design_mtmse,
-    families,
-    get_family,
-    kalman_covariances,
-    register_family,
-    static_team_estimate,
-    unregister_family,
-)
-from .exceptions import ArgumentError, DivergenceError, ShapeError, TeamkfError, UnsupportedOperationError
-from .models import LinearGaussianSystem, TeamCost
-from .network import CommGraph, InformationStructure
-from .simulation import run_online, sample
-from .simulation.monte_carlo import MonteCarloResult, monte_carlo
-from .simulation.runtime import run_graph
-from .study.evaluate import evaluate_point
-from .study.scenario import Scenario, load_scenario, scenario_from_dict
+
+#: public name -> the module it comes from (imported on first use: `import teamkf` stays fast)
+_LAZY = {
+    "CentralizedDesign": ".estimators",
+    "CIKFDesign": ".estimators",
+    "Design": ".estimators",
+    "Family": ".estimators",
+    "KCFDesign": ".estimators",
+    "LinearTeamDesign": ".estimators",
+    "Option": ".estimators",
+    "StaticTeamEstimate": ".estimators",
+    "TeamDesign": ".estimators",
+    "design_centralized": ".estimators",
+    "design_ci": ".estimators",
+    "design_cikf": ".estimators",
+    "design_diffusion": ".estimators",
+    "design_hcmci": ".estimators",
+    "design_icf": ".estimators",
+    "design_kcf": ".estimators",
+    "design_local": ".estimators",
+    "design_mmse": ".estimators",
+    "design_mtmse": ".estimators",
+    "families": ".estimators",
+    "get_family": ".estimators",
+    "kalman_covariances": ".estimators",
+    "register_family": ".estimators",
+    "static_team_estimate": ".estimators",
+    "unregister_family": ".estimators",
+    "ArgumentError": ".exceptions",
+    "DivergenceError": ".exceptions",
+    "ShapeError": ".exceptions",
+    "TeamkfError": ".exceptions",
+    "UnsupportedOperationError": ".exceptions",
+    "LinearGaussianSystem": ".models",
+    "TeamCost": ".models",
+    "CommGraph": ".network",
+    "InformationStructure": ".network",
+    "run_online": ".simulation",
+    "sample": ".simulation",
+    "MonteCarloResult": ".simulation.monte_carlo",
+    "monte_carlo": ".simulation.monte_carlo",
+    "run_graph": ".simulation.runtime",
+    "evaluate_point": ".study.evaluate",
+    "Scenario": ".study.scenario",
+    "load_scenario": ".study.scenario",
+    "scenario_from_dict": ".study.scenario",
+}
+__getattr__, __dir__ = attach(__name__, _LAZY)
+
+if TYPE_CHECKING:  # the names for type checkers and IDEs
+    from .estimators import (  # baselines
+        CentralizedDesign,
+        CIKFDesign,
+        Design,
+        Family,
+        KCFDesign,
+        LinearTeamDesign,
+        Option,
+        StaticTeamEstimate,
+        TeamDesign,
+        design_centralized,
+        design_ci,
+        design_cikf,
+        design_diffusion,
+        design_hcmci,
+        design_icf,
+        design_kcf,
+        design_local,
+        design_mmse,
+        design_mtmse,
+        families,
+        get_family,
+        kalman_covariances,
+        register_family,
+        static_team_estimate,
+        unregister_family,
+    )
+    from .exceptions import ArgumentError, DivergenceError, ShapeError, TeamkfError, UnsupportedOperationError
+    from .models import LinearGaussianSystem, TeamCost
+    from .network import CommGraph, InformationStructure
+    from .simulation import run_online, sample
+    from .simulation.monte_carlo import MonteCarloResult, monte_carlo
+    from .simulation.runtime import run_graph
+    from .study.evaluate import evaluate_point
+    from .study.scenario import Scenario, load_scenario, scenario_from_dict
+
 
 __all__ = [
     "LinearGaussianSystem",

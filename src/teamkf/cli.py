@@ -7,7 +7,8 @@
     teamkf demo     [--out DIR] [--quick]
     teamkf reproduce ...      (a later version)
     teamkf filter   SCENARIO --measurements FILE [--truth FILE] --out FILE [--estimators ...] [--json]
-    teamkf sweep    SWEEP.toml [--scheduler ADDRESS|local|serial] [--out RESULTS] [--resume] [--no-progress] [--json]
+    teamkf sweep    SWEEP.toml [--scheduler ADDRESS|local|serial] [--out RESULTS] [--resume] [--json]
+    teamkf families [--json]
     teamkf --version
 
 ``SCENARIO`` is a scenario file (TOML, or JSON by its ``.json`` extension) or
@@ -24,23 +25,14 @@ import json
 import sys
 import traceback
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from ._version import __version__
 from .exceptions import ArgumentError, ScenarioError, TeamkfError
 
 __all__ = ["main", "build_parser"]
-
-
-def _version() -> str:
-    from ._version import __version__
-
-    return str(__version__)
-
-
-def _short_version() -> str:
-    return ".".join(_version().split(".")[:2])
 
 
 # ---------------------------------------------------------------------------
@@ -280,7 +272,9 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
             )
             print(f"    {name:22s} J = {_fmt(entry['total_cost'])}{extra}")
     if ev.runs:
-        print(f"\n  Monte Carlo: {ev.runs} runs, seed {ev.seed} (online agents on sampled paths; analytic values in the {_cost_label(sc.horizon)} column)")
+        print(
+            f"\n  Monte Carlo: {ev.runs} runs, seed {ev.seed} (online agents on sampled paths; analytic values in the {_cost_label(sc.horizon)} column)"
+        )
     for n in notes:
         print(n)
     return 0
@@ -293,12 +287,12 @@ def _evaluation_json(ev: Any) -> dict[str, Any]:
     left out) with ``stage_costs``, and the contract's list forms ``ci95`` = [ci95_low, ci95_high] and
     ``mc_ci95`` = [mc_ci95_low, mc_ci95_high] beside the row's own keys.
     """
-    out: dict[str, Any] = {"scenario": ev.scenario, "horizon": ev.horizon, "teamkf_version": _version(), "schema_version": ev.schema_version}
+    out: dict[str, Any] = {"scenario": ev.scenario, "horizon": ev.horizon, "teamkf_version": __version__, "schema_version": ev.schema_version}
     if ev.details.get("control"):
         out["control"] = ev.details["control"]
     if ev.monte_carlo:  # what repeats the Monte Carlo: seed, runs, block and chunk sizes, teamkf version
         first = next(iter(ev.monte_carlo.values()))
-        out["monte_carlo"] = {"runs": ev.runs, "seed": ev.seed, "batch": first.batch, "chunk": first.chunk, "teamkf_version": _version()}
+        out["monte_carlo"] = {"runs": ev.runs, "seed": ev.seed, "batch": first.batch, "chunk": first.chunk, "teamkf_version": __version__}
     out["estimators"] = {}
     for row in ev.json_rows():
         name = row["estimator"]
@@ -372,7 +366,7 @@ def _divergence_step(design: Any, mc: Any) -> str:
     return f" from step {int(bad[0])}" if bad.size else ""
 
 
-def _plot_stage_costs(designs: dict[str, Any], mc: dict[str, Any], sc: Any, out: Path) -> str:
+def _plot_stage_costs(designs: Mapping[str, Any], mc: Mapping[str, Any], sc: Any, out: Path) -> str:
     from .plotting import stage_cost_axes
 
     analytic = [d for d in designs.values() if d.has_analytic_cost]
@@ -418,7 +412,7 @@ def _cmd_design(args: argparse.Namespace) -> int:
         out = {
             "scenario": sc.name,
             "horizon": sc.horizon,
-            "teamkf_version": _version(),
+            "teamkf_version": __version__,
             "estimators": {name: d.summary() for name, d in designs.items()},
         }
         print(dumps_json(out))
@@ -461,7 +455,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     if args.workers is not None and scheduler != "local":
         _warn(f"--workers is ignored with --scheduler {scheduler}: it sets the worker processes of the local cluster (--scheduler local)")
     try:
-        res = run_sweep(spec, out, scheduler=scheduler, resume=args.resume, progress=not args.no_progress, n_workers=args.workers)
+        res = run_sweep(spec, out, scheduler=scheduler, resume=args.resume, progress=True, n_workers=args.workers)
     except KeyboardInterrupt:
         print(f"teamkf: interrupted; the finished points are kept in {out}; run the same command with --resume to continue", file=sys.stderr)
         return 130
@@ -509,11 +503,6 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         f"read them with pandas.read_parquet({str(out)!r}) or teamkf.study.results.SweepResult.load"
     )
     return 0
-
-
-def _cmd_not_yet(args: argparse.Namespace) -> int:
-    print(f"teamkf: {args.command} is not available yet in teamkf {_short_version()}", file=sys.stderr)
-    return 2
 
 
 # ---------------------------------------------------------------------------
@@ -581,7 +570,7 @@ def _filter_streamed(sc: Any, args: argparse.Namespace, names: list[str], out_pa
             truth=args.truth,
             cost_out=ch,
             chunk_rows=args.chunk_rows,
-            progress=False if args.no_progress else None,
+            progress=None,
         )
 
     if cost_path is not None:
@@ -642,7 +631,6 @@ def _add_filter_parser(add: Any) -> None:
     p.add_argument(
         "--chunk-rows", type=_positive_int, default=400_000, metavar="N", help="steady-state scenarios are streamed N rows at a time (default 400000)"
     )
-    p.add_argument("--no-progress", action="store_true", help="no progress bar (it shows only on a terminal anyway)")
     p.set_defaults(func=_cmd_filter)
 
 
@@ -673,8 +661,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
 
     if args.list or not args.name:
         if not args.list:
-            print("teamkf: error: reproduce needs an experiment NAME (or --list)", file=sys.stderr)
-            return 2
+            return _error("reproduce needs an experiment NAME (or --list)")
         for name in experiments.names():
             print(f"{name:14s} {experiments.get(name).title}")
         return 0
@@ -804,7 +791,18 @@ class _UsageError(Exception):
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse with usage errors as one line ``teamkf: error: <argument>: <what is wrong>`` (exit status 2)."""
+    """argparse with usage errors as one line ``teamkf: error: <argument>: <what is wrong>`` (exit status 2).
+
+    The top-level description (every registered family) is built only when help is printed: ``teamkf
+    --version`` and every command start without importing the families.
+    """
+
+    lazy_help = False
+
+    def format_help(self) -> str:
+        if self.lazy_help and self.description is None:
+            self.description, self.epilog = _help_text()
+        return super().format_help()
 
     def error(self, message: str) -> Any:  # type: ignore[override]
         import re
@@ -828,18 +826,21 @@ def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``teamkf`` command (its --help lists every registered family)."""
     debug_help = "show the full traceback of an error"
     plugin_help = "import a module or .py file that registers estimator families (repeatable; also TEAMKF_PLUGINS)"
-    description, epilog = _help_text()
-    parser = _Parser(prog="teamkf", description=description, epilog=epilog, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--version", action="version", version=f"teamkf {_version()}")
+    parser = _Parser(prog="teamkf", formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.lazy_help = True  # the family list is read from the registry only when --help is asked for
+    parser.add_argument("--version", action="version", version=f"teamkf {__version__}")
     parser.add_argument("--debug", action="store_true", help=debug_help)
     parser.add_argument("--plugin", action="append", default=[], metavar="MODULE", help=plugin_help)
-    parser.add_argument("--quiet", action="store_true", help="no progress bars (they appear on a terminal after 2 s)")
+    quiet_help = "no progress bars (they appear only on a terminal, after 2 s; TEAMKF_PROGRESS=0 also silences them)"
+    parser.add_argument("--quiet", action="store_true", help=quiet_help)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 
     def add(name: str, help: str) -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=help, description=help)
         p.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=debug_help)
+        p.add_argument("--quiet", action="store_true", default=argparse.SUPPRESS, help=quiet_help)
+        p.add_argument("--no-progress", dest="quiet", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)  # 0.2 name
         p.add_argument("--plugin", action="append", default=argparse.SUPPRESS, metavar="MODULE", help=plugin_help)
         return p
 
@@ -893,13 +894,37 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--out", metavar="RESULTS", help="results folder of Parquet parts (default: <sweep file stem>.parquet)")
     p.add_argument("--resume", action="store_true", help="keep the points already in RESULTS and compute the missing ones")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--workers", type=_positive_int, metavar="N", help="worker processes of the local cluster (default: one per core)")
     p.add_argument("--json", action="store_true", help="print one JSON object (counts and every row)")
     p.set_defaults(func=_cmd_sweep)
 
     _add_filter_parser(add)
+
+    p = add("families", "list the registered estimator families: name, cost, capabilities, options (built-in and plug-ins)")
+    p.add_argument("--json", action="store_true", help="print one JSON object: name -> record")
+    p.set_defaults(func=_cmd_families)
     return parser
+
+
+def _cmd_families(args: argparse.Namespace) -> int:
+    from .estimators.registry import families
+
+    records = {name: fam.describe() for name, fam in families().items()}
+    if args.json:
+        print(dumps_json(records))
+        return 0
+    rows = [
+        [n, r["cost"], ", ".join(c for c in r["capabilities"] if c != "analytic_cost") or "-", ", ".join(r["options"]) or "-", r["title"]]
+        for n, r in records.items()
+    ]
+    print(format_table(["family", "cost", "capabilities", "options", "what it is"], rows, align="lllll"))
+    return 0
+
+
+def _error(text: str) -> int:
+    """Print the one error line ``teamkf: error: <text>`` on stderr; returns the exit status 2."""
+    print(f"teamkf: error: {' '.join(str(text).split())}", file=sys.stderr)
+    return 2
 
 
 def _one_line(exc: BaseException) -> str:
@@ -948,16 +973,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     except TeamkfError as exc:
         if "--debug" in argv:
             traceback.print_exc()
-        print(f"teamkf: error: {_one_line(exc)}", file=sys.stderr)
-        return 2
+        return _error(_one_line(exc))
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help, --version
         return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
     except _UsageError as exc:
-        print(f"teamkf: error: {' '.join(str(exc).split())}", file=sys.stderr)
-        return 2
+        return _error(str(exc))
     if getattr(args, "quiet", False):
         from ._progress import set_quiet
 
@@ -967,16 +990,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (TeamkfError, OSError) as exc:
         if getattr(args, "debug", False):
             traceback.print_exc()
-        print(f"teamkf: error: {_one_line(exc)}", file=sys.stderr)
-        return 2
+        return _error(_one_line(exc))
     except Exception as exc:
         where = _plugin_frame(exc)
         if where is None:  # not from a user's plug-in: a teamkf bug, shown in full
             raise
         if getattr(args, "debug", False):
             traceback.print_exc()
-        print(f"teamkf: error: {where} raised {type(exc).__name__}: {_one_line(exc)} (--debug shows the traceback)", file=sys.stderr)
-        return 2
+        return _error(f"{where} raised {type(exc).__name__}: {_one_line(exc)} (--debug shows the traceback)")
     except KeyboardInterrupt:  # pragma: no cover - interactive
         print("teamkf: interrupted", file=sys.stderr)
         return 130

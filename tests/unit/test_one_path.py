@@ -129,7 +129,9 @@ def test_plugin_through_environment_and_refused_capability(files):
     """TEAMKF_PLUGINS in a fresh process; a family without lossy_links is refused for --p-drop in one line."""
     env = {**os.environ, "TEAMKF_PLUGINS": str(files["plugin"]), "TEAMKF_PROGRESS": "0"}
     run = [sys.executable, "-m", "teamkf"]
-    res = subprocess.run(run + ["evaluate", str(files["scenario"]), "--json", "--monte-carlo", "10", "--seed", "1"], env=env, capture_output=True, text=True)
+    res = subprocess.run(
+        run + ["evaluate", str(files["scenario"]), "--json", "--monte-carlo", "10", "--seed", "1"], env=env, capture_output=True, text=True
+    )
     assert res.returncode == 0, res.stderr
     assert "avg_kf" in json.loads(res.stdout)["estimators"]
     strict = files["dir"] / "strict_family.py"
@@ -137,7 +139,10 @@ def test_plugin_through_environment_and_refused_capability(files):
     scen = files["dir"] / "strict.toml"
     scen.write_text(files["scenario"].read_text().replace('"avg_kf"', '"strict_kf"'))
     res = subprocess.run(
-        run + ["--plugin", str(strict), "evaluate", str(scen), "--monte-carlo", "10", "--p-drop", "0.2"], env=os.environ, capture_output=True, text=True
+        run + ["--plugin", str(strict), "evaluate", str(scen), "--monte-carlo", "10", "--p-drop", "0.2"],
+        env=os.environ,
+        capture_output=True,
+        text=True,
     )
     assert res.returncode == 2 and res.stdout == ""
     line = res.stderr.strip()
@@ -168,8 +173,8 @@ def test_plugin_failures_are_one_line(files, body, where):
 
 
 def test_step_returning_the_wrong_shape_is_named():
-    from teamkf.exceptions import ShapeError
     from teamkf.estimators.base import checked_step
+    from teamkf.exceptions import ShapeError
 
     class Bad:
         def step(self, state, k, own, inbox):

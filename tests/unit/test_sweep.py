@@ -11,7 +11,6 @@ import io
 import json
 import os
 import signal
-import sys
 import time
 from pathlib import Path
 
@@ -443,7 +442,6 @@ def test_sweep_progress_is_the_package_bar(tmp_path, capsys, monkeypatch):
 
 def test_package_bar_rules(monkeypatch):
     """teamkf._progress.Bar: written when asked (enabled=True) on any stream, silent with enabled=False or quiet."""
-    import io
 
     import teamkf._progress as P
 

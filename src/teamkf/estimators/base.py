@@ -476,7 +476,9 @@ def checked_step(agent: Any, i: int, state: Any, k: int, own: Any, inbox: Any, n
     z = out[1]
     if not isinstance(z, np.ndarray) or z.ndim != 2 or z.shape[0] != n_runs:
         shape = f"shape {z.shape}" if isinstance(z, np.ndarray) else _describe(z)
-        raise ShapeError(f"agent {i} ({type(agent).__qualname__}).step at step {k}: expected z of shape ({n_runs}, d_z), one row per run, found {shape}")
+        raise ShapeError(
+            f"agent {i} ({type(agent).__qualname__}).step at step {k}: expected z of shape ({n_runs}, d_z), one row per run, found {shape}"
+        )
     return out
 
 

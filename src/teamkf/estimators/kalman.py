@@ -278,7 +278,9 @@ FAMILY = _register_builtin(
                 doc='"filter": L x^(k|k); "predictor": L x^(k|k-1)',
             ),
         ),
-        lossy_links=True, missing_data=True, steady_form=True,  # capabilities (registry.Family)
+        lossy_links=True,
+        missing_data=True,
+        steady_form=True,  # capabilities (registry.Family)
         example="design_centralized(system, cost, horizon=100)",
     )
 )

@@ -790,7 +790,9 @@ FAMILY_MTMSE = _register_builtin(
                 doc="how Gamma F = eta is solved: dense Cholesky, matrix-free CG, or chosen by size",
             ),
         ),
-        lossy_links=True, missing_data=True, steady_form=True,  # capabilities (registry.Family)
+        lossy_links=True,
+        missing_data=True,
+        steady_form=True,  # capabilities (registry.Family)
         example="design_mtmse(system, cost, graph, horizon=100)",
     )
 )
@@ -800,7 +802,9 @@ FAMILY_MMSE = _register_builtin(
         design=design_mmse,
         title="per-agent MMSE (eq. 46): each agent's best estimate for itself, blind to the team coupling (cost eq. 47)",
         uses="structure",
-        lossy_links=True, missing_data=True, steady_form=True,  # capabilities (registry.Family)
+        lossy_links=True,
+        missing_data=True,
+        steady_form=True,  # capabilities (registry.Family)
         example="design_mmse(system, cost, graph, horizon=100)",
     )
 )

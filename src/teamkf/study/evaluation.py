@@ -283,6 +283,7 @@ def _evaluate_team(scenario: Any, estimators: Sequence[str] | None, runs: int, s
             else:
                 row.update({"mc_cost": None, "mc_ci95_low": None, "mc_ci95_high": None})
         else:
+            r = mc[name]
             lo, hi = r.ci95
             row.update({"method": "monte-carlo", key: float(r.total_mean), "ci95_low": float(lo), "ci95_high": float(hi)})
             row.update({"mc_cost": None, "mc_ci95_low": None, "mc_ci95_high": None})
@@ -293,7 +294,18 @@ def _evaluate_team(scenario: Any, estimators: Sequence[str] | None, runs: int, s
     control = _control_summary(scenario, runs, seed)
     if control:
         details["control"] = control
-    return Evaluation(scenario.name, "team", scenario.horizon, key, tuple(rows), runs=mc_runs, seed=seed if mc_runs else None, designs=designs, monte_carlo=mc, details=details)
+    return Evaluation(
+        scenario.name,
+        "team",
+        scenario.horizon,
+        key,
+        tuple(rows),
+        runs=mc_runs,
+        seed=seed if mc_runs else None,
+        designs=designs,
+        monte_carlo=mc,
+        details=details,
+    )
 
 
 def _num(v: Any) -> float | None:

@@ -15,6 +15,7 @@ from typing import Any, ClassVar, Mapping
 from .._validation import positive_int
 from ..exceptions import ScenarioError, TeamkfError
 from ..models.population import PopulationModel, cdma_population
+from .dotted import set_dotted
 from .protocol import ScenarioBase
 
 __all__ = ["PopulationScenario", "population_from_dict", "evaluate_population", "POPULATION_KEYS", "POPULATION_ESTIMATOR"]
@@ -62,18 +63,14 @@ class PopulationScenario(ScenarioBase):
 
     def updated(self, values: Mapping[str, Any]) -> "PopulationScenario":
         """A new population scenario with dotted keys replaced, e.g. ``{"population.memory": 3}``."""
-        from .scenario import set_dotted
-
         d: Mapping[str, Any] = self.raw
         for key, value in values.items():
             d = set_dotted(d, key, value)
         out = population_from_dict(d)
         return PopulationScenario(out.name, out.horizon, out.model, out.description, out.raw, self.source)
 
-    @property
-    def estimators(self) -> tuple[str, ...]:
-        """The one estimator of a population scenario: ``("bulk",)`` (exact or memory-n, by ``population.memory``)."""
-        return (POPULATION_ESTIMATOR,)
+    #: the one estimator of a population scenario: ``("bulk",)`` (exact or memory-n, by ``population.memory``)
+    estimators: tuple[str, ...] = field(default=(POPULATION_ESTIMATOR,), init=False)
 
     def evaluate(self) -> dict[str, Any]:
         """:func:`evaluate_population` of the model over the horizon, with the scenario's name."""

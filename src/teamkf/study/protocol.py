@@ -50,6 +50,8 @@ class ScenarioBase(abc.ABC):
     horizon: int | None
     #: the registry names of the estimators the scenario evaluates
     estimators: tuple[str, ...]
+    #: the scenario as read (plain data); :meth:`updated` starts from it
+    raw: Mapping[str, Any]
 
     @property
     def has_lossy_links(self) -> bool:

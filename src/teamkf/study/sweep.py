@@ -123,7 +123,6 @@ import hashlib
 import itertools
 import json
 import os
-import sys
 import time
 import uuid
 from dataclasses import dataclass, field
@@ -136,6 +135,7 @@ import numpy as np
 from .. import _validation as V
 from .._blas import single_thread_blas
 from .._progress import bar as _progress_bar
+from .._version import __version__
 from ..exceptions import ScenarioError, TeamkfError
 from ..simulation.parallel import WORKER_ENV, _cpu_count, _open_client, local_cluster  # noqa: F401  (public here since 0.1)
 from .evaluate import evaluate_point, is_analytic  # noqa: F401  (evaluate_point is looked up by _module_evaluate)
@@ -165,12 +165,6 @@ A_SCALE = "system.A_scale"
 _SWEEP_KEYS = ("scenario", "runs", "seed", "estimators", "grid", "name", "description")
 _FORMAT = "teamkf-sweep-results/2"  # 2: the rows of teamkf.study.evaluation (label, diverged; point 0 runs with the sweep's seed)
 _MAX_SEED = 2**63 - 1
-
-
-def _version() -> str:
-    from .._version import __version__
-
-    return str(__version__)
 
 
 def _fail(key: str, message: str) -> ScenarioError:
@@ -622,7 +616,9 @@ def run_sweep(
     def start() -> None:
         nonlocal bar
         writer.create()
-        bar = _progress_bar(len(points), initial=len(points) - len(todo), enabled=None if progress else False, desc=f"sweep {spec.name}", unit="point")
+        bar = _progress_bar(
+            len(points), initial=len(points) - len(todo), enabled=None if progress else False, desc=f"sweep {spec.name}", unit="point"
+        )
 
     def finish(p: SweepPoint, rows: list[dict[str, Any]]) -> None:
         nonlocal n_ok
@@ -763,7 +759,7 @@ class _Writer:
 
     def __init__(self, spec: SweepSpec, out: Path, pa: Any) -> None:
         self.spec, self.out, self.pa = spec, out, pa
-        self.version = _version()
+        self.version = __version__
         types = {"int": pa.int64(), "float": pa.float64(), "string": pa.string(), "bool": pa.bool_(), "json": pa.string()}
         fields = [pa.field(k, types[spec.kinds.get(k, "json")]) for k in spec.grid]
         fields += [
@@ -844,5 +840,3 @@ class _Writer:
         pq.write_table(table, tmp)
         os.replace(tmp, final)
         return final
-
-
