@@ -149,7 +149,6 @@ References
 from __future__ import annotations
 
 import time
-import warnings
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any, Callable, Literal, Sequence
@@ -1477,8 +1476,8 @@ def _mse_cost(N: int, M: int) -> TeamCost:
 
 def design_cikf(
     system: LinearGaussianSystem,
-    cost: TeamCost | CommGraph | None = None,
-    graph: CommGraph | int | None = None,
+    cost: TeamCost | None = None,
+    graph: CommGraph | None = None,
     horizon: int | None = None,
     *,
     form: Form = "filter",
@@ -1548,16 +1547,12 @@ def design_cikf(
     >>> d.estimator, d.stage_costs.shape, bool(d.mse()[-1] < d.mse()[0])
     ('cikf', (10,), True)
     """
-    if isinstance(cost, CommGraph):  # the 0.1 argument order: design_cikf(system, graph, horizon, cost=...)
-        warnings.warn(
-            "design_cikf(system, graph, horizon, cost=...) is deprecated; write design_cikf(system, cost, graph, horizon) "
-            "(cost None means TeamCost.mse)",
-            DeprecationWarning,
-            stacklevel=2,
+    if isinstance(cost, CommGraph):
+        raise ArgumentError(
+            "cost: expected a TeamCost or None (TeamCost.mse), found a CommGraph; the 0.1 order "
+            "design_cikf(system, graph, horizon, cost=...) is gone: write design_cikf(system, cost, graph, horizon)",
+            argument="cost",
         )
-        if horizon is not None:
-            raise ArgumentError("horizon: given twice (old and new argument order mixed)", argument="horizon")
-        cost, graph, horizon = None, cost, graph  # type: ignore[assignment]
     if not isinstance(graph, CommGraph):
         raise GraphError(f"graph: expected a CommGraph with unit delays, found {type(graph).__name__}", argument="graph")
     t0 = time.perf_counter()

@@ -17,7 +17,6 @@ z = L x^(k|k) is Tr(L' S L P(k|k)) (filter form) or Tr(L' S L P(k))
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 from typing import Any, ClassVar, Literal, Sequence
 
@@ -199,15 +198,12 @@ def design_centralized(
     ((50,), True)
     """
     if isinstance(graph_or_structure, (int, np.integer)) and not isinstance(graph_or_structure, bool):
-        if horizon is not None:
-            raise ArgumentError("horizon: given twice (third positional argument and horizon=)", argument="horizon")
-        warnings.warn(
-            "design_centralized(system, cost, T) is deprecated: the third argument is the graph or structure "
-            "(ignored by the centralized filter); write design_centralized(system, cost, horizon=T)",
-            DeprecationWarning,
-            stacklevel=2,
+        raise ArgumentError(
+            f"graph_or_structure: expected a CommGraph, an InformationStructure or None (the centralized filter ignores it), "
+            f"found the integer {int(graph_or_structure)}; the 0.1 order design_centralized(system, cost, T) is gone: "
+            f"write design_centralized(system, cost, horizon={int(graph_or_structure)})",
+            argument="graph_or_structure",
         )
-        graph_or_structure, horizon = None, int(graph_or_structure)
     check_model(system, cost)
     V.choice(form, "form", ("filter", "predictor"))
     W = lambda k: cost.L_at(k).T @ cost.S_at(k) @ cost.L_at(k)  # noqa: E731  (L' S L)
