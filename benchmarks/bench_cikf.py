@@ -42,7 +42,7 @@ import numpy as np
 def _dense_design(system, graph, T: int, rcond: float = 1e-9) -> np.ndarray:
     """Algorithm 2 (corrected eqs. 41-47, Theorem 4) with dense operators: tr Σ_{k|k-1} averaged over agents, (T,).
 
-    Written from the equations, independently of ``teamkf.estimators.cikf._iterate``: the joint covariances
+    Written from the equations, independently of ``teamkf.estimators.cikf.recursion._iterate``: the joint covariances
     P (N r x N r), Π' (N r x N M), Σ (N M x N M) and every operator as a dense matrix; Theorem 4's per-agent
     blocks are read through selection matrices. Only the model (reduced coordinates) and the pseudo-inverse
     rule (``_psd_solve``, which defines the cut-off) are shared with the library.
@@ -154,22 +154,23 @@ def _phases(sysm, graph, T: int, threads: int) -> dict[str, float]:
     "serial" is the rest of the wall time: the numpy work between the phases and J's first touch.
     """
     import teamkf.estimators.cikf as C
+    import teamkf.estimators.cikf.joint as J
 
     acc: dict[str, float] = {}
-    ranges = C._ranges
+    ranges = J._ranges
 
     def timed(pool, workers, fn, n, **kw):
         t = time.perf_counter()
         ranges(pool, workers, fn, n, **kw)
         acc[fn.__name__] = acc.get(fn.__name__, 0.0) + time.perf_counter() - t
 
-    C._ranges = timed
+    J._ranges = timed
     try:
         t = time.perf_counter()
         C.design_cikf(sysm, None, graph, T, form="predictor", threads=threads, method="joint")
         wall = time.perf_counter() - t
     finally:
-        C._ranges = ranges
+        J._ranges = ranges
     out = {k: v / T for k, v in sorted(acc.items(), key=lambda kv: -kv[1])}
     out["serial"] = (wall - sum(acc.values())) / T
     return out

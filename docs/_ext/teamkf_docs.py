@@ -148,8 +148,9 @@ def _subpackage_page(mod: Any, top: set[str]) -> str:
             if id(obj) in shown or at_top(n, m):
                 continue
             home = getattr(obj, "__module__", sm) if _is_documentable(obj) else sm
-            if home != sm:  # re-exported from another module: documented at home
-                continue
+            private_home = any(part.startswith("_") for part in home.split("."))  # teamkf.estimators._kalman_common has no page
+            if home != sm and not home.startswith(sm + ".") and not private_home:  # re-exported from another module: documented at home
+                continue  # (a package's own submodules, e.g. teamkf.estimators.cikf.design, document through the package)
             extra.append(n)
         out += [
             _heading(f"``{sm}``", "~"),

@@ -59,6 +59,8 @@ _LAZY = {
     "design_mmse": ".estimators",
     "design_mtmse": ".estimators",
     "families": ".estimators",
+    "load_plugin": ".estimators.registry",
+    "loaded_plugins": ".estimators.registry",
     "get_family": ".estimators",
     "kalman_covariances": ".estimators",
     "register_family": ".estimators",
@@ -113,6 +115,7 @@ if TYPE_CHECKING:  # the names for type checkers and IDEs
         static_team_estimate,
         unregister_family,
     )
+    from .estimators.registry import load_plugin, loaded_plugins
     from .exceptions import ArgumentError, DivergenceError, ShapeError, TeamkfError, UnsupportedOperationError
     from .models import LinearGaussianSystem, TeamCost
     from .network import CommGraph, InformationStructure
@@ -135,6 +138,8 @@ __all__ = [
     "get_family",
     "register_family",
     "unregister_family",
+    "load_plugin",
+    "loaded_plugins",
     "CentralizedDesign",
     "TeamDesign",
     "KCFDesign",

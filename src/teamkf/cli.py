@@ -519,7 +519,7 @@ def _cmd_filter(args: argparse.Namespace) -> int:
     sc = _load(args.scenario)
     sc.require_simulation("teamkf filter", "SCENARIO")
     names = list(args.estimators) if args.estimators else list(sc.estimators)
-    from .estimators.registry import get_family
+    from . import get_family
 
     for k, name in enumerate(names):
         get_family(name, f"--estimators[{k}]")
@@ -537,7 +537,7 @@ def _cmd_filter(args: argparse.Namespace) -> int:
         frame = pd.concat(
             [pd.DataFrame({"step": np.arange(T), "estimator": name, "cost": c}) for name, c in res.stage_costs.items()], ignore_index=True
         )
-        _write_atomic(cost_path, lambda fh: M._write_frame(frame, fh, fmt))
+        _write_atomic(cost_path, lambda fh: M.write_frame(frame, fh, fmt))
     if args.json:
         out = {"scenario": sc.name, "measurements": str(args.measurements), "out": str(out_path), **res.summary()}
         if cost_path is not None:
@@ -665,27 +665,15 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         for name in experiments.names():
             print(f"{name:14s} {experiments.get(name).title}")
         return 0
-    from .simulation.parallel import use_scheduler
-
-    exp = experiments.get(args.name)
+    experiments.get(args.name)  # an unknown name fails before any work
     if args.out:
         _check_output_dir(args.out, "--out")
-    scheduler = args.scheduler or "serial"
-    owned: list[Any] = []
-    if scheduler != "serial":
-        if not exp.uses_scheduler:
-            raise ArgumentError(
-                f"--scheduler: the reproduction {args.name!r} runs in-process (it has no grid of independent points to distribute); "
-                f"drop --scheduler (reproductions that use it: {', '.join(n for n in experiments.names() if experiments.get(n).uses_scheduler)})",
-                argument="--scheduler",
-            )
-        scheduler, owned = _open_scheduler(scheduler)
+    if args.scheduler not in (None, "serial"):
+        _check_scheduler(args.scheduler)
     try:
-        with use_scheduler(scheduler):
-            res = experiments.run(args.name, args.out, quick=args.quick)
-    finally:
-        for obj in owned:
-            obj.close()
+        res = experiments.run(args.name, args.out, quick=args.quick, scheduler=args.scheduler)
+    except TeamkfError as exc:
+        raise (exc.rekeyed("--scheduler") if isinstance(exc, ArgumentError) and exc.argument == "scheduler" else exc) from None
     if args.json:
         print(dumps_json(_strict_rows(res.to_json())))
         return 0
@@ -726,20 +714,6 @@ def _check_scheduler(address: str) -> None:
         ) from None
 
 
-def _open_scheduler(address: str) -> tuple[Any, list[Any]]:
-    """A Dask client for ``--scheduler`` (checked first), and the objects to close at the end."""
-    from . import _validation as V
-
-    _check_scheduler(address)
-    V.require("distributed", "dask")
-    from .study.sweep import _open_client
-
-    try:
-        return _open_client(address, None)  # type: ignore[no-any-return]
-    except TeamkfError as exc:
-        raise ArgumentError(f"--scheduler: {exc.detail}", argument="--scheduler") from None
-
-
 def _check_output_dir(path: str, flag: str) -> Path:
     """An output folder that exists or can be created, and is writable; checked before any work."""
     import os
@@ -757,7 +731,7 @@ def _check_output_dir(path: str, flag: str) -> Path:
 
 def _help_text() -> tuple[str, str]:
     """The description and epilog of ``teamkf --help``: every registered family and packaged scenario."""
-    from .estimators.registry import families
+    from . import families
     from .study.scenario import packaged_scenarios
 
     lines = [
@@ -907,7 +881,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _cmd_families(args: argparse.Namespace) -> int:
-    from .estimators.registry import families
+    from . import families
 
     records = {name: fam.describe() for name, fam in families().items()}
     if args.json:
@@ -937,7 +911,7 @@ def _one_line(exc: BaseException) -> str:
 
 def _plugin_frame(exc: BaseException) -> str | None:
     """``plugin NAME (FILE), in FUNCTION()`` for the innermost traceback frame in a loaded plug-in, or None."""
-    from .estimators.registry import loaded_plugins
+    from . import loaded_plugins
 
     plugins = {name: path for name, path, _ in loaded_plugins()}
     files = {path: name for name, path in plugins.items() if path}
@@ -956,7 +930,7 @@ def _plugin_frame(exc: BaseException) -> str | None:
 
 def _load_plugins(argv: Sequence[str]) -> None:
     """Import the --plugin modules first, so that their families appear in --help and in scenario files."""
-    from .estimators.registry import load_plugin
+    from . import load_plugin
 
     for k, a in enumerate(argv):
         if a == "--plugin" and k + 1 < len(argv):

@@ -15,7 +15,7 @@ PUBLIC = [n for n in teamkf.__all__ if n != "__version__"]
 
 def _modules():
     for info in pkgutil.walk_packages(teamkf.__path__, "teamkf."):
-        if info.name.rsplit(".", 1)[-1].startswith("_") or info.name in {"teamkf.scenario"}:
+        if info.name.rsplit(".", 1)[-1].startswith("_"):
             continue
         yield importlib.import_module(info.name)
 

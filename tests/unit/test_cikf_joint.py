@@ -90,11 +90,11 @@ def test_joint_runs_the_corrected_equations_only(field_singular):
 
 def test_joint_in_place_sandwich(field12, monkeypatch):
     """Large problems form M P M' in place of M P (no separate (M P)'): the same numbers to round-off."""
-    import teamkf.estimators.cikf as cikf
+    import teamkf.estimators.cikf.joint as cikf_joint
 
     sysm, graph = field12
     a = design_cikf(sysm, None, graph, 8, method="joint", threads=2)
-    monkeypatch.setattr(cikf, "_MPT_BYTES", 0)
+    monkeypatch.setattr(cikf_joint, "_MPT_BYTES", 0)
     b = design_cikf(sysm, None, graph, 8, method="joint", threads=2)
     _same_covariances(b, a)
     assert np.array_equal(b.stage_costs, design_cikf(sysm, None, graph, 8, method="joint", threads=1).stage_costs)

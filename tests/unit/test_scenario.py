@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import teamkf
 from teamkf import CommGraph, InformationStructure, LinearGaussianSystem, TeamCost
 from teamkf.exceptions import ScenarioError, TeamkfError
 from teamkf.study.scenario import (
-    AVAILABLE_ESTIMATORS,
     Scenario,
     load_packaged,
     load_scenario,
@@ -456,7 +456,7 @@ def test_cikf_in_scenarios():
     d["estimators"] = ["mtmse", "ukf"]
     msg = error_of(d)
     assert msg.startswith("estimators[1]: unknown estimator 'ukf'")
-    for avail in AVAILABLE_ESTIMATORS:
+    for avail in teamkf.families():
         assert avail in msg
 
 

@@ -47,8 +47,8 @@ from .._validation import FloatArray
 from ..exceptions import NotPositiveDefiniteError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
+from ._consensus_common import VARIANTS, DiffusionAlgorithm, check_variant, finite_horizon, information_sources
 from .checks import check_graph, check_information_form, check_model
-from .diffusion import VARIANTS, DiffusionAlgorithm, _horizon, check_variant
 from .linear_team import LinearTeamDesign, delivered, finish_design, freshest, process_noise
 from .registry import Family, Option, _register_builtin
 
@@ -109,7 +109,6 @@ class CIAlgorithm(DiffusionAlgorithm):
         return None  # the local filters use own measurements only
 
     def __init__(self, system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, horizon: int, honest: bool):
-        from .diffusion import information_sources
 
         super().__init__(system, cost, graph, horizon, np.eye(system.n_agents), honest)
         n, T = system.n_agents, horizon
@@ -208,7 +207,7 @@ def design_ci(
     check_information_form(system, "ci")
     check_graph(graph, system.n_agents)
     variant = check_variant(variant, "variant")
-    T = _horizon(horizon, "ci", system, cost)
+    T = finite_horizon(horizon, "ci", system, cost)
     alg = CIAlgorithm(system, cost, graph, T, honest=(variant == "honest"))
     return finish_design("ci", alg, variant)
 

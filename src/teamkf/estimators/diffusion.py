@@ -28,7 +28,7 @@ Variants
 
 Unreliable links (:mod:`teamkf.simulation.links`)
 -------------------------------------------------
-On lossy links the agents run :meth:`DiffusionAlgorithm.agent_step_tolerant`:
+On lossy links the agents run :meth:`~teamkf.estimators._consensus_common.DiffusionAlgorithm.agent_step_tolerant`:
 
 * **adaptation**: every y_l(s) that arrives at step t is fused once, on time
   (s = t - τ_lk) or late (s < t - τ_lk), delay-compensated from s to t exactly
@@ -55,207 +55,14 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
-import scipy.linalg as sla
-
-from .. import _validation as V
-from .._validation import FloatArray
-from ..exceptions import ArgumentError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
+from ._consensus_common import VARIANTS, DiffusionAlgorithm, check_variant, check_weights, diffusion_weights, finite_horizon
 from .checks import check_graph, check_model
-from .kalman import kalman_step
-from .linear_team import Algorithm, LinearTeamDesign, delivered, finish_design, freshest
+from .linear_team import LinearTeamDesign, finish_design
 from .registry import Family, Option, _register_builtin
 
 __all__ = ["design_diffusion", "diffusion_weights", "VARIANTS", "check_variant"]
-
-VARIANTS: dict[str, str] = {
-    "honest": "one exchange per step over the graph's edges and delays, delay-compensated (realizable, runs in run_graph)",
-    "ideal": "the published algorithm: neighbours' data of the same step (exchanges inside the step; not realizable with delays)",
-}
-
-
-def check_variant(v: Any, key: str) -> str:
-    """The ``variant`` option: "ideal" (exchanges within the step) or "honest" (one delay-compensated exchange per step)."""
-    return V.choice(v, key, tuple(VARIANTS))
-
-
-def check_weights(w: Any, key: str) -> Any:
-    """``"metropolis"``, ``"uniform"`` or an explicit non-negative column-stochastic square matrix."""
-    if isinstance(w, str):
-        return V.choice(w, key, ("metropolis", "uniform"), what="a weight rule")
-    try:
-        c = np.asarray(w, dtype=float)
-    except (TypeError, ValueError):
-        raise ArgumentError(f"{key}: expected 'metropolis', 'uniform' or a square matrix of weights, found {V.describe(w)}", argument=key) from None
-    if c.ndim != 2 or c.shape[0] != c.shape[1] or c.size == 0:
-        raise ArgumentError(f"{key}: expected a square n×n matrix of weights c[l, k], found shape {c.shape}", argument=key)
-    if not np.all(np.isfinite(c)):
-        raise ArgumentError(f"{key}: expected finite weights, found {c[~np.isfinite(c)][0]!r}", argument=key)
-    if np.any(c < 0):
-        l, k = np.argwhere(c < 0)[0]
-        raise ArgumentError(f"{key}: expected non-negative weights, found c[{l}, {k}] = {c[l, k]:g}", argument=key)
-    sums = c.sum(axis=0)
-    if not np.allclose(sums, 1.0, atol=1e-9):
-        k = int(np.argmax(np.abs(sums - 1.0)))
-        raise ArgumentError(
-            f"{key}: expected a column-stochastic matrix (every column c[:, k] sums to 1: agent k's combination weights), "
-            f"found column {k} summing to {sums[k]:.6g}",
-            argument=key,
-        )
-    return c
-
-
-def diffusion_weights(graph: CommGraph, weights: Any = "metropolis", key: str = "weights") -> FloatArray:
-    """The combination matrix C = [c_lk] (column k: agent k's weights over N_k = {k} ∪ in-neighbours)."""
-    n = graph.n_agents
-    w = check_weights(weights, key)
-    N = [set(graph.in_neighbors(k)) | {k} for k in range(n)]
-    if isinstance(w, str):
-        c = np.zeros((n, n))
-        for k in range(n):
-            nk = len(N[k])
-            for lnode in N[k] - {k}:
-                c[lnode, k] = 1.0 / nk if w == "uniform" else 1.0 / max(nk, len(N[lnode]))
-            c[k, k] = 1.0 - c[:, k].sum()
-        return c
-    if w.shape != (n, n):
-        raise ArgumentError(f"{key}: expected a {n}×{n} matrix (one row and column per agent), found shape {w.shape}", argument=key)
-    for lnode, k in np.argwhere(w > 0):
-        if lnode != k and lnode not in N[k]:
-            raise ArgumentError(
-                f"{key}: expected weights only on the graph's edges l -> k and the diagonal, found c[{lnode}, {k}] = {w[lnode, k]:g} "
-                f"but agent {lnode} is not an in-neighbour of agent {k}",
-                argument=key,
-            )
-    return np.array(w, dtype=float)
-
-
-def information_sources(graph: CommGraph | None, T: int, honest: bool) -> list[list[list[tuple[int, int]]]]:
-    """src[i][k]: (l, s) of the in-neighbours' data agent i uses at step k: s = k - τ_li (honest, once arrived) or s = k (ideal)."""
-    if graph is None:
-        return []
-    out = []
-    for i in range(graph.n_agents):
-        ins = [(j, graph.delay(j, i)) for j in graph.in_neighbors(i)]
-        if honest:
-            out.append([[(j, k - d) for (j, d) in ins if k - d >= 0] for k in range(T)])
-        else:
-            out.append([[(j, k) for (j, _) in ins] for k in range(T)])
-    return out
-
-
-class DiffusionAlgorithm(Algorithm):
-    """The ATC diffusion KF on columns; nominal covariances and compensated gains precomputed."""
-
-    state_kinds = {"xhat": "x"}
-    payload_kinds = {"y": "y", "psi": "x"}
-
-    @property
-    def info_graph(self) -> CommGraph | None:
-        """The graph whose in-neighbours' data is fused (None: no communication)."""
-        return self.graph
-
-    def __init__(self, system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph | None, horizon: int, c: FloatArray, honest: bool):
-        super().__init__(system, cost, graph, horizon)
-        self.honest, self.c = honest, c
-        n, dx, T = system.n_agents, system.dx, horizon
-        self.src = information_sources(self.info_graph, T, honest) or [[[] for _ in range(T)] for _ in range(n)]
-        self.nbrs = [set(graph.in_neighbors(i)) if graph is not None and self.info_graph is not None else set() for i in range(n)]
-        self.gain: dict[tuple[int, int, int, int], tuple[FloatArray, FloatArray]] = {}  # (i,k,l,s) -> (G̃ = C̃'R̃^-1, Y = G̃ C̃)
-        self.P_filt = np.empty((n, T, dx, dx))
-        self.P_pred = np.empty((n, T, dx, dx))
-        for i in range(n):
-            P = system.Sigma_x
-            for k in range(T):
-                self.P_pred[i, k] = P
-                Cs, Rs = [], []
-                for lnode, s in [(i, k), *self.src[i][k]]:
-                    Ct, Rt, G, Y = self.compensated(lnode, s, k)
-                    self.gain[(i, k, lnode, s)] = (G, Y)
-                    Cs.append(Ct)
-                    Rs.append(Rt)
-                _, Pf = kalman_step(P, np.vstack(Cs), sla.block_diag(*Rs))  # (P^-1 + S)^-1, Joseph form
-                self.P_filt[i, k] = Pf
-                if k + 1 < T:
-                    A = system.A_at(k)
-                    P = A @ Pf @ A.T + system.Q_at(k)
-                    P = 0.5 * (P + P.T)
-        self.schedules = {"P_filt": self.P_filt, "P_pred": self.P_pred, "weights": c}
-
-    def _prior(self, i: int, k: int, prev: dict | None, zero: Any) -> Any:
-        return zero(self.system.dx) if prev is None else self.system.A_at(k - 1) @ prev["xhat"]
-
-    def adapt(self, i: int, k: int, xbar: Any, ys: dict[tuple[int, int], Any]) -> Any:
-        """ψ_i = x̄ + P(t|t)(q - S x̄), q = Σ G̃_l y_l(s), S = Σ Y_l over {i} ∪ sources."""
-        r = None
-        for lnode, s in [(i, k), *self.src[i][k]]:
-            G, Y = self.gain[(i, k, lnode, s)]
-            term = G @ ys[(lnode, s)] - Y @ xbar
-            r = term if r is None else r + term
-        return xbar + self.P_filt[i, k] @ r
-
-    def combine(self, i: int, k: int, psi_i: Any, psis: dict[tuple[int, int], Any]) -> Any:
-        """x̂_i = c_ii ψ_i + Σ c_li Φ(k, s) ψ_l(s); weights of neighbours not yet heard go to c_ii."""
-        used = self.src[i][k]
-        cii = self.c[i, i] + sum(self.c[lnode, i] for lnode in self.nbrs[i] - {l2 for l2, _ in used})
-        out = cii * psi_i
-        for lnode, s in used:
-            if self.c[lnode, i] != 0.0:
-                out = out + self.c[lnode, i] * (self.Phi(k, s) @ psis[(lnode, s)])
-        return out
-
-    def agent_step(self, i: int, k: int, prev: dict | None, y_i: Any, inbox: Any, zero: Any) -> tuple[dict, dict]:
-        xbar = self._prior(i, k, prev, zero)
-        got = {(lnode, s): p for (lnode, s, p) in inbox}
-        ys = {(i, k): y_i, **{key: p["y"] for key, p in got.items()}}
-        psi = self.adapt(i, k, xbar, ys)
-        xhat = self.combine(i, k, psi, {key: p["psi"] for key, p in got.items()})
-        return {"xhat": xhat}, {"y": y_i, "psi": psi}
-
-    def agent_step_tolerant(self, i: int, k: int, prev: dict | None, y_i: Any, inbox: Any, zero: Any) -> tuple[dict, dict]:
-        r"""Unreliable links: adapt with every measurement that arrived, combine the neighbours that delivered.
-
-        Agent i (the paper's k) with prior (x̄_i, P_i(t|t-1)) (0 and Σ_x at the first step; P_i is carried in the
-        state, per run) fuses y_i(t) and every y_l(s) in the inbox, delay-compensated to t
-        (:meth:`~teamkf.estimators.linear_team.Algorithm.compensated`, late ones too):
-
-        .. math:: P_i(t|t) = (P_i(t|t-1)^{-1} + S_i)^{-1}, \quad
-                  \psi_i = \bar x_i + P_i(t|t)\,(q_i - S_i \bar x_i),
-
-        then :math:`\hat x_i = c'_{ii}\,\psi_i + \sum_{l \in D_i} c_{li}\,\Phi(t, s_l)\,\psi_l(s_l)` over the set
-        D_i of neighbours that delivered (the most recent packet s_l of each), with
-        :math:`c'_{ii} = c_{ii} + \sum_{l \notin D_i} c_{li}` (module docstring), and
-        P_i(t+1|t) = A P_i(t|t) Aᵀ + Q. It sends (y_i(t), ψ_i(t)), like :meth:`agent_step`.
-
-        Returns
-        -------
-        (state, payload) : state = {"xhat": x̂_i(t|t), "P": P_i(t+1|t)}, payload = {"y", "psi"}
-        """
-        sysm = self.system
-        xbar = self._prior(i, k, prev, zero)
-        P = sysm.Sigma_x if prev is None else prev.get("P", self.P_pred[i, k])
-        pk = delivered(self.info_graph, i, inbox)
-        r, Pf = self.fuse_delivered(i, k, xbar, P, y_i, pk)  # (P^-1 + S)^-1, Joseph form (as the design)
-        psi = xbar + Pf @ r
-        fresh = freshest(pk)
-        cii = self.c[i, i] + sum(self.c[lnode, i] for lnode in self.nbrs[i] - {l2 for l2, _, _ in fresh})
-        xhat = cii * psi
-        for lnode, s, p in fresh:
-            if self.c[lnode, i] != 0.0:
-                xhat = xhat + self.c[lnode, i] * (self.Phi(k, s) @ p["psi"])
-        if k + 1 < self.horizon:
-            A = sysm.A_at(k)
-            P = A @ Pf @ A.T + sysm.Q_at(k)
-            P = 0.5 * (P + P.T)
-        return {"xhat": xhat, "P": P}, {"y": y_i, "psi": psi}
-
-    def team_step(self, k: int, prev: list[dict | None], ys: list[Any], zero: Any) -> list[dict]:
-        n = self.system.n_agents
-        yd = {(j, k): ys[j] for j in range(n)}
-        psis = {(i, k): self.adapt(i, k, self._prior(i, k, prev[i], zero), yd) for i in range(n)}
-        return [{"xhat": self.combine(i, k, psis[(i, k)], psis)} for i in range(n)]
 
 
 def design_diffusion(
@@ -287,22 +94,10 @@ def design_diffusion(
     check_model(system, cost)
     check_graph(graph, system.n_agents)
     variant = check_variant(variant, "variant")
-    T = _horizon(horizon, "diffusion", system, cost)
+    T = finite_horizon(horizon, "diffusion", system, cost)
     c = diffusion_weights(graph, weights, key="diffusion.weights")
     alg = DiffusionAlgorithm(system, cost, graph, T, c, honest=(variant == "honest"))
     return finish_design("diffusion", alg, variant, {"weights": weights if isinstance(weights, str) else "explicit"})
-
-
-def _horizon(horizon: Any, family: str, system: LinearGaussianSystem, cost: TeamCost) -> int:
-    """The finite horizon T of a baseline design, checked against the model's and the cost's horizons."""
-    if horizon is None:
-        raise ArgumentError(
-            f"horizon: the {family!r} family has a finite-horizon design only, found horizon=None; give a number of steps T", argument="horizon"
-        )
-    T = V.positive_int(horizon, "horizon")
-    system.require_horizon(T)
-    cost.require_horizon(T)
-    return T
 
 
 FAMILY = _register_builtin(

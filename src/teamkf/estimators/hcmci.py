@@ -59,9 +59,8 @@ import numpy as np
 from ..exceptions import ArgumentError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
+from ._consensus_common import VARIANTS, check_iterations, check_variant, diffusion_weights, finite_horizon, information_sources
 from .checks import check_graph, check_information_form, check_model
-from .diffusion import VARIANTS, _horizon, check_variant, diffusion_weights, information_sources
-from .icf import check_iterations
 from .linear_team import Algorithm, LinearTeamDesign, compensate_information, delivered, finish_design, freshest
 from .registry import Family, Option, _register_builtin
 
@@ -217,7 +216,7 @@ def design_hcmci(
     check_graph(graph, system.n_agents)
     variant = check_variant(variant, "variant")
     L = check_iterations(iterations, "iterations")
-    T = _horizon(horizon, "hcmci", system, cost)
+    T = finite_horizon(horizon, "hcmci", system, cost)
     alg = HCMCIAlgorithm(system, cost, graph, T, L, honest=(variant == "honest"))
     return finish_design("hcmci", alg, variant, {"iterations": alg.L, "omega": alg.omega})
 

@@ -58,17 +58,12 @@ from .. import _validation as V
 from ..exceptions import ArgumentError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
+from ._consensus_common import VARIANTS, check_iterations, check_variant, finite_horizon, information_sources
 from .checks import check_graph, check_information_form, check_model
-from .diffusion import VARIANTS, _horizon, check_variant, information_sources
 from .linear_team import Algorithm, LinearTeamDesign, compensate_information, delivered, finish_design, freshest
 from .registry import Family, Option, _register_builtin
 
 __all__ = ["design_icf", "check_iterations", "check_rate", "consensus_rate"]
-
-
-def check_iterations(v: Any, key: str) -> int:
-    """The ``iterations`` option: consensus iterations per step of the ideal variant (an integer >= 1)."""
-    return V.integer(v, key, minimum=1, what="a number of consensus iterations")
 
 
 def check_rate(v: Any, key: str) -> float | None:
@@ -231,7 +226,7 @@ def design_icf(
     variant = check_variant(variant, "variant")
     K = check_iterations(iterations, "iterations")
     eps = consensus_rate(graph, epsilon, key="icf.epsilon")
-    T = _horizon(horizon, "icf", system, cost)
+    T = finite_horizon(horizon, "icf", system, cost)
     alg = ICFAlgorithm(system, cost, graph, T, eps, K, honest=(variant == "honest"))
     return finish_design("icf", alg, variant, {"epsilon": eps, "iterations": alg.K})
 

@@ -17,17 +17,16 @@ z = L x^(k|k) is Tr(L' S L P(k|k)) (filter form) or Tr(L' S L P(k))
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 from typing import Any, ClassVar, Literal, Sequence
 
 import numpy as np
-import scipy.linalg as sla
 
 from .. import _validation as V
 from .._validation import FloatArray
 from ..exceptions import ArgumentError, InformationStructureError
 from ..models import LinearGaussianSystem, TeamCost
+from ._kalman_common import kalman_covariances, kalman_step, predictor_errors, steady_state
 from .base import Design, Packet
 from .checks import check_model
 from .registry import Family, Option, _register_builtin
@@ -35,69 +34,6 @@ from .registry import Family, Option, _register_builtin
 __all__ = ["kalman_covariances", "design_centralized", "CentralizedDesign", "CentralizedAgent", "kalman_step", "predictor_errors"]
 
 Form = Literal["filter", "predictor"]
-
-
-def kalman_step(P: FloatArray, C: FloatArray, R: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """One measurement update: returns (K, P(k|k)) from the predictor covariance P (eq. 21)."""
-    Sy = C @ P @ C.T + R
-    cf = sla.cho_factor(0.5 * (Sy + Sy.T), lower=True, check_finite=False)
-    K = sla.cho_solve(cf, C @ P, check_finite=False).T
-    IKC = np.eye(P.shape[0]) - K @ C
-    Pf = IKC @ P @ IKC.T + K @ R @ K.T
-    return K, 0.5 * (Pf + Pf.T)
-
-
-def kalman_covariances(system: LinearGaussianSystem, n_steps: int) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Forward Riccati recursion (eq. 22).
-
-    Returns
-    -------
-    P_pred : (n_steps, d_x, d_x)       P(k) = var(x(k) | y(0:k-1)), k = 0..n_steps-1
-    K : (n_steps, d_x, d_y)            Kalman gains (eq. 21)
-    P_filt : (n_steps, d_x, d_x)       P(k|k)
-    """
-    T = V.positive_int(n_steps, "n_steps")
-    system.require_horizon(T)
-    dx, dy = system.dx, system.dy_total
-    P_pred = np.empty((T, dx, dx))
-    K = np.empty((T, dx, dy))
-    P_filt = np.empty((T, dx, dx))
-    P_pred[0] = system.Sigma_x
-    from .._resources import progress as _progress
-
-    for k in _progress(range(T), total=T, desc="Kalman covariances"):
-        K[k], P_filt[k] = kalman_step(P_pred[k], system.C_stack(k), system.R_stack(k))
-        if k + 1 < T:
-            A = system.A_at(k)
-            Pn = A @ P_filt[k] @ A.T + system.Q_at(k)
-            P_pred[k + 1] = 0.5 * (Pn + Pn.T)
-    return P_pred, K, P_filt
-
-
-def steady_state(system: LinearGaussianSystem, *, check: bool = True) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """(P_bar, K_bar, P_bar(k|k)) of the algebraic Riccati equation (eq. 37); needs (A4)-(A5)."""
-    from .riccati import steady_state_kalman
-
-    system.require_time_invariant()
-    return steady_state_kalman(system.A_at(0), system.C_stack(0), system.Q_at(0), system.R_stack(0), check=check)
-
-
-def predictor_errors(system: LinearGaussianSystem, K_at: Any, paths: Any, n_steps: int | None = None) -> FloatArray:
-    """eps(m) = x(m) - x^(m) of the one-step predictor (eq. 20) with gains ``K_at(m)``, from the primitive noises.
-
-    eps(0) = x(0) (x^(0) = 0) and eps(m+1) = A(m)[eps(m) - K(m)(C(m) eps(m) + v(m))] + w(m):
-    no state appears, so the recursion stays accurate when A is unstable.
-    Returns (n_runs, T, d_x) with T = ``n_steps`` (default: the paths' length).
-    """
-    T = paths.n_steps if n_steps is None else n_steps
-    v = paths.v_stack
-    eps = np.empty((paths.n_runs, T, system.dx))
-    eps[:, 0] = paths.x[:, 0]
-    for m in range(T - 1):
-        e = eps[:, m]
-        e = e - (e @ system.C_stack(m).T + v[:, m]) @ K_at(m).T
-        eps[:, m + 1] = e @ system.A_at(m).T + paths.w[:, m]
-    return eps
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
@@ -199,15 +135,12 @@ def design_centralized(
     ((50,), True)
     """
     if isinstance(graph_or_structure, (int, np.integer)) and not isinstance(graph_or_structure, bool):
-        if horizon is not None:
-            raise ArgumentError("horizon: given twice (third positional argument and horizon=)", argument="horizon")
-        warnings.warn(
-            "design_centralized(system, cost, T) is deprecated: the third argument is the graph or structure "
-            "(ignored by the centralized filter); write design_centralized(system, cost, horizon=T)",
-            DeprecationWarning,
-            stacklevel=2,
+        raise ArgumentError(
+            f"graph_or_structure: expected a CommGraph, an InformationStructure or None (the centralized filter ignores it), "
+            f"found the integer {int(graph_or_structure)}; the 0.1 order design_centralized(system, cost, T) is gone: "
+            f"write design_centralized(system, cost, horizon={int(graph_or_structure)})",
+            argument="graph_or_structure",
         )
-        graph_or_structure, horizon = None, int(graph_or_structure)
     check_model(system, cost)
     V.choice(form, "form", ("filter", "predictor"))
     W = lambda k: cost.L_at(k).T @ cost.S_at(k) @ cost.L_at(k)  # noqa: E731  (L' S L)

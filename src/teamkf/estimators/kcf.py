@@ -95,9 +95,10 @@ from .._validation import FloatArray
 from ..exceptions import ArgumentError, InformationStructureError, ShapeError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
+from ._consensus_common import information_sources
+from ._kalman_common import kalman_step
 from .base import Design, check_measurements
 from .checks import check_graph, check_model
-from .kalman import kalman_step
 from .linear_team import Algorithm, delivered, finish_design, freshest
 from .registry import Family, Option, _register_builtin
 
@@ -589,7 +590,6 @@ class KCFAlgorithm(Algorithm):
     payload_kinds = {"y": "y", "xbar": "x"}
 
     def __init__(self, system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, horizon: int, epsilon: float, honest: bool):
-        from .diffusion import information_sources
 
         super().__init__(system, cost, graph, horizon)
         self.honest, self.epsilon = honest, epsilon

@@ -47,8 +47,8 @@ from .._validation import FloatArray
 from ..exceptions import DivergenceError, ShapeError, TeamkfError, UnsupportedOperationError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
+from ._kalman_common import kalman_step
 from .base import Design
-from .kalman import kalman_step
 
 __all__ = ["Slot", "LinearStep", "LinearTeamDesign", "Algorithm", "build_steps", "transition", "process_noise"]
 

@@ -21,8 +21,8 @@ import numpy as np
 
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
+from ._consensus_common import VARIANTS, DiffusionAlgorithm, check_variant, finite_horizon
 from .checks import check_graph, check_model
-from .diffusion import VARIANTS, DiffusionAlgorithm, _horizon, check_variant
 from .linear_team import LinearTeamDesign, finish_design
 from .registry import Family, Option, _register_builtin
 
@@ -64,7 +64,7 @@ def design_local(
     if graph is not None:
         check_graph(graph, system.n_agents)
     variant = check_variant(variant, "variant")
-    T = _horizon(horizon, "local", system, cost)
+    T = finite_horizon(horizon, "local", system, cost)
     alg = LocalAlgorithm(system, cost, graph, T, np.eye(system.n_agents), honest=True)
     return finish_design("local", alg, variant)
 

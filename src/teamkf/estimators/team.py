@@ -48,10 +48,10 @@ from .._validation import FloatArray
 from ..exceptions import InformationStructureError, ShapeError, UnsupportedOperationError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.information import InformationStructure
+from ._kalman_common import kalman_covariances, predictor_errors, steady_state
 from .base import Design, Packet
 from .checks import check_model
 from .gamma import DENSE_MAX_BYTES, GammaProblem, InnovationsProblem, WindowModel, choose_solver, innovations_pays
-from .kalman import kalman_covariances, predictor_errors, steady_state
 from .registry import Family, Option, _register_builtin
 
 __all__ = [

@@ -170,11 +170,35 @@ def get(name: str) -> Experiment:
     return _REGISTRY[name]
 
 
-def run(name: str, out_dir: str | Path | None = None, *, quick: bool = False) -> ExperimentResult:
-    """Run one experiment; with ``out_dir`` write its CSV (and PNG plots when matplotlib is installed)."""
+def run(name: str, out_dir: str | Path | None = None, *, quick: bool = False, scheduler: Any = None) -> ExperimentResult:
+    """Run one experiment; with ``out_dir`` write its CSV (and PNG plots when matplotlib is installed).
+
+    ``scheduler``: where the grid points of an experiment with independent points run (``"serial"``, the
+    default; ``"local"``, a Dask scheduler address or a ``Client``); the numbers do not depend on it. An
+    experiment without such a grid refuses any other scheduler (an ArgumentError naming ``scheduler``).
+    """
+    from ..exceptions import ArgumentError
+    from ..simulation.parallel import _open_client, use_scheduler
+
     exp = get(name)
     out = Path(out_dir) if out_dir is not None else None
-    res = exp.func(out, quick)
+    owned: list[Any] = []
+    sched: Any = "serial"
+    if scheduler not in (None, "serial"):
+        if not exp.uses_scheduler:
+            users = ", ".join(n for n in names() if get(n).uses_scheduler)
+            raise ArgumentError(
+                f"scheduler: the reproduction {name!r} runs in-process (it has no grid of independent points to distribute); "
+                f"drop the scheduler (reproductions that use one: {users})",
+                argument="scheduler",
+            )
+        sched, owned = _open_client(scheduler, None)
+    try:
+        with use_scheduler(sched):
+            res = exp.func(out, quick)
+    finally:
+        for obj in owned:
+            obj.close()
     if out is not None:
         res.write_csv(out)
         with open(out / f"{name}.json", "w") as fh:

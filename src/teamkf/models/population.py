@@ -218,11 +218,3 @@ def cdma_population(
     if hp >= N:
         raise ShapeError(f"h_prime: expected 0 <= h_prime < n_agents = {N} (so that c = alpha beta (1 - h'/N) > 0), found {hp!r}")
     return PopulationModel(n_agents=N, a=a, f=f, c=al * be * (1.0 - hp / N), h=al * be * hp, **kw)
-
-
-def __getattr__(name: str) -> Any:  # deprecated locations (moved to teamkf.study.population in 0.2)
-    if name in ("PopulationScenario", "population_from_dict", "evaluate_population", "POPULATION_KEYS"):
-        from ..study import population
-
-        return getattr(population, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

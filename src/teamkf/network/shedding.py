@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 
@@ -86,11 +86,3 @@ def pareto_front_nd(points: Sequence[Sequence[float]]) -> list[int]:
         if not dominated:
             keep.append(i)
     return keep
-
-
-def __getattr__(name: str) -> Any:  # deprecated location (moved to teamkf.experiments.shedding in 0.2)
-    if name == "evaluate_structures":
-        from ..experiments.shedding import evaluate_structures
-
-        return evaluate_structures
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -70,16 +70,6 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> Any:  # 0.1 names: the estimators come from the registry now
-    if name == "AVAILABLE_ESTIMATORS":
-        from ..estimators.registry import families
-
-        return tuple(families())
-    if name == "RESERVED_ESTIMATORS":
-        return ()
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
 _BASE_KEYS = ("name", "horizon", "description", "system", "agents", "graph", "cost", "information", "estimators", "control", "network")
 _SYSTEM_KEYS = ("A", "Q", "Sigma_x")
 _AGENT_KEYS = ("C", "R")

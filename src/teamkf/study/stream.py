@@ -30,20 +30,19 @@ import numpy as np
 from .._validation import FloatArray
 from ..exceptions import UnsupportedOperationError
 from ..simulation.monte_carlo import team_stage_costs
-from .measurements import (
-    KnownInputs,
+from .measurements import KnownInputs, known_inputs, online_estimates, read_truth
+from .measurements.format import (
+    Columns,
     MeasurementFileError,
-    _check_columns,
-    _coerce_numeric,
-    _Columns,
-    _fmt_err,
-    _offset_values,
-    _suffix,
-    _validate_rows,
-    _where,
-    known_inputs,
-    online_estimates,
-    read_truth,
+    cell_location,
+    check_columns,
+    coerce_numeric,
+    file_error,
+    file_suffix,
+    int_column,
+    offset_values,
+    read_npz,
+    validate_rows,
 )
 
 __all__ = ["stream_filter", "StreamSummary", "iter_blocks", "SteadyStream"]
@@ -61,9 +60,9 @@ def _raw_chunks(p: Path, suffix: str, chunk_rows: int) -> Iterator[Any]:
             for df in reader:
                 yield df
         except pd.errors.EmptyDataError:
-            raise _fmt_err(p, "", "the file is empty; expected a header row 'step,agent,y0,...'") from None
+            raise file_error(p, "", "the file is empty; expected a header row 'step,agent,y0,...'") from None
         except pd.errors.ParserError as exc:
-            raise _fmt_err(p, "", f"not a valid CSV file ({' '.join(str(exc).split())})") from None
+            raise file_error(p, "", f"not a valid CSV file ({' '.join(str(exc).split())})") from None
     else:
         import pyarrow as pa
         import pyarrow.parquet as pq
@@ -71,7 +70,7 @@ def _raw_chunks(p: Path, suffix: str, chunk_rows: int) -> Iterator[Any]:
         try:
             pf = pq.ParquetFile(p, pre_buffer=False)
         except Exception as exc:  # pyarrow's own error types
-            raise _fmt_err(p, "", f"not a readable Parquet file ({type(exc).__name__}: {' '.join(str(exc).split())[:200]})") from None
+            raise file_error(p, "", f"not a readable Parquet file ({type(exc).__name__}: {' '.join(str(exc).split())[:200]})") from None
         pool = pa.default_memory_pool()
         for batch in pf.iter_batches(batch_size=chunk_rows):
             df = batch.to_pandas()
@@ -100,16 +99,14 @@ def iter_blocks(path: str | Path, system: Any, *, chunk_rows: int = 400_000, pro
     """:class:`Block` s of whole steps from a long-form measurement file (rows sorted by step); NPZ files
     are read whole and sliced."""
     p = Path(path)
-    suffix = _suffix(p, "--measurements")
+    suffix = file_suffix(p, "--measurements")
     if not p.exists():
         raise FileNotFoundError(2, "No such file or directory", str(p))
     n, dys = system.n_agents, system.dy
     offs = system.offsets
     dy = int(sum(dys))
     if suffix == ".npz":
-        from .measurements import _read_npz
-
-        log = _read_npz(p, system, None)
+        log = read_npz(p, system, None)
         Y = np.concatenate(log.y, axis=1)
         D = None if log.d is None else np.concatenate(log.d, axis=1)
         steps = max(1, chunk_rows // n)
@@ -123,7 +120,7 @@ def iter_blocks(path: str | Path, system: Any, *, chunk_rows: int = 400_000, pro
     row0 = 0
     next_step = 0
     pending: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, int] | None = None  # rows of the last, maybe unfinished step
-    spec: _Columns | None = None  # the optional columns (u, b per step; d per row, appended to the y values)
+    spec: Columns | None = None  # the optional columns (u, b per step; d per row, appended to the y values)
     ucols: list[str] = []
     cols: list[str] = []
     seen_rows = False
@@ -146,9 +143,9 @@ def iter_blocks(path: str | Path, system: Any, *, chunk_rows: int = 400_000, pro
                 rows_g = first_row + np.arange(key.size)
             if dup.size:
                 r1, r2 = sorted((int(rows_g[dup[0]]), int(rows_g[dup[0] + 1])))
-                raise _fmt_err(
+                raise file_error(
                     p,
-                    _where(r2, "step", csv),
+                    cell_location(r2, "step", csv),
                     f"duplicated (step, agent) = ({int(step[dup[0]])}, {int(agent[dup[0]])}), first at row {r1 + 1}; keep one row per agent and step",
                 )
         D = np.full((B, dy), np.nan) if spec is not None and spec.d else None
@@ -163,7 +160,7 @@ def iter_blocks(path: str | Path, system: Any, *, chunk_rows: int = 400_000, pro
             U[step - next_step] = u
             if np.isnan(U[:, 0]).any():
                 s = next_step + int(np.flatnonzero(np.isnan(U[:, 0]))[0])
-                raise _fmt_err(
+                raise file_error(
                     p, f"column {ucols[0]!r}", f"step {s} has no row, so no {ucols[0][0]}({s}); give a row (y cells may be empty) for every step"
                 )
         k0 = next_step
@@ -173,45 +170,45 @@ def iter_blocks(path: str | Path, system: Any, *, chunk_rows: int = 400_000, pro
 
     for df in _raw_chunks(p, suffix, chunk_rows):
         if spec is None:
-            df = _coerce_numeric(df, p, csv, row0)
-            spec = _check_columns(df, p, system)
+            df = coerce_numeric(df, p, csv, row0)
+            spec = check_columns(df, p, system)
             ucols = spec.per_step
         else:
             if list(df.columns) != cols:
-                raise _fmt_err(p, f"row {row0 + 1}", "the columns changed within the file")
-            df = _coerce_numeric(df, p, csv, row0)
+                raise file_error(p, f"row {row0 + 1}", "the columns changed within the file")
+            df = coerce_numeric(df, p, csv, row0)
         cols = list(df.columns)
         if len(df) == 0:
             continue
         seen_rows = True
-        step, agent, vals = _validate_rows(df, p, system, None, None, csv, row0)
-        dv = _offset_values(df, spec, p, system, agent, vals, csv, row0)
+        step, agent, vals = validate_rows(df, p, system, None, None, csv, row0)
+        dv = offset_values(df, spec, p, system, agent, vals, csv, row0)
         if dv is not None:
             vals = np.concatenate([vals, dv], axis=1)
         u = df[ucols].to_numpy(dtype=float) if ucols else None
         if u is not None and not np.all(np.isfinite(u)):
             r, c = (int(v) for v in np.argwhere(~np.isfinite(u))[0])
-            raise _fmt_err(
+            raise file_error(
                 p,
-                _where(row0 + r, ucols[c], csv),
+                cell_location(row0 + r, ucols[c], csv),
                 f"expected a finite value, found {u[r, c]} (known inputs u(t) and offsets b(t) cannot be missing)",
             )
         back = np.flatnonzero(np.diff(step) < 0)
         if back.size or (pending is not None and step[0] < pending[0][-1]):
             r = int(back[0]) + 1 if back.size else 0
             prev = int(step[r - 1]) if back.size else int(pending[0][-1])  # type: ignore[index]
-            raise _fmt_err(
+            raise file_error(
                 p,
-                _where(row0 + r, "step", csv),
+                cell_location(row0 + r, "step", csv),
                 f"step {int(step[r])} after step {prev}: streaming needs the rows sorted by step; sort the file (or give a horizon)",
             )
         if u is not None:  # one input per step
             same = np.flatnonzero((np.diff(step) == 0) & np.any(np.diff(u, axis=0) != 0, axis=1))
             if same.size:
                 r = int(same[0]) + 1
-                raise _fmt_err(
+                raise file_error(
                     p,
-                    _where(row0 + r, ucols[0], csv),
+                    cell_location(row0 + r, ucols[0], csv),
                     f"step {int(step[r])} has different values of {', '.join(ucols)} on different rows; u(t) and b(t) are one value per step",
                 )
         if pending is not None:
@@ -230,7 +227,7 @@ def iter_blocks(path: str | Path, system: Any, *, chunk_rows: int = 400_000, pro
         if progress is not None:
             progress.update(len(df))
     if not seen_rows:
-        raise _fmt_err(p, "", "no data rows; expected one row per agent and step")
+        raise file_error(p, "", "no data rows; expected one row per agent and step")
     if pending is not None and pending[0].size:
         yield emit(pending[0], pending[1], pending[2], pending[3], pending[4])
 
@@ -612,7 +609,7 @@ class _TruthStream:
     def __init__(self, truth: Any, dx: int, chunk_rows: int):
         self.p = Path(truth)
         self.dx = dx
-        suffix = _suffix(self.p, "--truth")
+        suffix = file_suffix(self.p, "--truth")
         if not self.p.exists():
             raise FileNotFoundError(2, "No such file or directory", str(self.p))
         self.csv = suffix == ".csv"
@@ -631,32 +628,30 @@ class _TruthStream:
 
     def _pull(self) -> bool:
         for df in self.chunks:
-            df = _coerce_numeric(df, self.p, self.csv, self.row0)
+            df = coerce_numeric(df, self.p, self.csv, self.row0)
             for col in df.columns:
                 if col not in self.want:
-                    raise _fmt_err(self.p, f"column {col!r}", f"unknown column; expected {', '.join(self.want)} (d_x = {self.dx})")
+                    raise file_error(self.p, f"column {col!r}", f"unknown column; expected {', '.join(self.want)} (d_x = {self.dx})")
             for col in self.want:
                 if col not in df.columns:
-                    raise _fmt_err(self.p, f"column {col!r}", f"missing; expected {', '.join(self.want)} (d_x = {self.dx})")
+                    raise file_error(self.p, f"column {col!r}", f"missing; expected {', '.join(self.want)} (d_x = {self.dx})")
             if len(df) == 0:
                 continue
-            from .measurements import _int_column
-
-            step = _int_column(df, "step", self.p, self.csv, self.row0)
+            step = int_column(df, "step", self.p, self.csv, self.row0)
             expect = self.k_buf + self.buf.shape[0] + np.arange(len(step))
             bad = np.flatnonzero(step != expect)
             if bad.size:
                 r = int(bad[0])
-                raise _fmt_err(
+                raise file_error(
                     self.p,
-                    _where(self.row0 + r, "step", self.csv),
+                    cell_location(self.row0 + r, "step", self.csv),
                     f"expected step {int(expect[r])}, found {int(step[r])}: streaming needs one row per step, sorted by step",
                 )
             vals = df[self.want[1:]].to_numpy(dtype=float)
             bad2 = np.argwhere(~np.isfinite(vals))
             if bad2.size:
                 r, c = (int(v) for v in bad2[0])
-                raise _fmt_err(self.p, _where(self.row0 + r, f"x{c}", self.csv), f"expected a finite number, found {vals[r, c]}")
+                raise file_error(self.p, cell_location(self.row0 + r, f"x{c}", self.csv), f"expected a finite number, found {vals[r, c]}")
             self.buf = np.concatenate([self.buf, vals])
             self.row0 += len(df)
             return True

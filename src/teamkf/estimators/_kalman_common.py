@@ -1,0 +1,92 @@
+r"""The centralized Kalman recursion that several families share (the centralized bound, MTMSE/MMSE, the consensus baselines).
+
+Notation (team-MMSE paper eqs. 20-22; steps 0-based):
+
+===========  ==================================================================
+P(k)         var(x(k) | y(0:k-1)), predictor covariance; P(0) = Sigma_x
+K(k)         P(k) C(k)' [C(k) P(k) C(k)' + R(k)]^-1                     (eq. 21)
+P(k|k)       (I - K C) P(k) (I - K C)' + K R K'  (Joseph form)
+P(k+1)       A(k) P(k|k) A(k)' + Q(k)                                  (eq. 22)
+eps(k+1)     A(k)[eps(k) - K(k)(C(k) eps(k) + v(k))] + w(k)            (predictor error)
+===========  ==================================================================
+
+Family modules import these from here, never from each other (the import-linter
+independence contract in ``pyproject.toml``); :mod:`teamkf.estimators.kalman`
+re-exports them as its public names.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import scipy.linalg as sla
+
+from .. import _validation as V
+from .._validation import FloatArray
+from ..models import LinearGaussianSystem
+
+__all__ = ["kalman_step", "kalman_covariances", "steady_state", "predictor_errors"]
+
+
+def kalman_step(P: FloatArray, C: FloatArray, R: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """One measurement update: returns (K, P(k|k)) from the predictor covariance P (eq. 21)."""
+    Sy = C @ P @ C.T + R
+    cf = sla.cho_factor(0.5 * (Sy + Sy.T), lower=True, check_finite=False)
+    K = sla.cho_solve(cf, C @ P, check_finite=False).T
+    IKC = np.eye(P.shape[0]) - K @ C
+    Pf = IKC @ P @ IKC.T + K @ R @ K.T
+    return K, 0.5 * (Pf + Pf.T)
+
+
+def kalman_covariances(system: LinearGaussianSystem, n_steps: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Forward Riccati recursion (eq. 22).
+
+    Returns
+    -------
+    P_pred : (n_steps, d_x, d_x)       P(k) = var(x(k) | y(0:k-1)), k = 0..n_steps-1
+    K : (n_steps, d_x, d_y)            Kalman gains (eq. 21)
+    P_filt : (n_steps, d_x, d_x)       P(k|k)
+    """
+    T = V.positive_int(n_steps, "n_steps")
+    system.require_horizon(T)
+    dx, dy = system.dx, system.dy_total
+    P_pred = np.empty((T, dx, dx))
+    K = np.empty((T, dx, dy))
+    P_filt = np.empty((T, dx, dx))
+    P_pred[0] = system.Sigma_x
+    from .._resources import progress as _progress
+
+    for k in _progress(range(T), total=T, desc="Kalman covariances"):
+        K[k], P_filt[k] = kalman_step(P_pred[k], system.C_stack(k), system.R_stack(k))
+        if k + 1 < T:
+            A = system.A_at(k)
+            Pn = A @ P_filt[k] @ A.T + system.Q_at(k)
+            P_pred[k + 1] = 0.5 * (Pn + Pn.T)
+    return P_pred, K, P_filt
+
+
+def steady_state(system: LinearGaussianSystem, *, check: bool = True) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """(P_bar, K_bar, P_bar(k|k)) of the algebraic Riccati equation (eq. 37); needs (A4)-(A5)."""
+    from .riccati import steady_state_kalman
+
+    system.require_time_invariant()
+    return steady_state_kalman(system.A_at(0), system.C_stack(0), system.Q_at(0), system.R_stack(0), check=check)
+
+
+def predictor_errors(system: LinearGaussianSystem, K_at: Any, paths: Any, n_steps: int | None = None) -> FloatArray:
+    """eps(m) = x(m) - x^(m) of the one-step predictor (eq. 20) with gains ``K_at(m)``, from the primitive noises.
+
+    eps(0) = x(0) (x^(0) = 0) and eps(m+1) = A(m)[eps(m) - K(m)(C(m) eps(m) + v(m))] + w(m):
+    no state appears, so the recursion stays accurate when A is unstable.
+    Returns (n_runs, T, d_x) with T = ``n_steps`` (default: the paths' length).
+    """
+    T = paths.n_steps if n_steps is None else n_steps
+    v = paths.v_stack
+    eps = np.empty((paths.n_runs, T, system.dx))
+    eps[:, 0] = paths.x[:, 0]
+    for m in range(T - 1):
+        e = eps[:, m]
+        e = e - (e @ system.C_stack(m).T + v[:, m]) @ K_at(m).T
+        eps[:, m + 1] = e @ system.A_at(m).T + paths.w[:, m]
+    return eps
