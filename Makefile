@@ -18,8 +18,9 @@ $(STAMP): pyproject.toml constraints.txt
 
 venv: $(STAMP)
 
+# The suite runs on every core (pytest-xdist; PYTEST_ARGS="-n 0" runs it in one process).
 test: $(STAMP) lint
-	$(BIN)/python -m pytest -q $(PYTEST_ARGS)
+	$(BIN)/python -m pytest -q -n auto $(PYTEST_ARGS)
 	$(BIN)/python -m mypy
 	$(MAKE) docs
 

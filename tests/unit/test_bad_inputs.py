@@ -471,7 +471,8 @@ def _sub(s: str, tmp: Path) -> str:
 
 
 def _ids(rows: list[Any], prefix: str, start: int) -> list[str]:
-    return [f"{prefix}-{start + k:03d}-{r[0]}" for k, r in enumerate(rows)]
+    # the same ids in every process (pytest-xdist workers collect separately): no port number of this run in them
+    return [f"{prefix}-{start + k:03d}-{r[0]}".replace(CLOSED, "tcp://127.0.0.1:CLOSED") for k, r in enumerate(rows)]
 
 
 N_SCEN = len(SCENARIO_ROWS)
