@@ -27,3 +27,30 @@ def attach(package: str, names: Mapping[str, str]) -> tuple[Callable[[str], Any]
         return sorted(set(names) | set(vars(sys.modules[package])))
 
     return __getattr__, __dir__
+
+
+class _LazyModule:
+    """A stand-in for a module that imports it on first attribute access (``sla.solve`` imports scipy.linalg)."""
+
+    def __init__(self, name: str) -> None:
+        self._name = name
+
+    def __getattr__(self, attr: str) -> Any:
+        return getattr(importlib.import_module(self._name), attr)
+
+    def __repr__(self) -> str:
+        return f"<lazy module {self._name!r}>"
+
+
+def lazy_module(name: str) -> Any:
+    """``name`` imported when first used; for the heavy libraries the family modules need only inside functions."""
+    return _LazyModule(name)
+
+
+#: SciPy and networkx, imported on first use (``teamkf --help`` lists the families without loading them)
+scipy_linalg: Any = lazy_module("scipy.linalg")
+scipy_optimize: Any = lazy_module("scipy.optimize")
+scipy_sparse: Any = lazy_module("scipy.sparse")
+scipy_sparse_linalg: Any = lazy_module("scipy.sparse.linalg")
+scipy_csgraph: Any = lazy_module("scipy.sparse.csgraph")
+networkx: Any = lazy_module("networkx")

@@ -1,8 +1,3 @@
-"""The installed version of teamkf (one place, importable from every layer)."""
+"""The version of teamkf (one place, importable from every layer; pyproject.toml reads it from here)."""
 
-from importlib.metadata import PackageNotFoundError, version
-
-try:
-    __version__ = version("teamkf")
-except PackageNotFoundError:  # pragma: no cover - running from a source tree
-    __version__ = "0.2.0"
+__version__ = "0.2.0"

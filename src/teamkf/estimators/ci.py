@@ -41,8 +41,8 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-import scipy.optimize as sopt
 
+from .._lazy import scipy_optimize as sopt  # SciPy / networkx load on first use
 from .._validation import FloatArray
 from ..exceptions import NotPositiveDefiniteError
 from ..models import LinearGaussianSystem, TeamCost

@@ -59,11 +59,11 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
-import scipy.linalg as sla
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from .._blas import single_thread_blas
+from .._lazy import scipy_linalg as sla  # SciPy / networkx load on first use
+from .._lazy import scipy_sparse as sp
+from .._lazy import scipy_sparse_linalg as spla
 from .._validation import FloatArray
 from ..exceptions import ArgumentError, ConvergenceError, NotPositiveDefiniteError
 

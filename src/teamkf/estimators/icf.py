@@ -52,9 +52,9 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-import scipy.linalg as sla
 
 from .. import _validation as V
+from .._lazy import scipy_linalg as sla  # SciPy / networkx load on first use
 from ..exceptions import ArgumentError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph

@@ -88,9 +88,9 @@ from dataclasses import dataclass
 from typing import Any, Literal, NamedTuple, Sequence
 
 import numpy as np
-import scipy.linalg as sla
 
 from .. import _validation as V
+from .._lazy import scipy_linalg as sla  # SciPy / networkx load on first use
 from .._validation import FloatArray
 from ..exceptions import ArgumentError, InformationStructureError, ShapeError
 from ..models import LinearGaussianSystem, TeamCost

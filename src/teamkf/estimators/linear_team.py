@@ -40,9 +40,9 @@ from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
 import numpy as np
-import scipy.linalg as sla
 
 from .._blas import single_thread_blas
+from .._lazy import scipy_linalg as sla  # SciPy / networkx load on first use
 from .._validation import FloatArray
 from ..exceptions import DivergenceError, ShapeError, TeamkfError, UnsupportedOperationError
 from ..models import LinearGaussianSystem, TeamCost

@@ -41,9 +41,9 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, ClassVar, Literal, Sequence
 
 import numpy as np
-import scipy.linalg as sla
 
 from .. import _validation as V
+from .._lazy import scipy_linalg as sla  # SciPy / networkx load on first use
 from .._validation import FloatArray
 from ..exceptions import InformationStructureError, ShapeError, UnsupportedOperationError
 from ..models import LinearGaussianSystem, TeamCost

@@ -42,12 +42,12 @@ from functools import cached_property
 from numbers import Integral, Real
 from typing import Any
 
-import networkx as nx
 import numpy as np
-import scipy.sparse as sp
 from numpy.typing import NDArray
-from scipy.sparse.csgraph import shortest_path
 
+from .._lazy import networkx as nx  # SciPy / networkx load on first use
+from .._lazy import scipy_csgraph
+from .._lazy import scipy_sparse as sp
 from ..exceptions import GraphError
 
 __all__ = ["CommGraph"]
@@ -318,7 +318,7 @@ class CommGraph:
             dist = np.full((n, n), np.inf)
             np.fill_diagonal(dist, 0.0)
         else:
-            dist = shortest_path(self.adjacency().astype(float), method="D", directed=True)
+            dist = scipy_csgraph.shortest_path(self.adjacency().astype(float), method="D", directed=True)
         dist = np.asarray(dist, dtype=float)
         dist.setflags(write=False)
         return dist

@@ -54,7 +54,8 @@ from typing import Any, ClassVar, Mapping, Sequence
 import numpy as np
 
 from .. import _validation as V
-from ..exceptions import ScenarioError, TeamkfError
+from ..estimators.base import Design
+from ..exceptions import ArgumentError, ScenarioError, TeamkfError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network import CommGraph, InformationStructure
 from .dotted import _parse_path, _path_str, set_dotted  # noqa: F401  (set_dotted: public here too)
@@ -146,13 +147,21 @@ class Scenario(ScenarioBase):
         if opts is None:
             opts = _family_options(fam, {})
         try:
-            return fam.build(self.system, self.cost, graph=self.graph, structure=self.information, horizon=T, options=opts)
+            out = fam.build(self.system, self.cost, graph=self.graph, structure=self.information, horizon=T, options=opts)
         except ScenarioError:
             raise
         except TeamkfError as exc:
             if exc.argument in ("horizon", "graph"):
                 raise _fail(exc.argument, f"{estimator}: {exc.detail}") from exc
             raise
+        if not isinstance(out, Design):
+            fn = getattr(fam.design, "__qualname__", repr(fam.design))
+            raise ArgumentError(
+                f"{estimator}: its design function {fn}() returned {V.describe(out)}; a family's design function must return a "
+                "teamkf Design (subclass teamkf.estimators.base.Design; see the guide's 'Writing your own family')",
+                argument=estimator,
+            )
+        return out
 
     def family(self, name: str) -> Any:
         """The registry record of estimator ``name`` (the scenario's own records first: they travel with it to Dask workers)."""

@@ -18,9 +18,8 @@ from __future__ import annotations
 from typing import Sequence
 
 import numpy as np
-import scipy.linalg as sla
 
-from ..._lapack import pstrf_solve
+from ..._lazy import scipy_linalg as sla  # SciPy / networkx load on first use
 from ..._validation import FloatArray
 from ...exceptions import DivergenceError
 
@@ -49,6 +48,8 @@ def _psd_solve(S_xy: FloatArray, S_yy: FloatArray, rcond: float, how: str = "cho
         out = np.zeros_like(S_xy)
         if top <= 0.0:
             return out
+        from ..._lapack import pstrf_solve  # reads SciPy's LAPACK pointers: on first use, not at import
+
         X, keep = pstrf_solve(S, S_xy, rcond * top)  # LAPACK dpstrf + dpotrs, GIL released (per-agent threads)
         out[:, keep] = X
         return out

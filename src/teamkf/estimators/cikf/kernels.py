@@ -12,8 +12,8 @@ from __future__ import annotations
 from typing import Any, Literal, Sequence
 
 import numpy as np
-import scipy.linalg as sla
 
+from ..._lazy import scipy_linalg as sla  # SciPy / networkx load on first use
 from ..._validation import FloatArray
 
 __all__ = ["Form", "Method"]
