@@ -930,13 +930,12 @@ def _plugin_frame(exc: BaseException) -> str | None:
 
 def _load_plugins(argv: Sequence[str]) -> None:
     """Import the --plugin modules first, so that their families appear in --help and in scenario files."""
-    from . import load_plugin
+    specs = [argv[k + 1] for k, a in enumerate(argv[:-1]) if a == "--plugin"] + [a.split("=", 1)[1] for a in argv if a.startswith("--plugin=")]
+    if specs:
+        from . import load_plugin
 
-    for k, a in enumerate(argv):
-        if a == "--plugin" and k + 1 < len(argv):
-            load_plugin(argv[k + 1])
-        elif a.startswith("--plugin="):
-            load_plugin(a.split("=", 1)[1])
+        for spec in specs:
+            load_plugin(spec)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -189,3 +189,25 @@ def test_step_returning_the_wrong_shape_is_named():
                 return None
 
         checked_step(Worse(), 0, None, 0, np.zeros((5, 1)), [], 5)
+
+
+def test_start_up_loads_no_family_and_help_no_scipy():
+    """``teamkf --version`` imports no estimator family; ``--help`` lists every family without SciPy or networkx
+    (they load on first use). Structural, not timed: benchmarks/bench_startup.py measures the seconds."""
+    code = (
+        "import sys\n"
+        "from teamkf.cli import main\n"
+        "try:\n    main(['--version'])\nexcept SystemExit:\n    pass\n"
+        "print(sorted(m for m in sys.modules if m.startswith('teamkf.estimators.') or m.startswith(('scipy', 'networkx'))))\n"
+        "import io, contextlib\n"
+        "buf = io.StringIO()\n"
+        "with contextlib.redirect_stdout(buf):\n    main(['--help'])\n"
+        "print(sorted(m for m in sys.modules if m.startswith(('scipy.linalg', 'scipy.optimize', 'scipy.sparse', 'networkx'))))\n"
+        "print('kcf' in buf.getvalue() and 'cikf' in buf.getvalue())\n"
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    after_version, after_help, listed = res.stdout.strip().splitlines()[-3:]
+    assert after_version == "[]", after_version
+    assert after_help == "[]", after_help
+    assert listed == "True"
