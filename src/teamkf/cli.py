@@ -534,6 +534,10 @@ def _cmd_filter(args: argparse.Namespace) -> int:
     """``teamkf filter SCENARIO --measurements FILE [--truth FILE] --out FILE [--estimators ...]``."""
     from .study import measurements as M
 
+    if getattr(args, "drops", None):  # issue 23: replay a deployment's drop record
+        from .study.deploy import cmd_filter_drops
+
+        return cmd_filter_drops(args)
     out_path = _check_output(args.out, "--out", (".csv", ".parquet"))
     cost_path = out_path.with_name(f"{out_path.stem}-cost{out_path.suffix}") if args.truth else None
     if cost_path is not None:
@@ -658,6 +662,7 @@ def _add_filter_parser(add: Any) -> None:
         "--chunk-rows", type=_positive_int, default=400_000, metavar="N", help="steady-state scenarios are streamed N rows at a time (default 400000)"
     )
     p.add_argument("--no-progress", action="store_true", help="no progress bar (it shows only on a terminal anyway)")
+    p.add_argument("--drops", metavar="DROPS", help="replay a deployment in-process from its drop record (teamkf deploy --record): the same estimates, bit for bit")
     p.set_defaults(func=_cmd_filter)
 
 
@@ -914,6 +919,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_sweep)
 
     _add_filter_parser(add)
+    from .study import deploy as _deploy  # teamkf deploy, teamkf agent (issue 23)
+
+    _deploy.add_parsers(add)
     return parser
 
 
