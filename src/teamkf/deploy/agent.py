@@ -51,14 +51,25 @@ class DeployError(TeamkfError, RuntimeError):
     """A deployment that cannot start or go on (neighbours that never joined, a refused design)."""
 
 
-def check_deployable(design: Any) -> Any:
-    """The design's delivery graph; :class:`UnsupportedOperationError` for a design no network can run."""
+def check_deployable(design: Any, graph: Any = None) -> Any:
+    """The graph the agents talk over; :class:`UnsupportedOperationError` for a design no network can run.
+
+    A design with a graph of its own (KCF, CIKF, ...) talks over it. A design delivered by an
+    information structure (MTMSE, MMSE) talks over ``graph`` (the scenario's), its agents relaying
+    every measurement they learn first (:class:`~teamkf.estimators.base.MeasurementRelay`); the
+    structure must be realizable on that graph (every y_j(s) reaches agent i by the time it is used).
+    """
     if not design.realizable:
         why = "it is the omniscient benchmark (every agent holds every y_j(k) at once)" if design.omniscient else f"its {design.label!r} variant is not realizable"
         raise UnsupportedOperationError(design.estimator, "deployment on a network", f"{why}; deploy a realizable family or variant")
-    graph = design.delivery_graph
+    own = design.delivery_graph
+    if own is not None:
+        return own
     if graph is None:
-        raise UnsupportedOperationError(design.estimator, "deployment on a network", "its agents are delivered by an information structure, not a graph")
+        raise UnsupportedOperationError(design.estimator, "deployment on a network", "its agents are delivered by an information structure; give the graph they talk over")
+    structure = getattr(design, "structure", None)
+    if structure is not None:
+        structure.validate_on(graph)
     return graph
 
 
@@ -83,8 +94,8 @@ class AgentCore:
     of the messages that arrived for step k; returns (z_i(k), payload).
     """
 
-    def __init__(self, design: Any, index: int, *, tolerant: bool = False, agent: Any = None):
-        self.graph = check_deployable(design)
+    def __init__(self, design: Any, index: int, *, tolerant: bool = False, agent: Any = None, graph: Any = None):
+        self.graph = check_deployable(design, graph)
         self.index = int(index)
         self.agent = agent if agent is not None else design.graph_agents()[self.index]
         self.in_delays = [(j, self.graph.delay(j, self.index)) for j in self.graph.in_neighbors(self.index)]
@@ -264,6 +275,7 @@ def run_agent(
     on_estimate: Callable[[int, np.ndarray], None] | None = None,
     stop: threading.Event | None = None,
     core: AgentCore | None = None,
+    graph: Any = None,
 ) -> AgentResult:
     """Run agent ``index`` of ``design`` over ``transport`` for ``n_steps`` steps.
 
@@ -280,12 +292,14 @@ def run_agent(
         process; else it stops silently, as a crashed thread would)
     on_estimate : called with (k, ẑ_i(k)) after every step
     stop : set it to stop the agent (it says goodbye and returns)
+    core : the agent's :class:`AgentCore` (default: built from ``design`` and ``graph``)
+    graph : the graph the agents talk over, for a design delivered by an information structure
 
     Returns
     -------
     AgentResult
     """
-    core = core if core is not None else AgentCore(design, index, tolerant=p_drop > 0)
+    core = core if core is not None else AgentCore(design, index, tolerant=p_drop > 0, graph=graph)
     i = core.index
     n = design.n_agents
     peers = sorted(set(range(n) if peers is None else peers) - {i})

@@ -107,7 +107,7 @@ class DropRecord:
             raise ArgumentError(f"--drops: {p}: malformed drop record ({type(exc).__name__}: {exc})", argument="--drops") from None
 
 
-def replay(design: Any, ys: Sequence[np.ndarray], record: DropRecord, offsets: np.ndarray | None = None) -> np.ndarray:
+def replay(design: Any, ys: Sequence[np.ndarray], record: DropRecord, offsets: np.ndarray | None = None, *, graph: Any = None) -> np.ndarray:
     """Re-run a deployment in-process from its drop record.
 
     Parameters
@@ -116,6 +116,7 @@ def replay(design: Any, ys: Sequence[np.ndarray], record: DropRecord, offsets: n
     ys : per agent (1, n_steps, d_y^i) measurements, as the agents consumed them (known means removed)
     record : the team's :class:`DropRecord`
     offsets : (n_steps, n d_z) known means added to the estimates, or None
+    graph : the graph the agents talked over (a design delivered by an information structure)
 
     Returns
     -------
@@ -127,7 +128,7 @@ def replay(design: Any, ys: Sequence[np.ndarray], record: DropRecord, offsets: n
     if ys[0].shape[1] < T:
         raise ShapeError(f"--drops: the record has {T} steps, the measurements {ys[0].shape[1]}; replay it on the deployed log")
     agents = design.graph_agents()
-    cores = [AgentCore(design, i, tolerant=record.tolerant_from_start, agent=agents[i]) for i in range(n)]
+    cores = [AgentCore(design, i, tolerant=record.tolerant_from_start, agent=agents[i], graph=graph) for i in range(n)]
     for c in cores:
         c.init()
     lost = {(a, b, s) for (a, b, s, _) in record.missed}

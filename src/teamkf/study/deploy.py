@@ -45,6 +45,7 @@ class Prepared:
     ys: list[np.ndarray]  # per agent (1, T, d_y^i), known means removed
     offsets: np.ndarray | None  # (T, n d_z): L(k) x̄(k), or None
     n_steps: int
+    graph: Any = None  # the graph the agents talk over
 
     @property
     def n_agents(self) -> int:
@@ -94,10 +95,10 @@ def prepare(scenario: Any, log: Any, estimator: str | None = None, *, design: An
             f"agent {i} misses step {s}; the recorded-gaps design needs every agent's gaps in advance, which no online agent has: fill the gaps",
         )
     d = design if design is not None else scenario.design(name)
-    check_deployable(d)
+    graph = check_deployable(d, scenario.graph)
     ys, offs = _means(scenario, log)
     batch = check_measurements([np.asarray(y, dtype=float)[None] for y in ys], d.system, d.horizon)[0]
-    return Prepared(name, d, batch, offs, log.n_steps)
+    return Prepared(name, d, batch, offs, log.n_steps, graph)
 
 
 # ---------------------------------------------------------------------------
@@ -174,7 +175,7 @@ def run_team(
     stop = threading.Event()
 
     def one(i: int) -> None:
-        core = AgentCore(prep.design, i, tolerant=p_drop > 0, agent=agents[i])
+        core = AgentCore(prep.design, i, tolerant=p_drop > 0, agent=agents[i], graph=prep.graph)
         offs = None if prep.offsets is None else prep.offsets[:, i * core_dz : (i + 1) * core_dz]
         yi = prep.ys[i]
         results[i] = run_agent(
@@ -486,7 +487,7 @@ def cmd_agent(args: Any) -> int:
     i = args.id
     name = deploy_estimator(sc, args.estimator)
     design = sc.design(name)
-    check_deployable(design)
+    check_deployable(design, sc.graph)
     dz = int(design.cost.dz)
     if args.measurements == "-":
         T = args.steps if args.steps is not None else sc.horizon
@@ -536,6 +537,7 @@ def cmd_agent(args: Any) -> int:
         hard_kill=True,
         on_estimate=printer,
         stop=stop,
+        graph=sc.graph,
     )
     if args.out and args.out != "-":
         _write_own(args.out, res, name)
@@ -576,7 +578,7 @@ def cmd_filter_drops(args: Any) -> int:
     sc = _load(args.scenario)
     log = M.read_measurements(args.measurements, sc.system, sc.horizon)
     prep = prepare(sc, log, rec.estimator)
-    z = replay(prep.design, prep.ys, rec, prep.offsets)
+    z = replay(prep.design, prep.ys, rec, prep.offsets, graph=prep.graph)
     M.write_estimates(args.out, {rec.estimator: z}, prep.n_agents)
     if args.json:
         print(json.dumps({"scenario": sc.name, "out": args.out, "estimator": rec.estimator, "steps": rec.n_steps, "missed": len(rec.missed)}))
