@@ -5,24 +5,29 @@ Agent i runs the same online agent the in-process runtime runs
 At step k it
 
 1. waits until every message due at k has arrived — the payload in-neighbour j sent at
-   s = k - τ_ji — or the step's deadline passes (``deadline`` seconds after it began
-   waiting); a neighbour that missed a deadline is *failed* and is not waited for
-   again until a frame of it arrives in time;
+   s = k - τ_ji. Every agent sends a heartbeat to its out-neighbours every
+   ``deadline / 4`` seconds, so a neighbour that is waiting on its own neighbours is
+   known to be alive and is waited for; a neighbour *silent* for ``deadline`` seconds
+   (killed, stopped, cut off) is *failed* and is not waited for again until one of its
+   messages arrives in time. No step waits longer than ``n_agents x deadline`` (a
+   live neighbour that never delivers: the step's hard deadline);
 2. fuses what arrived **in in-neighbour order, then sent step** (the graph's order, as
    the in-process runtime), never in arrival order, with its own y_i(k);
 3. sends its payload to every out-neighbour b (due at k + τ_ib), as raw little-endian
    arrays in a :mod:`~teamkf.deploy.codec` frame.
 
 A message due at k that did not arrive is a *miss* (sender, sent step, reason:
-``dropped`` by the sender's loss injection, ``deadline``, or ``failed``/``left``
-sender); a frame arriving after its step is counted ``late`` and never fused.
-Without misses the agent computes exactly the in-process runtime's arithmetic,
-so the estimates are equal bit for bit. At its first miss an agent whose family
-has a loss-tolerant step (``tolerant``) switches to it for the rest of the run
-(with ``p_drop > 0`` it runs tolerant from step 0, as the lossy Monte Carlo);
-a family without one stops with an error (a node failure for the others). The
-misses are the agent's drop record: :func:`teamkf.deploy.replay.replay` re-runs
-the team in-process from the records to the same bits.
+``dropped`` by the sender's loss injection, ``silent`` sender, ``failed`` sender
+(silent at an earlier step), ``left`` (it said goodbye), or ``deadline`` (the hard
+deadline passed); a frame arriving after its step is counted ``late`` and never fused.
+Agents run their family's loss-tolerant step (``tolerant``, the step the lossy
+Monte Carlo runs, :mod:`teamkf.simulation.links`) from step 0: with every message
+delivered it is the design's arithmetic in the design's order, so a run without
+misses equals the in-process runtime bit for bit (the tests check it), and a miss
+is handled as the family documents. A family without a tolerant step runs its
+nominal step and stops with an error at its first miss (a node failure for the
+others). The misses are the agent's drop record: :func:`teamkf.deploy.replay.replay`
+re-runs the team in-process from the records to the same bits.
 """
 
 from __future__ import annotations
@@ -94,22 +99,15 @@ class AgentCore:
     of the messages that arrived for step k; returns (z_i(k), payload).
     """
 
-    def __init__(self, design: Any, index: int, *, tolerant: bool = False, agent: Any = None, graph: Any = None):
+    def __init__(self, design: Any, index: int, *, tolerant: bool = True, agent: Any = None, graph: Any = None):
         self.graph = check_deployable(design, graph)
         self.index = int(index)
         self.agent = agent if agent is not None else design.graph_agents()[self.index]
         self.in_delays = [(j, self.graph.delay(j, self.index)) for j in self.graph.in_neighbors(self.index)]
         self.out_delays = sorted((b, self.graph.delay(self.index, b)) for b in self.graph.out_neighbors(self.index))
-        self.tolerant = False
-        self.switched_at: int | None = None
+        #: True when the family's loss-tolerant step runs (see the module docstring)
+        self.tolerant = _set_tolerant(self.agent) if tolerant else False
         self.state: Any = None
-        if tolerant:
-            self.make_tolerant(0)
-
-    def make_tolerant(self, k: int) -> None:
-        if not self.tolerant:
-            self.tolerant = _set_tolerant(self.agent)
-            self.switched_at = k
 
     def expected(self, k: int) -> list[tuple[int, int]]:
         """The (sender, sent step) due at step k, in in-neighbour order."""
@@ -121,8 +119,6 @@ class AgentCore:
     def step(self, k: int, own: Any, received: dict[tuple[int, int], Any]) -> tuple[np.ndarray, Any]:
         due = self.expected(k)
         inbox = [(j, s, received[(j, s)]) for (j, s) in due if received.get((j, s)) is not None]
-        if len(inbox) < len(due) and not self.tolerant:
-            self.make_tolerant(k)
         self.state, z, payload = self.agent.step(self.state, k, own, inbox)
         return z, payload
 
@@ -142,6 +138,7 @@ class Mailbox:
         self.acks: dict[int, set[int]] = {}
         self.left: set[int] = set()
         self.failed: set[int] = set()
+        self.last_seen: dict[int, float] = {}
         self.counts: Counter[str] = Counter()
 
     def put(self, raw: bytes) -> None:
@@ -157,6 +154,8 @@ class Mailbox:
 
     def _put(self, f: Frame) -> None:
         c = self.counts
+        if f.run_id == self.run_id and f.receiver == self.me and f.sender in self.peers:
+            self.last_seen[f.sender] = time.monotonic()
         if f.run_id != self.run_id:
             c["other_run"] += 1
         elif f.receiver != self.me:
@@ -187,15 +186,23 @@ class Mailbox:
                 self.data[(f.sender, f.origin)] = f.payload
                 c["received"] += 1
 
-    def collect(self, k: int, due: Sequence[tuple[int, int]], deadline: float, stop: threading.Event) -> tuple[dict, list[tuple[int, int, str]]]:
-        """Wait for the messages ``due`` at step k until ``deadline`` (monotonic); close step k."""
+    def collect(
+        self, k: int, due: Sequence[tuple[int, int]], silence: float, hard: float, stop: threading.Event
+    ) -> tuple[dict, list[tuple[int, int, str]]]:
+        """Wait for the messages ``due`` at step k; a sender silent for ``silence`` s fails; never past ``hard`` (monotonic)."""
+        silent: set[int] = set()
         with self.cond:
             while not stop.is_set():
                 pending = [key for key in due if key not in self.data and key not in self.notices and key[0] not in self.failed and key[0] not in self.left]
-                left = deadline - time.monotonic()
-                if not pending or left <= 0:
+                now = time.monotonic()
+                if not pending or now >= hard:
                     break
-                self.cond.wait(min(left, 0.25))
+                quiet = {j for (j, _) in pending if now - self.last_seen.get(j, now) > silence}
+                if quiet:
+                    silent |= quiet
+                    self.failed |= quiet
+                    continue
+                self.cond.wait(min(hard - now, silence / 8, 0.1))
             got, missed = {}, []
             for key in due:
                 if key in self.data:
@@ -204,6 +211,8 @@ class Mailbox:
                 j = key[0]
                 if key in self.notices:
                     reason = "dropped"
+                elif j in silent:
+                    reason = "silent"
                 elif j in self.left:
                     reason = "left"
                 elif j in self.failed:
@@ -230,7 +239,7 @@ class AgentResult:
     missed: list[tuple[int, int, str]] = field(default_factory=list)
     counts: dict[str, int] = field(default_factory=dict)
     failed_neighbours: list[int] = field(default_factory=list)
-    tolerant_from: int | None = None
+    tolerant: bool = False
     sent: int = 0
     dropped_sent: int = 0
     latency: list[float] = field(default_factory=list)
@@ -246,7 +255,7 @@ class AgentResult:
             "missed": [[j, s, r] for (j, s, r) in self.missed],
             "counts": dict(self.counts),
             "failed_neighbours": list(self.failed_neighbours),
-            "tolerant_from": self.tolerant_from,
+            "tolerant": self.tolerant,
             "sent": self.sent,
             "dropped_sent": self.dropped_sent,
             "median_step_ms": float(np.median(lat) * 1e3) if lat.size else None,
@@ -284,7 +293,8 @@ def run_agent(
     source : k -> y_i(k) of shape (1, d_y^i) (the run axis first, as the runtime), or None when
         there is no more data (the run ends at that step)
     offsets : (n_steps, d_z) known means added to the estimates (L(k) x̄(k), agent i's block), or None
-    deadline : seconds an agent waits for the messages due at a step
+    deadline : seconds of silence after which a neighbour is failed (heartbeats every deadline / 4); a
+        step waits at most n_agents x deadline
     join_timeout : seconds it waits for its neighbours to join
     p_drop, seed : injected loss: each message is dropped on the sending side with probability
         p_drop (independently per out-edge and step, :func:`drop_stream`), and a notice is sent instead
@@ -299,7 +309,7 @@ def run_agent(
     -------
     AgentResult
     """
-    core = core if core is not None else AgentCore(design, index, tolerant=p_drop > 0, graph=graph)
+    core = core if core is not None else AgentCore(design, index, graph=graph)
     i = core.index
     n = design.n_agents
     peers = sorted(set(range(n) if peers is None else peers) - {i})
@@ -317,11 +327,13 @@ def run_agent(
         except Exception:  # noqa: BLE001 - a send that fails is a message lost, as on any network
             box.counts["send_errors"] += 1
 
+    targets = [peers]
+
     def heartbeat() -> None:
         while not done.wait(hello_period[0]):
             with box.cond:
                 heard = sorted(box.heard)
-            for b in peers:
+            for b in targets[0]:
                 send(HELLO, b, 0, 0, {"heard": heard})
 
     transport.start(box.put)
@@ -330,7 +342,12 @@ def run_agent(
     cpu0 = time.thread_time()
     try:
         _join(box, core, i, join_timeout, stop)
-        hello_period[0] = 1.0
+        with box.cond:  # the neighbours were heard now: their silence counts from here
+            t_join = time.monotonic()
+            for j in peers:
+                box.last_seen[j] = max(box.last_seen.get(j, t_join), t_join)
+        targets[0] = sorted({b for (b, _) in outs} | {j for (j, _) in core.in_delays})  # heartbeats, and acks for late joiners
+        hello_period[0] = min(deadline / 4, 0.5)
         core.init()
         for k in range(n_steps):
             if kill_at is not None and k == kill_at:
@@ -343,7 +360,7 @@ def run_agent(
             if own is None or stop.is_set():
                 break
             t0 = time.monotonic()
-            got, missed = box.collect(k, core.expected(k), t0 + deadline, stop)
+            got, missed = box.collect(k, core.expected(k), deadline, t0 + deadline * max(2, n), stop)
             if stop.is_set():
                 break
             res.missed.extend(missed)
@@ -380,8 +397,8 @@ def run_agent(
         transport.close()
         with box.cond:
             res.counts = dict(box.counts)
-            res.failed_neighbours = sorted({j for (j, _, r) in res.missed if r in ("deadline", "failed")})
-        res.tolerant_from = core.switched_at if core.tolerant else None
+            res.failed_neighbours = sorted({j for (j, _, r) in res.missed if r in ("silent", "deadline", "failed")})
+        res.tolerant = core.tolerant
     return res
 
 

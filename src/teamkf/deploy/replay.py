@@ -5,12 +5,15 @@ the team's record is their union, with the agents that stopped early. Replaying 
 runs the same :class:`~teamkf.deploy.agent.AgentCore` of every agent in one process,
 in lockstep: at step k agent i fuses every message due at k that is **not** in the
 record (in in-neighbour order), exactly what it fused on the network, so the replay's
-estimates equal the deployment's bit for bit. ``teamkf filter --drops DROPS`` runs it.
+estimates equal the deployment's bit for bit. Every agent steps to the end (a failed
+agent's later messages are in its receivers' records, so nobody fuses them); the
+estimates of an agent that stopped (``stopped``: the steps whose estimates it wrote, 0
+for a killed process) are NaN from there, as in the deployment's file. ``teamkf filter --drops DROPS`` runs it.
 
 File (JSON, ``format = "teamkf-drops"``, version 1)::
 
     {"format": "teamkf-drops", "version": 1, "estimator": "mtmse", "agents": 6, "steps": 200,
-     "run_id": 123, "p_drop": 0.2, "seed": 7, "tolerant_from_start": true,
+     "run_id": 123, "p_drop": 0.2, "seed": 7, "tolerant": true,   # the agents ran their loss-tolerant step
      "stopped": {"3": 120},                       # agent -> steps it completed (a failed agent)
      "missed": [[receiver, sender, sent_step, "dropped"], ...]}
 """
@@ -41,7 +44,7 @@ class DropRecord:
     n_steps: int
     missed: tuple[tuple[int, int, int, str], ...] = ()
     stopped: dict[int, int] = field(default_factory=dict)
-    tolerant_from_start: bool = False
+    tolerant: bool = True
     run_id: int = 0
     p_drop: float = 0.0
     seed: int | None = None
@@ -69,7 +72,7 @@ class DropRecord:
             "run_id": self.run_id,
             "p_drop": self.p_drop,
             "seed": self.seed,
-            "tolerant_from_start": self.tolerant_from_start,
+            "tolerant": self.tolerant,
             "stopped": {str(a): s for a, s in sorted(self.stopped.items())},
             "missed": [list(m) for m in self.missed],
         }
@@ -98,7 +101,7 @@ class DropRecord:
                 int(d["steps"]),
                 missed,
                 {int(a): int(s) for a, s in d.get("stopped", {}).items()},
-                bool(d.get("tolerant_from_start", False)),
+                bool(d.get("tolerant", True)),
                 int(d.get("run_id", 0)),
                 float(d.get("p_drop", 0.0)),
                 None if d.get("seed") is None else int(d["seed"]),
@@ -128,22 +131,28 @@ def replay(design: Any, ys: Sequence[np.ndarray], record: DropRecord, offsets: n
     if ys[0].shape[1] < T:
         raise ShapeError(f"--drops: the record has {T} steps, the measurements {ys[0].shape[1]}; replay it on the deployed log")
     agents = design.graph_agents()
-    cores = [AgentCore(design, i, tolerant=record.tolerant_from_start, agent=agents[i], graph=graph) for i in range(n)]
+    cores = [AgentCore(design, i, tolerant=record.tolerant, agent=agents[i], graph=graph) for i in range(n)]
     for c in cores:
         c.init()
     lost = {(a, b, s) for (a, b, s, _) in record.missed}
     dz = int(design.cost.dz)
     out = np.full((T, n * dz), np.nan)
     sent: list[dict[int, Any]] = [{} for _ in range(n)]
+    broken: set[int] = set()
     for k in range(T):
         payloads: dict[int, Any] = {}
         for i, c in enumerate(cores):
-            if k >= record.stopped.get(i, T):
+            if i in broken:
                 continue
             got = {(j, s): sent[j][s] for (j, s) in c.expected(k) if (i, j, s) not in lost and s in sent[j]}
-            z, payloads[i] = c.step(k, ys[i][:, k], got)
-            zi = np.asarray(z, dtype=float)[0]
-            out[k, i * dz : (i + 1) * dz] = zi if offsets is None else zi + offsets[k, i * dz : (i + 1) * dz]
+            try:
+                z, payloads[i] = c.step(k, ys[i][:, k], got)
+            except Exception:  # noqa: BLE001 - as the deployed agent: its error stops it (a node failure)
+                broken.add(i)
+                continue
+            if k < record.stopped.get(i, T):  # a stopped agent's later estimates were never written
+                zi = np.asarray(z, dtype=float)[0]
+                out[k, i * dz : (i + 1) * dz] = zi if offsets is None else zi + offsets[k, i * dz : (i + 1) * dz]
         for i, p in payloads.items():
             sent[i][k] = p
     return out

@@ -175,7 +175,7 @@ def run_team(
     stop = threading.Event()
 
     def one(i: int) -> None:
-        core = AgentCore(prep.design, i, tolerant=p_drop > 0, agent=agents[i], graph=prep.graph)
+        core = AgentCore(prep.design, i, agent=agents[i], graph=prep.graph)
         offs = None if prep.offsets is None else prep.offsets[:, i * core_dz : (i + 1) * core_dz]
         yi = prep.ys[i]
         results[i] = run_agent(
@@ -209,7 +209,7 @@ def run_team(
         for t in threads:
             t.join(10)
         raise
-    res = _merge(prep, results, run_id=run_id, p_drop=p_drop, seed=seed, tolerant_from_start=p_drop > 0)
+    res = _merge(prep, results, run_id=run_id, p_drop=p_drop, seed=seed)
     res.wall_s = time.monotonic() - t0
     return res
 
@@ -248,7 +248,7 @@ def deploy_processes(args: Any, prep: Prepared, on_start: Callable[[list[int]], 
         results: list[AgentResult | None] = []
         for i, ch in enumerate(children):
             results.append(_read_agent(run_dir, i, prep))
-        res = _merge(prep, results, run_id=run_id, p_drop=args.p_drop, seed=args.seed, tolerant_from_start=args.p_drop > 0)
+        res = _merge(prep, results, run_id=run_id, p_drop=args.p_drop, seed=args.seed)
         for i, ch in enumerate(children):
             rep = res.reports[i]
             rep["pid"] = ch.pid
@@ -256,7 +256,9 @@ def deploy_processes(args: Any, prep: Prepared, on_start: Callable[[list[int]], 
             if ch.timed_out:
                 res.failed[i] = f"killed after the run's timeout ({timeout:g} s)"
             elif ch.returncode < 0:
-                res.failed[i] = f"killed by signal {signal.Signals(-ch.returncode).name}" + (f" after {rep.get('steps_done', 0)} steps" if rep else "")
+                res.failed[i] = f"killed by signal {signal.Signals(-ch.returncode).name}" + (
+                    f" after {rep['steps_done']} steps" if results[i] is not None else " (no report: its estimates are lost)"
+                )
             elif ch.returncode not in (0, 1) and i not in res.failed:
                 res.failed[i] = f"exit status {ch.returncode}: {ch.stderr.strip().splitlines()[-1] if ch.stderr.strip() else ''}"
             if ch.returncode == 2 and ch.stderr.strip():
@@ -277,7 +279,7 @@ def _read_agent(run_dir: Path, i: int, prep: Prepared) -> AgentResult | None:
         lat = [float(x) for x in f["latency"]] if "latency" in f else []
     r = AgentResult(i, prep.n_steps, z, int(d["steps_done"]), [(int(j), int(s), str(w)) for j, s, w in d["missed"]], dict(d["counts"]))
     r.failed_neighbours = list(d["failed_neighbours"])
-    r.tolerant_from, r.sent, r.dropped_sent, r.cpu_s, r.error = d["tolerant_from"], d["sent"], d["dropped_sent"], d["cpu_s"], d["error"]
+    r.tolerant, r.sent, r.dropped_sent, r.cpu_s, r.error = d["tolerant"], d["sent"], d["dropped_sent"], d["cpu_s"], d["error"]
     r.latency = lat
     return r
 
@@ -420,8 +422,8 @@ def cmd_deploy(args: Any) -> int:
         res = run_team(prep, transport="queue", deadline=args.deadline, join_timeout=args.join_timeout, p_drop=args.p_drop, seed=args.seed, kill=args.kill)
     else:
         res = deploy_processes(args, prep, on_start=started)
-    if len(res.failed) == prep.n_agents and len({w for w in res.failed.values()}) == 1:
-        raise ArgumentError(f"every agent failed: {next(iter(res.failed.values()))}", argument="SCENARIO")
+    if len(res.failed) == prep.n_agents and all(r.get("steps_done", 0) == 0 for r in res.reports):  # nothing ran: one line, as any error
+        raise ArgumentError(f"no agent ran: agent 0: {res.failed[0]}", argument="SCENARIO")
     M.write_estimates(args.out, {name: res.estimates}, prep.n_agents)
     if args.record:
         res.record.write(args.record)
