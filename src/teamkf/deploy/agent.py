@@ -242,6 +242,7 @@ class AgentResult:
     tolerant: bool = False
     sent: int = 0
     dropped_sent: int = 0
+    dropped_out: list[tuple[int, int]] = field(default_factory=list)  # (receiver, sent step) of the injected drops
     latency: list[float] = field(default_factory=list)
     cpu_s: float = 0.0
     error: str | None = None
@@ -258,6 +259,7 @@ class AgentResult:
             "tolerant": self.tolerant,
             "sent": self.sent,
             "dropped_sent": self.dropped_sent,
+            "dropped_out": [[b, s] for (b, s) in self.dropped_out],
             "median_step_ms": float(np.median(lat) * 1e3) if lat.size else None,
             "p99_step_ms": float(np.quantile(lat, 0.99) * 1e3) if lat.size else None,
             "cpu_s": self.cpu_s,
@@ -379,6 +381,7 @@ def run_agent(
                 res.sent += 1
                 if u[q] < p_drop:
                     res.dropped_sent += 1
+                    res.dropped_out.append((b, k))
                     send(DATA, b, k + d, k, None, DROPPED)
                 else:
                     send(DATA, b, k + d, k, payload)

@@ -3,7 +3,8 @@
 :func:`launch` starts the given commands (one per agent), each in a session of
 its own and, on Linux, with ``PR_SET_PDEATHSIG`` so that a child dies with the
 launcher even when the launcher is killed with SIGKILL. On Ctrl-C (SIGINT) or
-SIGTERM the launcher forwards SIGINT to every child (they say goodbye and
+SIGTERM (its handlers are installed explicitly, also where a shell started it with
+SIGINT ignored) the launcher forwards SIGINT to every child (they say goodbye and
 exit), waits ``grace`` seconds, then SIGKILLs the rest, reaps them all and
 re-raises :class:`KeyboardInterrupt`. A child that outlives ``timeout`` is
 killed and reported.
@@ -50,14 +51,15 @@ def launch(
     """
     procs: list[subprocess.Popen[bytes]] = []
     timed_out: set[int] = set()
-    prev_term = signal.getsignal(signal.SIGTERM)
+    prev = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
 
     def on_term(signum: int, frame: Any) -> None:
         raise KeyboardInterrupt
 
     in_main = _is_main_thread()
-    if in_main:
-        signal.signal(signal.SIGTERM, on_term)
+    if in_main:  # explicitly: a shell starts background jobs with SIGINT ignored
+        for sig in prev:
+            signal.signal(sig, on_term)
     try:
         for cmd in commands:
             procs.append(
@@ -90,7 +92,8 @@ def launch(
         raise
     finally:
         if in_main:
-            signal.signal(signal.SIGTERM, prev_term)
+            for sig, h in prev.items():
+                signal.signal(sig, h)
 
 
 def _is_main_thread() -> bool:

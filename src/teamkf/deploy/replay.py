@@ -1,7 +1,11 @@
 """The team's drop record, and its in-process replay to the same bits.
 
 Every deployed agent records the messages it missed (:mod:`teamkf.deploy.agent`);
-the team's record is their union, with the agents that stopped early. Replaying it
+the team's record is their union, with the senders' injected drops (a receiver
+that was killed took its own record with it; the sender knows what it dropped) and
+the agents that stopped early. What a killed agent missed for other reasons (a real
+loss before it died) is lost with it, and a replay can then differ in what that
+agent sent before it died. Replaying it
 runs the same :class:`~teamkf.deploy.agent.AgentCore` of every agent in one process,
 in lockstep: at step k agent i fuses every message due at k that is **not** in the
 record (in in-neighbour order), exactly what it fused on the network, so the replay's
@@ -51,13 +55,15 @@ class DropRecord:
 
     @classmethod
     def from_results(cls, estimator: str, results: Sequence[AgentResult | None], n_steps: int, **info: Any) -> "DropRecord":
-        missed = []
+        missed: set[tuple[int, int, int, str]] = set()
         stopped = {}
         for i, r in enumerate(results):
             if r is None:
                 stopped[i] = 0
                 continue
-            missed += [(r.index, j, s, why) for (j, s, why) in r.missed]
+            missed |= {(r.index, j, s, why) for (j, s, why) in r.missed}
+            # the sender's injected drops too: a receiver that died took its own record with it
+            missed |= {(b, r.index, s, "dropped") for (b, s) in r.dropped_out}
             if r.steps_done < n_steps:
                 stopped[r.index] = r.steps_done
         return cls(estimator, len(results), n_steps, tuple(sorted(missed)), stopped, **info)

@@ -281,6 +281,7 @@ def _read_agent(run_dir: Path, i: int, prep: Prepared) -> AgentResult | None:
     r.failed_neighbours = list(d["failed_neighbours"])
     r.tolerant, r.sent, r.dropped_sent, r.cpu_s, r.error = d["tolerant"], d["sent"], d["dropped_sent"], d["cpu_s"], d["error"]
     r.latency = lat
+    r.dropped_out = [(int(b), int(s)) for b, s in d.get("dropped_out", [])]
     return r
 
 
