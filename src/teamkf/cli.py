@@ -662,7 +662,11 @@ def _add_filter_parser(add: Any) -> None:
         "--chunk-rows", type=_positive_int, default=400_000, metavar="N", help="steady-state scenarios are streamed N rows at a time (default 400000)"
     )
     p.add_argument("--no-progress", action="store_true", help="no progress bar (it shows only on a terminal anyway)")
-    p.add_argument("--drops", metavar="DROPS", help="replay a deployment in-process from its drop record (teamkf deploy --record): the same estimates, bit for bit")
+    p.add_argument(
+        "--drops",
+        metavar="DROPS",
+        help="replay a deployment in-process from its drop record (teamkf deploy --record): the same estimates, bit for bit",
+    )
     p.set_defaults(func=_cmd_filter)
 
 

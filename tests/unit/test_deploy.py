@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from teamkf.deploy import DropRecord, Frame, FrameError, Mailbox, QueueHub, decode_frame, encode_frame, replay
+from teamkf.deploy import DropRecord, Frame, FrameError, Mailbox, decode_frame, encode_frame, replay
 from teamkf.deploy.codec import BYE, DATA, DROPPED, HEADER_SIZE, HELLO, decode_payload, encode_payload
 from teamkf.exceptions import UnsupportedOperationError
 from teamkf.study import measurements as M
@@ -112,7 +112,16 @@ def test_mailbox_counts_and_never_keeps_corrupt_foreign_or_late_frames():
     assert missed == [(2, 0, "dropped")]
     box.put(encode_frame(Frame(DATA, 11, 2, 1, 1, 0, np.ones((1, 2)))))  # after step 1 closed: late
     c = box.counts
-    assert (c["corrupt_checksum"], c["other_run"], c["unknown_sender"], c["misaddressed"], c["bad_step"], c["duplicate"], c["late"], c["received"]) == (
+    assert (
+        c["corrupt_checksum"],
+        c["other_run"],
+        c["unknown_sender"],
+        c["misaddressed"],
+        c["bad_step"],
+        c["duplicate"],
+        c["late"],
+        c["received"],
+    ) == (
         1,
         1,
         1,
@@ -150,7 +159,6 @@ def test_queue_transport_equals_the_in_process_runtime_bit_for_bit(platoon):
     res = run_team(prep, transport="queue")
     assert not res.failed and len(res.record.missed) == 0
     assert res.estimates.tobytes() == ref.tobytes()
-    assert all(r["counts"].get("received", 0) == r["sent"] for r in res.reports) is False or True  # counts are per receiver; see below
     assert sum(r["counts"]["received"] for r in res.reports) == sum(r["sent"] for r in res.reports)
 
 
@@ -221,11 +229,12 @@ def test_killed_agent_with_injected_loss_ends_reports_and_replays(platoon, tmp_p
     out, rec, rep = tmp_path / "deploy.csv", tmp_path / "drops.json", tmp_path / "replay.csv"
     t0 = time.monotonic()
     args = ["--measurements", str(log_path), "--estimator", ESTIMATOR]
-    proc = _teamkf("deploy", "platoon-6", *args, "--out", str(out), "--kill", "2:100", "--deadline", "1", "--p-drop", "0.2", "--seed", "7", "--record", str(rec))
+    proc = _teamkf(
+        "deploy", "platoon-6", *args, "--out", str(out), "--kill", "2:100", "--deadline", "1", "--p-drop", "0.2", "--seed", "7", "--record", str(rec)
+    )
     wall = time.monotonic() - t0
     assert proc.returncode == 1, proc.stderr  # finished, with a node failure
     assert "agent 2 failed: killed by signal SIGKILL" in proc.stdout
-    z = M.read_measurements  # noqa: F841 (the estimates file is long form)
     import pandas as pd
 
     est = pd.read_csv(out)
@@ -247,7 +256,19 @@ def test_killed_agent_with_injected_loss_ends_reports_and_replays(platoon, tmp_p
 def test_ctrl_c_leaves_no_process_behind(platoon, tmp_path):
     sc, log_path, *_ = platoon
     proc = subprocess.Popen(
-        [sys.executable, "-m", "teamkf", "deploy", "platoon-6", "--measurements", str(log_path), "--out", str(tmp_path / "e.csv"), "--estimator", ESTIMATOR],
+        [
+            sys.executable,
+            "-m",
+            "teamkf",
+            "deploy",
+            "platoon-6",
+            "--measurements",
+            str(log_path),
+            "--out",
+            str(tmp_path / "e.csv"),
+            "--estimator",
+            ESTIMATOR,
+        ],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -298,7 +319,9 @@ def test_strangers_frames_are_counted_and_never_fused(platoon):
 
         offs = None if prep.offsets is None else prep.offsets[:, i * dz : (i + 1) * dz]
         core = AgentCore(prep.design, i, agent=agents[i], graph=prep.graph)
-        results[i] = run_agent(prep.design, i, ZenohTransport(i, eps, prefix=prefix), source, n_steps=prep.n_steps, run_id=run_id, offsets=offs, core=core)
+        results[i] = run_agent(
+            prep.design, i, ZenohTransport(i, eps, prefix=prefix), source, n_steps=prep.n_steps, run_id=run_id, offsets=offs, core=core
+        )
 
     threads = [threading.Thread(target=one, args=(i,)) for i in range(n)]
     for t in threads:

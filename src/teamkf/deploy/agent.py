@@ -65,13 +65,19 @@ def check_deployable(design: Any, graph: Any = None) -> Any:
     structure must be realizable on that graph (every y_j(s) reaches agent i by the time it is used).
     """
     if not design.realizable:
-        why = "it is the omniscient benchmark (every agent holds every y_j(k) at once)" if design.omniscient else f"its {design.label!r} variant is not realizable"
+        why = (
+            "it is the omniscient benchmark (every agent holds every y_j(k) at once)"
+            if design.omniscient
+            else f"its {design.label!r} variant is not realizable"
+        )
         raise UnsupportedOperationError(design.estimator, "deployment on a network", f"{why}; deploy a realizable family or variant")
     own = design.delivery_graph
     if own is not None:
         return own
     if graph is None:
-        raise UnsupportedOperationError(design.estimator, "deployment on a network", "its agents are delivered by an information structure; give the graph they talk over")
+        raise UnsupportedOperationError(
+            design.estimator, "deployment on a network", "its agents are delivered by an information structure; give the graph they talk over"
+        )
     structure = getattr(design, "structure", None)
     if structure is not None:
         structure.validate_on(graph)
@@ -193,7 +199,9 @@ class Mailbox:
         silent: set[int] = set()
         with self.cond:
             while not stop.is_set():
-                pending = [key for key in due if key not in self.data and key not in self.notices and key[0] not in self.failed and key[0] not in self.left]
+                pending = [
+                    key for key in due if key not in self.data and key not in self.notices and key[0] not in self.failed and key[0] not in self.left
+                ]
                 now = time.monotonic()
                 if not pending or now >= hard:
                     break
@@ -418,5 +426,7 @@ def _join(box: Mailbox, core: AgentCore, i: int, timeout: float, stop: threading
                 return
             left = end - time.monotonic()
             if left <= 0:
-                raise DeployError(f"agent {i}: neighbours {sorted(missing_in | missing_out)} did not join within {timeout:g} s; start them, or check the roster's endpoints")
+                raise DeployError(
+                    f"agent {i}: neighbours {sorted(missing_in | missing_out)} did not join within {timeout:g} s; start them, or check the roster's endpoints"
+                )
             box.cond.wait(min(left, 0.25))

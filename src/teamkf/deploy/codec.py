@@ -57,7 +57,21 @@ import numpy as np
 
 from ..exceptions import TeamkfError
 
-__all__ = ["MAGIC", "VERSION", "DATA", "HELLO", "BYE", "DROPPED", "HEADER_SIZE", "Frame", "FrameError", "encode_frame", "decode_frame", "encode_payload", "decode_payload"]
+__all__ = [
+    "MAGIC",
+    "VERSION",
+    "DATA",
+    "HELLO",
+    "BYE",
+    "DROPPED",
+    "HEADER_SIZE",
+    "Frame",
+    "FrameError",
+    "encode_frame",
+    "decode_frame",
+    "encode_payload",
+    "decode_payload",
+]
 
 MAGIC = b"TKFD"
 VERSION = 1
@@ -180,16 +194,20 @@ def _enc(obj: Any, out: list[bytes]) -> None:
             _enc(k, out)
             _enc(v, out)
     else:
-        raise FrameError("payload", f"payload: cannot encode a {type(obj).__name__} (expected None, numbers, str, arrays, lists, tuples, dicts, NamedTuples or dataclasses)")
+        raise FrameError(
+            "payload",
+            f"payload: cannot encode a {type(obj).__name__} (expected None, numbers, str, arrays, lists, tuples, dicts, NamedTuples or dataclasses)",
+        )
 
 
 def _enc_array(a: np.ndarray, out: list[bytes]) -> None:
     code = _CODES.get(a.dtype.str.replace(">", "<"))
     if code is None:
-        raise FrameError("payload", f"payload: arrays of dtype {a.dtype} cannot travel; expected one of {', '.join(str(d) for d in _DTYPES.values())}")
+        raise FrameError(
+            "payload", f"payload: arrays of dtype {a.dtype} cannot travel; expected one of {', '.join(str(d) for d in _DTYPES.values())}"
+        )
     fortran = a.ndim > 1 and a.flags.f_contiguous and not a.flags.c_contiguous
-    order = "F" if fortran else "C"
-    raw = np.asarray(a, dtype=_DTYPES[code]).tobytes(order=order)
+    raw = np.asarray(a, dtype=_DTYPES[code]).tobytes(order="F" if fortran else "C")
     out.append(struct.pack(f"<BBBB{a.ndim}Q", 5, code, int(fortran), a.ndim, *a.shape) + raw)
 
 

@@ -86,7 +86,10 @@ def launch(
             time.sleep(0.05)
         for p in procs:
             p.wait()
-        return [ChildResult(q, p.pid, int(p.returncode), q in timed_out, b"".join(errs[q]).decode("utf-8", "replace")[-4000:]) for q, p in enumerate(procs)]
+        return [
+            ChildResult(q, p.pid, int(p.returncode), q in timed_out, b"".join(errs[q]).decode("utf-8", "replace")[-4000:])
+            for q, p in enumerate(procs)
+        ]
     except BaseException:
         _stop_all(procs, grace)
         raise

@@ -47,7 +47,8 @@ class Roster:
         want = list(range(n_agents))
         if self.agents != want:
             raise ArgumentError(
-                f"{argument}: expected one [[agents]] entry for each agent 0..{n_agents - 1} of the scenario, found ids {self.agents}", argument=argument
+                f"{argument}: expected one [[agents]] entry for each agent 0..{n_agents - 1} of the scenario, found ids {self.agents}",
+                argument=argument,
             )
 
     def to_toml(self) -> str:
@@ -65,7 +66,9 @@ class Roster:
         try:
             text = p.read_text(encoding="utf-8")
         except FileNotFoundError:
-            raise ArgumentError(f"{argument}: no such file {p}; write a roster (docs/deploy.md) or let teamkf deploy write one", argument=argument) from None
+            raise ArgumentError(
+                f"{argument}: no such file {p}; write a roster (docs/deploy.md) or let teamkf deploy write one", argument=argument
+            ) from None
         try:
             if p.suffix.lower() == ".json":
                 d = json.loads(text)
@@ -74,7 +77,9 @@ class Roster:
 
                 d = tomllib.loads(text)
         except ValueError as exc:
-            raise ArgumentError(f"{argument}: {p} is not valid {'JSON' if p.suffix.lower() == '.json' else 'TOML'} ({exc})", argument=argument) from None
+            raise ArgumentError(
+                f"{argument}: {p} is not valid {'JSON' if p.suffix.lower() == '.json' else 'TOML'} ({exc})", argument=argument
+            ) from None
         return cls.from_dict(d, f"{argument} {p}")
 
     @classmethod
@@ -84,11 +89,14 @@ class Roster:
         eps: dict[int, str] = {}
         for q, a in enumerate(d["agents"]):
             if not isinstance(a, dict) or isinstance(a.get("id"), bool) or not isinstance(a.get("id"), int) or not isinstance(a.get("endpoint"), str):
-                raise ArgumentError(f"{where}: agents[{q}]: expected id = <integer> and endpoint = \"tcp/HOST:PORT\", found {a!r}", argument="--roster")
+                raise ArgumentError(f'{where}: agents[{q}]: expected id = <integer> and endpoint = "tcp/HOST:PORT", found {a!r}', argument="--roster")
             if a["id"] in eps:
                 raise ArgumentError(f"{where}: agents[{q}]: agent {a['id']} is listed twice", argument="--roster")
             if "/" not in a["endpoint"]:
-                raise ArgumentError(f"{where}: agents[{q}].endpoint: expected a Zenoh endpoint like \"tcp/127.0.0.1:7447\", found {a['endpoint']!r}", argument="--roster")
+                raise ArgumentError(
+                    f'{where}: agents[{q}].endpoint: expected a Zenoh endpoint like "tcp/127.0.0.1:7447", found {a["endpoint"]!r}',
+                    argument="--roster",
+                )
             eps[a["id"]] = a["endpoint"]
         run_id = d.get("run_id", 0)
         if isinstance(run_id, bool) or not isinstance(run_id, int) or not 0 <= run_id < 2**64:

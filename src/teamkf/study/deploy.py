@@ -30,7 +30,18 @@ from ..estimators.base import check_measurements
 from ..exceptions import ArgumentError, UnsupportedOperationError
 from . import measurements as M
 
-__all__ = ["Prepared", "prepare", "deploy_estimator", "run_team", "deploy_processes", "DeployResult", "add_parsers", "cmd_deploy", "cmd_agent", "cmd_filter_drops"]
+__all__ = [
+    "Prepared",
+    "prepare",
+    "deploy_estimator",
+    "run_team",
+    "deploy_processes",
+    "DeployResult",
+    "add_parsers",
+    "cmd_deploy",
+    "cmd_agent",
+    "cmd_filter_drops",
+]
 
 
 # ---------------------------------------------------------------------------
@@ -62,7 +73,10 @@ def deploy_estimator(scenario: Any, name: str | None) -> str:
     for e in scenario.estimators:
         if e != "centralized":
             return str(e)
-    raise ArgumentError(f"--estimator: the scenario {scenario.name!r} lists only {list(scenario.estimators)}; name a realizable family (e.g. mtmse)", argument="--estimator")
+    raise ArgumentError(
+        f"--estimator: the scenario {scenario.name!r} lists only {list(scenario.estimators)}; name a realizable family (e.g. mtmse)",
+        argument="--estimator",
+    )
 
 
 def _means(scenario: Any, log: Any) -> tuple[list[np.ndarray], np.ndarray | None]:
@@ -73,7 +87,9 @@ def _means(scenario: Any, log: Any) -> tuple[list[np.ndarray], np.ndarray | None
         known = M.KnownInputs.zero(scenario.system)
     if known is None:
         if log.u is not None:
-            raise M.MeasurementFileError(f"{log.source}: u columns: the scenario has no input matrix (system.B or agents[i].D) to use them", argument="u")
+            raise M.MeasurementFileError(
+                f"{log.source}: u columns: the scenario has no input matrix (system.B or agents[i].D) to use them", argument="u"
+            )
         return log.filled(), None
     mean, ybar = known.means(scenario.system, T, log.u, log.b, log.d)
     ys = [np.where(np.isnan(log.y[i]), 0.0, log.y[i] - ybar[i]) for i in range(scenario.system.n_agents)]
@@ -83,7 +99,9 @@ def _means(scenario: Any, log: Any) -> tuple[list[np.ndarray], np.ndarray | None
 def prepare(scenario: Any, log: Any, estimator: str | None = None, *, design: Any = None) -> Prepared:
     """Design ``estimator`` (refusing what no network can run) and lay out the log as the agents consume it."""
     if not hasattr(scenario, "designs"):
-        raise ArgumentError("SCENARIO: deployment needs a scenario with [system], [[agents]] and a graph, found a population scenario", argument="SCENARIO")
+        raise ArgumentError(
+            "SCENARIO: deployment needs a scenario with [system], [[agents]] and a graph, found a population scenario", argument="SCENARIO"
+        )
     name = deploy_estimator(scenario, estimator)
     if not isinstance(log, M.MeasurementLog):
         log = M.MeasurementLog.from_arrays(log, scenario.system, scenario.horizon)
@@ -245,9 +263,7 @@ def deploy_processes(args: Any, prep: Prepared, on_start: Callable[[list[int]], 
         t0 = time.monotonic()
         children = launch(cmds, timeout=timeout, on_start=on_start)
         wall = time.monotonic() - t0
-        results: list[AgentResult | None] = []
-        for i, ch in enumerate(children):
-            results.append(_read_agent(run_dir, i, prep))
+        results: list[AgentResult | None] = [_read_agent(run_dir, i, prep) for i in range(n)]
         res = _merge(prep, results, run_id=run_id, p_drop=args.p_drop, seed=args.seed)
         for i, ch in enumerate(children):
             rep = res.reports[i]
@@ -338,9 +354,17 @@ def _seed(text: str) -> int:
 
 def _run_flags(p: Any) -> None:
     p.add_argument("--estimator", metavar="NAME", help="the family the agents run (default: the scenario's first estimator other than centralized)")
-    p.add_argument("--deadline", type=_seconds, default=2.0, metavar="S", help="seconds an agent waits for the messages due at a step (default 2); later ones are drops")
+    p.add_argument(
+        "--deadline",
+        type=_seconds,
+        default=2.0,
+        metavar="S",
+        help="seconds an agent waits for the messages due at a step (default 2); later ones are drops",
+    )
     p.add_argument("--join-timeout", type=_seconds, default=60.0, metavar="S", help="seconds an agent waits for its neighbours to join (default 60)")
-    p.add_argument("--p-drop", type=_probability, default=0.0, metavar="P", help="injected loss: each message is dropped by its sender with probability P")
+    p.add_argument(
+        "--p-drop", type=_probability, default=0.0, metavar="P", help="injected loss: each message is dropped by its sender with probability P"
+    )
     p.add_argument("--seed", type=_seed, metavar="S", help="seed of the injected loss (default 0)")
 
 
@@ -348,13 +372,21 @@ def add_parsers(add: Callable[[str, str], Any]) -> None:
     """Add ``deploy`` and ``agent`` to the ``teamkf`` parser (``add(name, help)`` returns a subparser)."""
     p = add("deploy", "run one OS process per agent on this machine over Zenoh (loopback) and write the estimates teamkf filter writes")
     p.add_argument("scenario", metavar="SCENARIO")
-    p.add_argument("--measurements", required=True, metavar="FILE", help="the recorded log (as teamkf filter reads it); each agent keeps only its own column")
+    p.add_argument(
+        "--measurements", required=True, metavar="FILE", help="the recorded log (as teamkf filter reads it); each agent keeps only its own column"
+    )
     p.add_argument("--out", required=True, metavar="FILE", help="estimates step,agent,estimator,z0,... (.csv or .parquet)")
     _run_flags(p)
     p.add_argument("--record", metavar="DROPS", help="write the team's drop record (JSON) for teamkf filter --drops")
-    p.add_argument("--transport", choices=("zenoh", "queue"), default="zenoh", help="zenoh: one process per agent (default); queue: threads of this process")
-    p.add_argument("--kill", type=_kill_spec, metavar="AGENT:STEP", help="fault injection: agent AGENT's process is killed (SIGKILL) before step STEP")
-    p.add_argument("--timeout", type=_seconds, metavar="S", help="kill agents still running after S seconds (default: 120 + join timeout + steps x deadline)")
+    p.add_argument(
+        "--transport", choices=("zenoh", "queue"), default="zenoh", help="zenoh: one process per agent (default); queue: threads of this process"
+    )
+    p.add_argument(
+        "--kill", type=_kill_spec, metavar="AGENT:STEP", help="fault injection: agent AGENT's process is killed (SIGKILL) before step STEP"
+    )
+    p.add_argument(
+        "--timeout", type=_seconds, metavar="S", help="kill agents still running after S seconds (default: 120 + join timeout + steps x deadline)"
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object (per-agent reports, failures, misses)")
     p.set_defaults(func=cmd_deploy)
 
@@ -420,7 +452,9 @@ def cmd_deploy(args: Any) -> int:
         print(f"teamkf deploy: {len(pids)} agent processes started: pids {' '.join(map(str, pids))}", file=sys.stderr, flush=True)
 
     if args.transport == "queue":
-        res = run_team(prep, transport="queue", deadline=args.deadline, join_timeout=args.join_timeout, p_drop=args.p_drop, seed=args.seed, kill=args.kill)
+        res = run_team(
+            prep, transport="queue", deadline=args.deadline, join_timeout=args.join_timeout, p_drop=args.p_drop, seed=args.seed, kill=args.kill
+        )
     else:
         res = deploy_processes(args, prep, on_start=started)
     if len(res.failed) == prep.n_agents and all(r.get("steps_done", 0) == 0 for r in res.reports):  # nothing ran: one line, as any error
