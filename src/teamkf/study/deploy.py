@@ -57,10 +57,8 @@ class Prepared:
     offsets: np.ndarray | None  # (T, n d_z): L(k) x̄(k), or None
     n_steps: int
     graph: Any = None  # the graph the agents talk over
-
-    @property
-    def n_agents(self) -> int:
-        return int(self.design.n_agents)
+    n_agents: int = 0
+    dz: int = 0  # estimate width per agent
 
 
 def deploy_estimator(scenario: Any, name: str | None) -> str:
@@ -96,8 +94,12 @@ def _means(scenario: Any, log: Any) -> tuple[list[np.ndarray], np.ndarray | None
     return ys, np.stack([scenario.cost.L_at(k) @ mean[k] for k in range(T)])
 
 
-def prepare(scenario: Any, log: Any, estimator: str | None = None, *, design: Any = None) -> Prepared:
-    """Design ``estimator`` (refusing what no network can run) and lay out the log as the agents consume it."""
+def prepare(scenario: Any, log: Any, estimator: str | None = None, *, design: Any = None, design_here: bool = True) -> Prepared:
+    """Design ``estimator`` (refusing what no network can run) and lay out the log as the agents consume it.
+
+    ``design_here=False``: do not design (the agent processes design for themselves and refuse what
+    they cannot run); ``Prepared.design`` is then None.
+    """
     if not hasattr(scenario, "designs"):
         raise ArgumentError(
             "SCENARIO: deployment needs a scenario with [system], [[agents]] and a graph, found a population scenario", argument="SCENARIO"
@@ -112,11 +114,31 @@ def prepare(scenario: Any, log: Any, estimator: str | None = None, *, design: An
             "deployment on a log with missing values",
             f"agent {i} misses step {s}; the recorded-gaps design needs every agent's gaps in advance, which no online agent has: fill the gaps",
         )
+    n, dz = int(scenario.system.n_agents), int(scenario.cost.dz)
+    ys, offs = _means(scenario, log)
+    if not design_here:
+        _refuse_early(scenario, name)
+        return Prepared(name, None, [], offs, log.n_steps, scenario.graph, n, dz)
     d = design if design is not None else scenario.design(name)
     graph = check_deployable(d, scenario.graph)
-    ys, offs = _means(scenario, log)
     batch = check_measurements([np.asarray(y, dtype=float)[None] for y in ys], d.system, d.horizon)[0]
-    return Prepared(name, d, batch, offs, log.n_steps, graph)
+    return Prepared(name, d, batch, offs, log.n_steps, graph, n, dz)
+
+
+def _refuse_early(scenario: Any, name: str) -> None:
+    """Refuse, without designing, what the registry already says no network runs (the agents refuse the rest)."""
+    fam = (getattr(scenario, "families", None) or {}).get(name)
+    if fam is None:
+        from ..estimators.registry import get_family
+
+        fam = get_family(name, "--estimator")
+    opts = scenario.options.get(name) or {}
+    if getattr(fam, "uses", None) == "none":
+        raise UnsupportedOperationError(
+            name, "deployment on a network", "it is the omniscient benchmark (every agent holds every y_j(k) at once); deploy a realizable family"
+        )
+    if opts.get("variant") == "ideal":
+        raise UnsupportedOperationError(name, "deployment on a network", "its 'ideal' variant is not realizable; use variant = \"honest\"")
 
 
 # ---------------------------------------------------------------------------
@@ -146,8 +168,7 @@ class DeployResult:
 
 
 def _merge(prep: Prepared, results: Sequence[AgentResult | None], **info: Any) -> DeployResult:
-    n, T = prep.n_agents, prep.n_steps
-    dz = int(prep.design.cost.dz)
+    n, T, dz = prep.n_agents, prep.n_steps, prep.dz
     z = np.full((T, n * dz), np.nan)
     failed: dict[int, str] = {}
     reports = []
@@ -213,7 +234,7 @@ def run_team(
             core=core,
         )
 
-    core_dz = int(prep.design.cost.dz)
+    core_dz = prep.dz
     t0 = time.monotonic()
     threads = [threading.Thread(target=one, args=(i,), name=f"teamkf-agent-{i}", daemon=True) for i in range(n)]
     for t in threads:
@@ -278,7 +299,7 @@ def deploy_processes(args: Any, prep: Prepared, on_start: Callable[[list[int]], 
             elif ch.returncode not in (0, 1) and i not in res.failed:
                 res.failed[i] = f"exit status {ch.returncode}: {ch.stderr.strip().splitlines()[-1] if ch.stderr.strip() else ''}"
             if ch.returncode == 2 and ch.stderr.strip():
-                res.failed[i] = ch.stderr.strip().splitlines()[-1]
+                res.failed[i] = ch.stderr.strip().splitlines()[-1].removeprefix("teamkf: error: ")
         res.wall_s = wall
         return res
     finally:
@@ -446,7 +467,7 @@ def cmd_deploy(args: Any) -> int:
     name = deploy_estimator(sc, args.estimator)
     if args.kill is not None and not 0 <= args.kill[0] < sc.system.n_agents:
         raise ArgumentError(f"--kill: agent {args.kill[0]} is out of range 0..{sc.system.n_agents - 1}", argument="--kill")
-    prep = prepare(sc, log, name)
+    prep = prepare(sc, log, name, design_here=args.transport == "queue")  # the agent processes design for themselves
 
     def started(pids: list[int]) -> None:
         print(f"teamkf deploy: {len(pids)} agent processes started: pids {' '.join(map(str, pids))}", file=sys.stderr, flush=True)
