@@ -7,6 +7,7 @@ scenario (KCF, the cheapest realizable graph family to design there). They compa
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import signal
@@ -200,7 +201,7 @@ def test_the_centralized_benchmark_and_ideal_variants_are_refused(platoon):
 # ---------------------------------------------------------------------------
 # live: OS processes over Zenoh on loopback
 # ---------------------------------------------------------------------------
-zenoh = pytest.importorskip("zenoh")
+live = pytest.mark.skipif(importlib.util.find_spec("zenoh") is None, reason="needs eclipse-zenoh (pip install 'teamkf[deploy]')")
 ENV = {**os.environ, "PYTHONPATH": f"{SRC}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
 
 
@@ -208,6 +209,7 @@ def _teamkf(*args: str, timeout: float = 400) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "teamkf", *args], capture_output=True, text=True, env=ENV, timeout=timeout)
 
 
+@live
 def test_deploy_processes_equal_filter_bit_for_bit(platoon, tmp_path):
     """6 agent processes over Zenoh write the very file teamkf filter writes."""
     sc, log_path, log, prep, ref, _ = platoon
@@ -223,6 +225,7 @@ def test_deploy_processes_equal_filter_bit_for_bit(platoon, tmp_path):
     assert out.read_bytes() == fout.read_bytes()
 
 
+@live
 def test_killed_agent_with_injected_loss_ends_reports_and_replays(platoon, tmp_path):
     """--kill 2:100 --p-drop 0.2: the run ends, names agent 2, the others are finite; filter --drops replays it to the same file."""
     sc, log_path, log, prep, ref, _ = platoon
@@ -253,6 +256,7 @@ def test_killed_agent_with_injected_loss_ends_reports_and_replays(platoon, tmp_p
     assert rep.read_bytes() == out.read_bytes()
 
 
+@live
 def test_ctrl_c_leaves_no_process_behind(platoon, tmp_path):
     sc, log_path, *_ = platoon
     proc = subprocess.Popen(
@@ -297,6 +301,7 @@ def _alive(pid: int) -> bool:
     return True
 
 
+@live
 def test_strangers_frames_are_counted_and_never_fused(platoon):
     """Live, over Zenoh: a stranger sends agent 0 corrupt frames, frames of another run and of an unknown sender."""
     from teamkf.deploy import AgentCore, ZenohTransport, free_ports, run_agent

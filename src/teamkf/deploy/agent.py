@@ -176,7 +176,9 @@ class Mailbox:
         elif f.kind == BYE:
             if f.sender in self.peers:
                 self.left.add(f.sender)
-        elif f.kind != DATA or f.sender not in self.delay:
+        elif f.kind != DATA:
+            c["unknown_kind"] += 1
+        elif f.sender not in self.delay:
             c["unknown_sender"] += 1
         elif f.step != f.origin + self.delay[f.sender]:
             c["bad_step"] += 1

@@ -144,6 +144,7 @@ def replay(design: Any, ys: Sequence[np.ndarray], record: DropRecord, offsets: n
     dz = int(design.cost.dz)
     out = np.full((T, n * dz), np.nan)
     sent: list[dict[int, Any]] = [{} for _ in range(n)]
+    max_delay = max((d for (_, _, d) in cores[0].graph.edges), default=1)
     broken: set[int] = set()
     for k in range(T):
         payloads: dict[int, Any] = {}
@@ -161,4 +162,5 @@ def replay(design: Any, ys: Sequence[np.ndarray], record: DropRecord, offsets: n
                 out[k, i * dz : (i + 1) * dz] = zi if offsets is None else zi + offsets[k, i * dz : (i + 1) * dz]
         for i, p in payloads.items():
             sent[i][k] = p
+            sent[i].pop(k - max_delay - 1, None)  # nobody needs it any more
     return out

@@ -472,6 +472,10 @@ def cmd_deploy(args: Any) -> int:
     def started(pids: list[int]) -> None:
         print(f"teamkf deploy: {len(pids)} agent processes started: pids {' '.join(map(str, pids))}", file=sys.stderr, flush=True)
 
+    if args.transport == "zenoh":
+        from ..deploy.transport import zenoh_module
+
+        zenoh_module()  # the install command now, not from six agents later
     if args.transport == "queue":
         res = run_team(
             prep, transport="queue", deadline=args.deadline, join_timeout=args.join_timeout, p_drop=args.p_drop, seed=args.seed, kill=args.kill
