@@ -165,7 +165,7 @@ def test_queue_transport_equals_the_in_process_runtime_bit_for_bit(platoon):
 
 def test_injected_loss_replays_in_process_bit_for_bit(platoon):
     sc, _, log, prep, ref, _ = platoon
-    res = run_team(prep, transport="queue", p_drop=0.2, seed=5)
+    res = run_team(prep, transport="queue", p_drop=0.2, rng=5)
     sent = sum(r["sent"] for r in res.reports)
     dropped = sum(r["dropped_sent"] for r in res.reports)
     assert len(res.record.missed) == dropped and all(m[3] == "dropped" for m in res.record.missed)

@@ -84,9 +84,13 @@ def check_deployable(design: Any, graph: Any = None) -> Any:
     return graph
 
 
-def drop_stream(seed: int, index: int) -> np.random.Generator:
-    """Agent ``index``'s injected-loss stream for ``seed`` (one uniform per out-edge and step)."""
-    return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(DROP_STREAM_KEY, int(index))))
+def drop_stream(rng: int | None, index: int) -> np.random.Generator:
+    """Agent ``index``'s injected-loss stream for the seed ``rng`` (None: 0): one uniform per out-edge and step.
+
+    ``SeedSequence(rng, spawn_key=(DROP_STREAM_KEY, index))``: every agent draws its own stream from the
+    team's seed alone, so the same seed drops the same messages on any machine.
+    """
+    return np.random.default_rng(np.random.SeedSequence(0 if rng is None else int(rng), spawn_key=(DROP_STREAM_KEY, int(index))))
 
 
 def _set_tolerant(agent: Any) -> bool:
@@ -290,7 +294,7 @@ def run_agent(
     deadline: float = 2.0,
     join_timeout: float = 30.0,
     p_drop: float = 0.0,
-    seed: int | None = None,
+    rng: int | None = None,
     kill_at: int | None = None,
     hard_kill: bool = False,
     on_estimate: Callable[[int, np.ndarray], None] | None = None,
@@ -308,7 +312,7 @@ def run_agent(
     deadline : seconds of silence after which a neighbour is failed (heartbeats every deadline / 4); a
         step waits at most n_agents x deadline
     join_timeout : seconds it waits for its neighbours to join
-    p_drop, seed : injected loss: each message is dropped on the sending side with probability
+    p_drop, rng : injected loss (``rng`` an integer seed, the CLI's ``--seed``): each message is dropped on the sending side with probability
         p_drop (independently per out-edge and step, :func:`drop_stream`), and a notice is sent instead
     kill_at : fault injection: the agent dies before step ``kill_at`` (``hard_kill``: SIGKILL to its own
         process; else it stops silently, as a crashed thread would)
@@ -328,7 +332,7 @@ def run_agent(
     stop = stop if stop is not None else threading.Event()
     box = Mailbox(i, run_id, core.in_delays, peers)
     res = AgentResult(i, n_steps, np.full((n_steps, int(design.cost.dz)), np.nan))
-    rng = drop_stream(0 if seed is None else seed, i)
+    draws = drop_stream(rng, i)
     outs = core.out_delays
     hello_period = [0.05]
     done = threading.Event()
@@ -384,7 +388,7 @@ def run_agent(
             res.steps_done = k + 1
             if on_estimate is not None:
                 on_estimate(k, zi)
-            u = rng.random(len(outs))  # one draw per out-edge and step, whatever happens
+            u = draws.random(len(outs))  # one draw per out-edge and step, whatever happens
             for q, (b, d) in enumerate(outs):
                 if k + d >= n_steps or payload is None:
                     continue

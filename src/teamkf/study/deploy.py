@@ -192,7 +192,7 @@ def run_team(
     deadline: float = 2.0,
     join_timeout: float = 60.0,
     p_drop: float = 0.0,
-    seed: int | None = None,
+    rng: int | None = None,
     kill: tuple[int, int] | None = None,
 ) -> DeployResult:
     """Run every agent as a thread of this process, over in-process queues (``"queue"``) or Zenoh on loopback."""
@@ -228,7 +228,7 @@ def run_team(
             deadline=deadline,
             join_timeout=join_timeout,
             p_drop=p_drop,
-            seed=seed,
+            rng=rng,
             kill_at=kill[1] if kill is not None and kill[0] == i else None,
             stop=stop,
             core=core,
@@ -248,7 +248,7 @@ def run_team(
         for t in threads:
             t.join(10)
         raise
-    res = _merge(prep, results, run_id=run_id, p_drop=p_drop, seed=seed)
+    res = _merge(prep, results, run_id=run_id, p_drop=p_drop, seed=rng)
     res.wall_s = time.monotonic() - t0
     return res
 
@@ -478,7 +478,7 @@ def cmd_deploy(args: Any) -> int:
         zenoh_module()  # the install command now, not from six agents later
     if args.transport == "queue":
         res = run_team(
-            prep, transport="queue", deadline=args.deadline, join_timeout=args.join_timeout, p_drop=args.p_drop, seed=args.seed, kill=args.kill
+            prep, transport="queue", deadline=args.deadline, join_timeout=args.join_timeout, p_drop=args.p_drop, rng=args.seed, kill=args.kill
         )
     else:
         res = deploy_processes(args, prep, on_start=started)
@@ -594,7 +594,7 @@ def cmd_agent(args: Any) -> int:
         deadline=args.deadline,
         join_timeout=args.join_timeout,
         p_drop=args.p_drop,
-        seed=args.seed,
+        rng=args.seed,
         kill_at=args.kill_at,
         hard_kill=True,
         on_estimate=printer,
