@@ -365,3 +365,27 @@ def test_strangers_frames_are_counted_and_never_fused(platoon):
     z = np.concatenate([r.estimates for r in results], axis=1)
     assert all(r.error is None and not r.missed for r in results)
     assert z.tobytes() == ref.tobytes()  # nothing of the stranger was fused
+
+
+def test_roster_round_trip_and_refusals(tmp_path):
+    from teamkf.deploy import Roster
+    from teamkf.exceptions import ArgumentError
+
+    r = Roster({0: "tcp/127.0.0.1:7447", 1: "tcp/10.0.0.2:7447"}, 4711, "teamkf/platoon")
+    r.write(tmp_path / "r.toml")
+    back = Roster.read(tmp_path / "r.toml")
+    assert back == r and back.agents == [0, 1]
+    back.check(2)
+    with pytest.raises(ArgumentError, match=r"one \[\[agents\]\] entry for each agent 0..2"):
+        back.check(3)
+    bad = {
+        "twice": 'run_id = 1\n[[agents]]\nid = 0\nendpoint = "tcp/a:1"\n[[agents]]\nid = 0\nendpoint = "tcp/b:1"\n',
+        "endpoint": '[[agents]]\nid = 0\nendpoint = "127.0.0.1:7447"\n',
+        "run_id": 'run_id = -1\n[[agents]]\nid = 0\nendpoint = "tcp/a:1"\n',
+        "prefix": 'prefix = "teamkf/*"\n[[agents]]\nid = 0\nendpoint = "tcp/a:1"\n',
+    }
+    for what, text in bad.items():
+        (tmp_path / f"{what}.toml").write_text(text)
+        with pytest.raises(ArgumentError, match="--roster") as exc:
+            Roster.read(tmp_path / f"{what}.toml")
+        assert what.replace("twice", "listed twice") in str(exc.value)
