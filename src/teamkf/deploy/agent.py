@@ -338,10 +338,12 @@ def run_agent(
     done = threading.Event()
 
     def send(kind: int, b: int, step: int, origin: int, payload: Any = None, flags: int = 0) -> None:
+        data = encode_frame(Frame(kind, run_id, i, b, step, origin, payload, flags))  # a payload that cannot travel stops the agent
         try:
-            transport.send(b, encode_frame(Frame(kind, run_id, i, b, step, origin, payload, flags)))
+            transport.send(b, data)
         except Exception:  # noqa: BLE001 - a send that fails is a message lost, as on any network
-            box.counts["send_errors"] += 1
+            with box.cond:
+                box.counts["send_errors"] += 1
 
     targets = [peers]
 
@@ -372,6 +374,8 @@ def run_agent(
                 res.error = f"killed by fault injection before step {k}"
                 done.set()
                 return res
+            if stop.is_set():
+                break
             own = source(k)
             if own is None or stop.is_set():
                 break
