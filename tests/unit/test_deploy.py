@@ -224,7 +224,8 @@ def test_deploy_processes_equal_filter_bit_for_bit(platoon, tmp_path):
     sc, log_path, log, prep, ref, _ = platoon
     out, fout = tmp_path / "deploy.csv", tmp_path / "filter.csv"
     M.write_estimates(fout, {ESTIMATOR: ref}, prep.n_agents)
-    proc = _teamkf("deploy", "platoon-6", "--measurements", str(log_path), "--out", str(out), "--estimator", ESTIMATOR, "--json")
+    # a long deadline: no fault here, and a loaded CI machine may starve a process for a second or two
+    proc = _teamkf("deploy", "platoon-6", "--measurements", str(log_path), "--out", str(out), "--estimator", ESTIMATOR, "--deadline", "10", "--json")
     assert proc.returncode == 0, proc.stderr
     summary = json.loads(proc.stdout)
     pids = {r["pid"] for r in summary["reports"]}
@@ -242,24 +243,25 @@ def test_killed_agent_with_injected_loss_ends_reports_and_replays(platoon, tmp_p
     t0 = time.monotonic()
     args = ["--measurements", str(log_path), "--estimator", ESTIMATOR]
     proc = _teamkf(
-        "deploy", "platoon-6", *args, "--out", str(out), "--kill", "2:100", "--deadline", "1", "--p-drop", "0.2", "--seed", "7", "--record", str(rec)
+        "deploy", "platoon-6", *args, "--out", str(out), "--kill", "2:100", "--deadline", "3", "--p-drop", "0.2", "--seed", "7", "--record", str(rec)
     )
     wall = time.monotonic() - t0
     assert proc.returncode == 1, proc.stderr  # finished, with a node failure
-    assert "agent 2 failed: killed by signal SIGKILL" in proc.stdout
+    assert "agent 2 failed: killed by signal SIGKILL after 100 steps" in proc.stdout
     import pandas as pd
 
     est = pd.read_csv(out)
     zc = [c for c in est.columns if c.startswith("z")]
     assert np.isfinite(est.loc[est.agent != 2, zc].to_numpy()).all()
-    assert est.loc[est.agent == 2, zc].isna().all().all()  # a killed process wrote no estimates
+    mine = est.loc[est.agent == 2, zc].to_numpy()
+    assert np.isfinite(mine[:100]).all() and np.isnan(mine[100:]).all()  # what it streamed before it was killed
     record = DropRecord.read(rec)
-    assert record.stopped == {2: 0}
+    assert record.stopped == {2: 100}
     reasons = {r for (_, _, _, r) in record.missed}
     assert "dropped" in reasons and reasons <= {"dropped", "silent", "failed"}
     from2 = sorted(s for (i, j, s, r) in record.missed if j == 2 and r != "dropped")
     assert from2 and from2[0] >= 99  # agent 2 delivered until it was killed before step 100
-    assert wall < 300  # ended within its deadlines (one silence of 1 s per neighbour), not the horizon times a deadline
+    assert wall < 300  # ended within its deadlines (one silence of 3 s per neighbour), not the horizon times a deadline
     from teamkf.cli import main
 
     assert main(["filter", "platoon-6", *args[:2], "--drops", str(rec), "--out", str(rep)]) == 0  # in-process, as a user would run it

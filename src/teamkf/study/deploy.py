@@ -258,7 +258,8 @@ def _agent_command(args: Any, scenario: str, i: int, roster: Path, run_dir: Path
     for p in plugins:
         cmd += ["--plugin", p]
     cmd += ["--quiet", "agent", scenario, "--id", str(i), "--roster", str(roster), "--measurements", str(Path(args.measurements).resolve())]
-    cmd += ["--out", str(run_dir / f"agent-{i}.npz"), "--report", str(run_dir / f"agent-{i}.json"), "--estimator", estimator]
+    cmd += ["--out", str(run_dir / f"agent-{i}.npz"), "--report", str(run_dir / f"agent-{i}.json"), "--stream", str(run_dir / f"agent-{i}.f8")]
+    cmd += ["--estimator", estimator]
     cmd += ["--deadline", repr(args.deadline), "--join-timeout", repr(args.join_timeout), "--p-drop", repr(args.p_drop)]
     if args.seed is not None:
         cmd += ["--seed", str(args.seed)]
@@ -294,7 +295,7 @@ def deploy_processes(args: Any, prep: Prepared, on_start: Callable[[list[int]], 
                 res.failed[i] = f"killed after the run's timeout ({timeout:g} s)"
             elif ch.returncode < 0:
                 res.failed[i] = f"killed by signal {signal.Signals(-ch.returncode).name}" + (
-                    f" after {rep['steps_done']} steps" if results[i] is not None else " (no report: its estimates are lost)"
+                    f" after {rep['steps_done']} steps" if results[i] is not None else " (nothing written)"
                 )
             elif ch.returncode not in (0, 1) and i not in res.failed:
                 res.failed[i] = f"exit status {ch.returncode}: {ch.stderr.strip().splitlines()[-1] if ch.stderr.strip() else ''}"
@@ -308,8 +309,15 @@ def deploy_processes(args: Any, prep: Prepared, on_start: Callable[[list[int]], 
 
 def _read_agent(run_dir: Path, i: int, prep: Prepared) -> AgentResult | None:
     rp, zp = run_dir / f"agent-{i}.json", run_dir / f"agent-{i}.npz"
-    if not rp.exists() or not zp.exists():
-        return None
+    if not rp.exists() or not zp.exists():  # killed: what it streamed before it died
+        part = run_dir / f"agent-{i}.f8"
+        if not part.exists():
+            return None
+        raw = part.read_bytes()
+        rows = min(len(raw) // (8 * prep.dz), prep.n_steps)
+        z = np.full((prep.n_steps, prep.dz), np.nan)
+        z[:rows] = np.frombuffer(raw[: rows * 8 * prep.dz], dtype="<f8").reshape(rows, prep.dz)
+        return AgentResult(i, prep.n_steps, z, rows, error="no report (the process died)")
     d = json.loads(rp.read_text(encoding="utf-8"))
     with np.load(zp) as f:
         z = np.array(f["z"])
@@ -423,6 +431,11 @@ def add_parsers(add: Callable[[str, str], Any]) -> None:
     )
     p.add_argument("--out", metavar="FILE", help="its estimates (.csv, .parquet or .npz); '-' prints 'step,z0,...' lines as they come")
     p.add_argument("--report", metavar="FILE", help="write its report (JSON): steps, misses, frame counts, step latency, CPU")
+    p.add_argument(
+        "--stream",
+        metavar="FILE",
+        help="append every estimate to FILE as it is computed, one row of raw little-endian float64 per step (survives a crash)",
+    )
     p.add_argument("--steps", type=int, metavar="T", help="steps to run (default: the log's, or the horizon for stdin)")
     _run_flags(p)
     p.add_argument("--kill-at", type=int, metavar="STEP", help="fault injection: the process kills itself (SIGKILL) before STEP")
@@ -575,11 +588,21 @@ def cmd_agent(args: Any) -> int:
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    printer = None
+    sinks: list[Callable[[int, np.ndarray], None]] = []
     if args.out == "-":
+        sinks.append(lambda k, z: print(",".join([str(k), *(repr(float(v)) for v in z)]), flush=True))
+    stream = open(args.stream, "wb") if args.stream else None  # noqa: SIM115 - closed below, after the run
+    if stream is not None:
 
-        def printer(k: int, z: np.ndarray) -> None:
-            print(",".join([str(k), *(repr(float(v)) for v in z)]), flush=True)
+        def write_row(k: int, z: np.ndarray, fh: Any = stream) -> None:
+            fh.write(np.asarray(z, dtype="<f8").tobytes())
+            fh.flush()
+
+        sinks.append(write_row)
+
+    def printer(k: int, z: np.ndarray) -> None:
+        for f in sinks:
+            f(k, z)
 
     transport = ZenohTransport(i, roster.endpoints, prefix=roster.prefix)
     res = run_agent(
@@ -597,10 +620,12 @@ def cmd_agent(args: Any) -> int:
         rng=args.seed,
         kill_at=args.kill_at,
         hard_kill=True,
-        on_estimate=printer,
+        on_estimate=printer if sinks else None,
         stop=stop,
         graph=sc.graph,
     )
+    if stream is not None:
+        stream.close()
     if args.out and args.out != "-":
         _write_own(args.out, res, name)
     if args.report:
