@@ -11,8 +11,8 @@ in lockstep: at step k agent i fuses every message due at k that is **not** in t
 record (in in-neighbour order), exactly what it fused on the network, so the replay's
 estimates equal the deployment's bit for bit. Every agent steps to the end (a failed
 agent's later messages are in its receivers' records, so nobody fuses them); the
-estimates of an agent that stopped (``stopped``: the steps whose estimates it wrote, 0
-for a killed process) are NaN from there, as in the deployment's file. ``teamkf filter --drops DROPS`` runs it.
+estimates of an agent that stopped (``stopped``: the steps whose estimates it wrote, what a
+killed process had streamed) are NaN from there, as in the deployment's file. ``teamkf filter --drops DROPS`` runs it.
 
 File (JSON, ``format = "teamkf-drops"``, version 1)::
 
