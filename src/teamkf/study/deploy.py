@@ -388,7 +388,7 @@ def _run_flags(p: Any) -> None:
         type=_seconds,
         default=2.0,
         metavar="S",
-        help="seconds an agent waits for the messages due at a step (default 2); later ones are drops",
+        help="a neighbour silent for S seconds is failed (heartbeats every S/4); no step waits longer than n_agents x S (default 2)",
     )
     p.add_argument("--join-timeout", type=_seconds, default=60.0, metavar="S", help="seconds an agent waits for its neighbours to join (default 60)")
     p.add_argument(
