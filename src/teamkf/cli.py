@@ -512,6 +512,10 @@ def _cmd_filter(args: argparse.Namespace) -> int:
     """``teamkf filter SCENARIO --measurements FILE [--truth FILE] --out FILE [--estimators ...]``."""
     from .study import measurements as M
 
+    if getattr(args, "drops", None):  # issue 23: replay a deployment's drop record
+        from .study.deploy import cmd_filter_drops
+
+        return cmd_filter_drops(args)
     out_path = _check_output(args.out, "--out", (".csv", ".parquet"))
     cost_path = out_path.with_name(f"{out_path.stem}-cost{out_path.suffix}") if args.truth else None
     if cost_path is not None:
@@ -630,6 +634,11 @@ def _add_filter_parser(add: Any) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object (steps, estimators, realized total costs)")
     p.add_argument(
         "--chunk-rows", type=_positive_int, default=400_000, metavar="N", help="steady-state scenarios are streamed N rows at a time (default 400000)"
+    )
+    p.add_argument(
+        "--drops",
+        metavar="DROPS",
+        help="replay a deployment in-process from its drop record (teamkf deploy --record): the same estimates, bit for bit",
     )
     p.set_defaults(func=_cmd_filter)
 
@@ -877,6 +886,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = add("families", "list the registered estimator families: name, cost, capabilities, options (built-in and plug-ins)")
     p.add_argument("--json", action="store_true", help="print one JSON object: name -> record")
     p.set_defaults(func=_cmd_families)
+    from .study.deploy_args import add_parsers as add_deploy_parsers  # teamkf deploy, teamkf agent
+
+    add_deploy_parsers(add)
     return parser
 
 

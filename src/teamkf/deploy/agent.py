@@ -1,0 +1,442 @@
+"""One agent on a real network: the step barrier, the deadline, the drop record.
+
+Agent i runs the same online agent the in-process runtime runs
+(``design.graph_agents()[i]``, :func:`teamkf.estimators.base.pass_messages`).
+At step k it
+
+1. waits until every message due at k has arrived — the payload in-neighbour j sent at
+   s = k - τ_ji. Every agent sends a heartbeat to its out-neighbours every
+   ``deadline / 4`` seconds, so a neighbour that is waiting on its own neighbours is
+   known to be alive and is waited for; a neighbour *silent* for ``deadline`` seconds
+   (killed, stopped, cut off) is *failed* and is not waited for again until one of its
+   messages arrives in time. No step waits longer than ``n_agents x deadline`` (a
+   live neighbour that never delivers: the step's hard deadline);
+2. fuses what arrived **in in-neighbour order, then sent step** (the graph's order, as
+   the in-process runtime), never in arrival order, with its own y_i(k);
+3. sends its payload to every out-neighbour b (due at k + τ_ib), as raw little-endian
+   arrays in a :mod:`~teamkf.deploy.codec` frame.
+
+A message due at k that did not arrive is a *miss* (sender, sent step, reason:
+``dropped`` by the sender's loss injection, ``silent`` sender, ``failed`` sender
+(silent at an earlier step), ``left`` (it said goodbye), or ``deadline`` (the hard
+deadline passed); a frame arriving after its step is counted ``late`` and never fused.
+Agents run their family's loss-tolerant step (``tolerant``, the step the lossy
+Monte Carlo runs, :mod:`teamkf.simulation.links`) from step 0: with every message
+delivered it is the design's arithmetic in the design's order, so a run without
+misses equals the in-process runtime bit for bit (the tests check it), and a miss
+is handled as the family documents. A family without a tolerant step runs its
+nominal step and stops with an error at its first miss (a node failure for the
+others). The misses are the agent's drop record: :func:`teamkf.deploy.replay.replay`
+re-runs the team in-process from the records to the same bits.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from ..exceptions import TeamkfError, UnsupportedOperationError
+from .codec import BYE, DATA, DROPPED, HELLO, Frame, FrameError, decode_frame, encode_frame
+from .transport import Transport
+
+__all__ = ["AgentCore", "AgentResult", "DeployError", "Mailbox", "run_agent", "check_deployable", "drop_stream"]
+
+#: appended to the seed's key for an agent's injected-loss draws
+DROP_STREAM_KEY = 0xD23
+
+
+class DeployError(TeamkfError, RuntimeError):
+    """A deployment that cannot start or go on (neighbours that never joined, a refused design)."""
+
+
+def check_deployable(design: Any, graph: Any = None) -> Any:
+    """The graph the agents talk over; :class:`UnsupportedOperationError` for a design no network can run.
+
+    A design with a graph of its own (KCF, CIKF, ...) talks over it. A design delivered by an
+    information structure (MTMSE, MMSE) talks over ``graph`` (the scenario's), its agents relaying
+    every measurement they learn first (:class:`~teamkf.estimators.base.MeasurementRelay`); the
+    structure must be realizable on that graph (every y_j(s) reaches agent i by the time it is used).
+    """
+    if not design.realizable:
+        why = (
+            "it is the omniscient benchmark (every agent holds every y_j(k) at once)"
+            if design.omniscient
+            else f"its {design.label!r} variant is not realizable"
+        )
+        raise UnsupportedOperationError(design.estimator, "deployment on a network", f"{why}; deploy a realizable family or variant")
+    own = design.delivery_graph
+    if own is not None:
+        return own
+    if graph is None:
+        raise UnsupportedOperationError(
+            design.estimator, "deployment on a network", "its agents are delivered by an information structure; give the graph they talk over"
+        )
+    structure = getattr(design, "structure", None)
+    if structure is not None:
+        structure.validate_on(graph)
+    return graph
+
+
+def drop_stream(rng: int | None, index: int) -> np.random.Generator:
+    """Agent ``index``'s injected-loss stream for the seed ``rng`` (None: 0): one uniform per out-edge and step.
+
+    ``SeedSequence(rng, spawn_key=(DROP_STREAM_KEY, index))``: every agent draws its own stream from the
+    team's seed alone, so the same seed drops the same messages on any machine.
+    """
+    return np.random.default_rng(np.random.SeedSequence(0 if rng is None else int(rng), spawn_key=(DROP_STREAM_KEY, int(index))))
+
+
+def _set_tolerant(agent: Any) -> bool:
+    ok = False
+    for obj in (agent, getattr(agent, "inner", None)):
+        if obj is not None and hasattr(obj, "tolerant"):
+            obj.tolerant = True
+            ok = True
+    return ok
+
+
+class AgentCore:
+    """Agent i's arithmetic: the family's online agent behind the nominal inbox order.
+
+    ``step(k, own, received)`` with ``received`` a mapping (sender, sent step) -> payload
+    of the messages that arrived for step k; returns (z_i(k), payload).
+    """
+
+    def __init__(self, design: Any, index: int, *, tolerant: bool = True, agent: Any = None, graph: Any = None):
+        self.graph = check_deployable(design, graph)
+        self.index = int(index)
+        self.agent = agent if agent is not None else design.graph_agents()[self.index]
+        self.in_delays = [(j, self.graph.delay(j, self.index)) for j in self.graph.in_neighbors(self.index)]
+        self.out_delays = sorted((b, self.graph.delay(self.index, b)) for b in self.graph.out_neighbors(self.index))
+        #: True when the family's loss-tolerant step runs (see the module docstring)
+        self.tolerant = _set_tolerant(self.agent) if tolerant else False
+        self.state: Any = None
+
+    def expected(self, k: int) -> list[tuple[int, int]]:
+        """The (sender, sent step) due at step k, in in-neighbour order."""
+        return [(j, k - d) for (j, d) in self.in_delays if k - d >= 0]
+
+    def init(self) -> None:
+        self.state = self.agent.init_state(1)
+
+    def step(self, k: int, own: Any, received: dict[tuple[int, int], Any]) -> tuple[np.ndarray, Any]:
+        due = self.expected(k)
+        inbox = [(j, s, received[(j, s)]) for (j, s) in due if received.get((j, s)) is not None]
+        self.state, z, payload = self.agent.step(self.state, k, own, inbox)
+        return z, payload
+
+
+class Mailbox:
+    """The frames that arrived for agent ``me``, checked and counted (thread-safe)."""
+
+    def __init__(self, me: int, run_id: int, in_delays: Sequence[tuple[int, int]], peers: Sequence[int]):
+        self.me, self.run_id = me, run_id
+        self.delay = dict(in_delays)
+        self.peers = set(peers)
+        self.cond = threading.Condition()
+        self.data: dict[tuple[int, int], Any] = {}
+        self.notices: set[tuple[int, int]] = set()
+        self.closed = -1
+        self.heard: set[int] = set()
+        self.acks: dict[int, set[int]] = {}
+        self.left: set[int] = set()
+        self.failed: set[int] = set()
+        self.last_seen: dict[int, float] = {}
+        self.counts: Counter[str] = Counter()
+
+    def put(self, raw: bytes) -> None:
+        try:
+            f = decode_frame(raw)
+        except FrameError as exc:
+            with self.cond:
+                self.counts[f"corrupt_{exc.reason}"] += 1
+            return
+        with self.cond:
+            self._put(f)
+            self.cond.notify_all()
+
+    def _put(self, f: Frame) -> None:
+        c = self.counts
+        if f.run_id == self.run_id and f.receiver == self.me and f.sender in self.peers:
+            self.last_seen[f.sender] = time.monotonic()
+        if f.run_id != self.run_id:
+            c["other_run"] += 1
+        elif f.receiver != self.me:
+            c["misaddressed"] += 1
+        elif f.kind == HELLO:
+            if f.sender not in self.peers:
+                c["unknown_sender"] += 1
+                return
+            self.heard.add(f.sender)
+            heard = f.payload.get("heard", []) if isinstance(f.payload, dict) else []
+            self.acks[f.sender] = {int(a) for a in heard if isinstance(a, int)}
+        elif f.kind == BYE:
+            if f.sender in self.peers:
+                self.left.add(f.sender)
+        elif f.kind != DATA:
+            c["unknown_kind"] += 1
+        elif f.sender not in self.delay:
+            c["unknown_sender"] += 1
+        elif f.step != f.origin + self.delay[f.sender]:
+            c["bad_step"] += 1
+        elif f.step <= self.closed:
+            c["late"] += 1
+        elif (f.sender, f.origin) in self.data or (f.sender, f.origin) in self.notices:
+            c["duplicate"] += 1
+        else:
+            self.failed.discard(f.sender)  # on time again: wait for it again
+            if f.flags & DROPPED:
+                self.notices.add((f.sender, f.origin))
+            else:
+                self.data[(f.sender, f.origin)] = f.payload
+                c["received"] += 1
+
+    def collect(
+        self, k: int, due: Sequence[tuple[int, int]], silence: float, hard: float, stop: threading.Event
+    ) -> tuple[dict, list[tuple[int, int, str]]]:
+        """Wait for the messages ``due`` at step k; a sender silent for ``silence`` s fails; never past ``hard`` (monotonic)."""
+        silent: set[int] = set()
+        with self.cond:
+            while not stop.is_set():
+                pending = [
+                    key for key in due if key not in self.data and key not in self.notices and key[0] not in self.failed and key[0] not in self.left
+                ]
+                now = time.monotonic()
+                if not pending or now >= hard:
+                    break
+                quiet = {j for (j, _) in pending if now - self.last_seen.get(j, now) > silence}
+                if quiet:
+                    silent |= quiet
+                    self.failed |= quiet
+                    continue
+                self.cond.wait(min(hard - now, silence / 8, 0.1))
+            got, missed = {}, []
+            for key in due:
+                if key in self.data:
+                    got[key] = self.data.pop(key)
+                    continue
+                j = key[0]
+                if key in self.notices:
+                    reason = "dropped"
+                elif j in silent:
+                    reason = "silent"
+                elif j in self.left:
+                    reason = "left"
+                elif j in self.failed:
+                    reason = "failed"
+                else:
+                    reason = "deadline"
+                    self.failed.add(j)
+                missed.append((j, key[1], reason))
+            self.closed = k
+            self.notices = {key for key in self.notices if key[1] + self.delay.get(key[0], 0) > k}
+            for key in [key for key in self.data if key[1] + self.delay.get(key[0], 0) <= k]:
+                self.data.pop(key)
+            return got, missed
+
+
+@dataclass
+class AgentResult:
+    """What one agent did: its estimates, its misses (the drop record) and its counts."""
+
+    index: int
+    n_steps: int
+    estimates: np.ndarray
+    steps_done: int = 0
+    missed: list[tuple[int, int, str]] = field(default_factory=list)
+    counts: dict[str, int] = field(default_factory=dict)
+    failed_neighbours: list[int] = field(default_factory=list)
+    tolerant: bool = False
+    sent: int = 0
+    dropped_sent: int = 0
+    dropped_out: list[tuple[int, int]] = field(default_factory=list)  # (receiver, sent step) of the injected drops
+    latency: list[float] = field(default_factory=list)
+    cpu_s: float = 0.0
+    error: str | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        lat = np.asarray(self.latency) if self.latency else np.zeros(0)
+        return {
+            "agent": self.index,
+            "steps": self.n_steps,
+            "steps_done": self.steps_done,
+            "missed": [[j, s, r] for (j, s, r) in self.missed],
+            "counts": dict(self.counts),
+            "failed_neighbours": list(self.failed_neighbours),
+            "tolerant": self.tolerant,
+            "sent": self.sent,
+            "dropped_sent": self.dropped_sent,
+            "dropped_out": [[b, s] for (b, s) in self.dropped_out],
+            "median_step_ms": float(np.median(lat) * 1e3) if lat.size else None,
+            "p99_step_ms": float(np.quantile(lat, 0.99) * 1e3) if lat.size else None,
+            "cpu_s": self.cpu_s,
+            "error": self.error,
+        }
+
+
+def run_agent(
+    design: Any,
+    index: int,
+    transport: Transport,
+    source: Callable[[int], Any],
+    *,
+    n_steps: int,
+    run_id: int,
+    peers: Sequence[int] | None = None,
+    offsets: np.ndarray | None = None,
+    deadline: float = 2.0,
+    join_timeout: float = 30.0,
+    p_drop: float = 0.0,
+    rng: int | None = None,
+    kill_at: int | None = None,
+    hard_kill: bool = False,
+    on_estimate: Callable[[int, np.ndarray], None] | None = None,
+    stop: threading.Event | None = None,
+    core: AgentCore | None = None,
+    graph: Any = None,
+) -> AgentResult:
+    """Run agent ``index`` of ``design`` over ``transport`` for ``n_steps`` steps.
+
+    Parameters
+    ----------
+    source : k -> y_i(k) of shape (1, d_y^i) (the run axis first, as the runtime), or None when
+        there is no more data (the run ends at that step)
+    offsets : (n_steps, d_z) known means added to the estimates (L(k) x̄(k), agent i's block), or None
+    deadline : seconds of silence after which a neighbour is failed (heartbeats every deadline / 4); a
+        step waits at most n_agents x deadline
+    join_timeout : seconds it waits for its neighbours to join
+    p_drop, rng : injected loss (``rng`` an integer seed, the CLI's ``--seed``): each message is dropped on the sending side with probability
+        p_drop (independently per out-edge and step, :func:`drop_stream`), and a notice is sent instead
+    kill_at : fault injection: the agent dies before step ``kill_at`` (``hard_kill``: SIGKILL to its own
+        process; else it stops silently, as a crashed thread would)
+    on_estimate : called with (k, ẑ_i(k)) after every step
+    stop : set it to stop the agent (it says goodbye and returns)
+    core : the agent's :class:`AgentCore` (default: built from ``design`` and ``graph``)
+    graph : the graph the agents talk over, for a design delivered by an information structure
+
+    Returns
+    -------
+    AgentResult
+    """
+    core = core if core is not None else AgentCore(design, index, graph=graph)
+    i = core.index
+    n = design.n_agents
+    peers = sorted(set(range(n) if peers is None else peers) - {i})
+    stop = stop if stop is not None else threading.Event()
+    box = Mailbox(i, run_id, core.in_delays, peers)
+    res = AgentResult(i, n_steps, np.full((n_steps, int(design.cost.dz)), np.nan))
+    draws = drop_stream(rng, i)
+    outs = core.out_delays
+    hello_period = [0.05]
+    done = threading.Event()
+
+    def send(kind: int, b: int, step: int, origin: int, payload: Any = None, flags: int = 0) -> None:
+        data = encode_frame(Frame(kind, run_id, i, b, step, origin, payload, flags))  # a payload that cannot travel stops the agent
+        try:
+            transport.send(b, data)
+        except Exception:  # noqa: BLE001 - a send that fails is a message lost, as on any network
+            with box.cond:
+                box.counts["send_errors"] += 1
+
+    targets = [peers]
+
+    def heartbeat() -> None:
+        while not done.wait(hello_period[0]):
+            with box.cond:
+                heard = sorted(box.heard)
+            for b in targets[0]:
+                send(HELLO, b, 0, 0, {"heard": heard})
+
+    transport.start(box.put)
+    beat = threading.Thread(target=heartbeat, name=f"teamkf-hello-{i}", daemon=True)
+    beat.start()
+    cpu0 = time.thread_time()
+    try:
+        _join(box, core, i, join_timeout, stop)
+        with box.cond:  # the neighbours were heard now: their silence counts from here
+            t_join = time.monotonic()
+            for j in peers:
+                box.last_seen[j] = max(box.last_seen.get(j, t_join), t_join)
+        targets[0] = sorted({b for (b, _) in outs} | {j for (j, _) in core.in_delays})  # heartbeats, and acks for late joiners
+        hello_period[0] = min(deadline / 4, 0.5)
+        core.init()
+        for k in range(n_steps):
+            if kill_at is not None and k == kill_at:
+                if hard_kill:
+                    os.kill(os.getpid(), signal.SIGKILL)
+                res.error = f"killed by fault injection before step {k}"
+                done.set()
+                return res
+            if stop.is_set():
+                break
+            own = source(k)
+            if own is None or stop.is_set():
+                break
+            t0 = time.monotonic()
+            got, missed = box.collect(k, core.expected(k), deadline, t0 + deadline * max(2, n), stop)
+            if stop.is_set():
+                break
+            res.missed.extend(missed)
+            z, payload = core.step(k, own, got)
+            zi = np.asarray(z, dtype=float)[0]
+            if offsets is not None:
+                zi = zi + offsets[k]
+            res.estimates[k] = zi
+            res.steps_done = k + 1
+            if on_estimate is not None:
+                on_estimate(k, zi)
+            u = draws.random(len(outs))  # one draw per out-edge and step, whatever happens
+            for q, (b, d) in enumerate(outs):
+                if k + d >= n_steps or payload is None:
+                    continue
+                res.sent += 1
+                if u[q] < p_drop:
+                    res.dropped_sent += 1
+                    res.dropped_out.append((b, k))
+                    send(DATA, b, k + d, k, None, DROPPED)
+                else:
+                    send(DATA, b, k + d, k, payload)
+            res.latency.append(time.monotonic() - t0)
+        if stop.is_set():
+            res.error = "interrupted"
+    except Exception as exc:  # noqa: BLE001 - any failure of this agent is reported, and is a node failure for the others
+        res.error = f"{type(exc).__name__}: {exc}"
+    finally:
+        res.cpu_s = time.thread_time() - cpu0
+        done.set()
+        if not (res.error or "").startswith("killed"):  # a crash says nothing; everything else says goodbye
+            for b in peers:
+                send(BYE, b, 0, 0)
+        time.sleep(0.2)  # let the last frames leave before the session closes
+        transport.close()
+        with box.cond:
+            res.counts = dict(box.counts)
+            res.failed_neighbours = sorted({j for (j, _, r) in res.missed if r in ("silent", "deadline", "failed")})
+        res.tolerant = core.tolerant
+    return res
+
+
+def _join(box: Mailbox, core: AgentCore, i: int, timeout: float, stop: threading.Event) -> None:
+    """Wait until every in-neighbour is heard and every out-neighbour has heard this agent."""
+    ins = {j for (j, _) in core.in_delays}
+    outs = {b for (b, _) in core.out_delays}
+    end = time.monotonic() + timeout
+    with box.cond:
+        while not stop.is_set():
+            missing_in = ins - box.heard
+            missing_out = {b for b in outs if i not in box.acks.get(b, set())}
+            if not missing_in and not missing_out:
+                return
+            left = end - time.monotonic()
+            if left <= 0:
+                raise DeployError(
+                    f"agent {i}: neighbours {sorted(missing_in | missing_out)} did not join within {timeout:g} s; start them, or check the roster's endpoints"
+                )
+            box.cond.wait(min(left, 0.25))

@@ -1,0 +1,124 @@
+"""The arguments of ``teamkf deploy`` and ``teamkf agent`` (light: the parsers are built without the runtime).
+
+:mod:`teamkf.cli` calls :func:`add_parsers`; a command imports :mod:`teamkf.study.deploy` (Zenoh, the
+agents) only when it runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from typing import Any, Callable
+
+
+def _command(name: str) -> Callable[[Any], int]:
+    """The command ``teamkf.study.deploy.<name>``, imported when it runs."""
+
+    def run(args: Any) -> int:
+        from . import deploy
+
+        return int(getattr(deploy, name)(args))
+
+    run.__name__ = name
+    return run
+
+
+def _kill_spec(text: str) -> tuple[int, int]:
+    try:
+        a, s = (int(v) for v in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected AGENT:STEP (e.g. 2:100), found {text!r}") from None
+    if a < 0 or s < 0:
+        raise argparse.ArgumentTypeError(f"expected AGENT:STEP with both >= 0, found {text!r}")
+    return a, s
+
+
+def _probability(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a probability in [0, 1], found {text!r}") from None
+    if not 0.0 <= v <= 1.0:
+        raise argparse.ArgumentTypeError(f"expected a probability in [0, 1], found {v}")
+    return v
+
+
+def _seconds(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds > 0, found {text!r}") from None
+    if not v > 0 or not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"expected a number of seconds > 0, found {v}")
+    return v
+
+
+def _seed(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer seed, found {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer seed, found {v}")
+    return v
+
+
+def _run_flags(p: Any) -> None:
+    p.add_argument("--estimator", metavar="NAME", help="the family the agents run (default: the scenario's first estimator other than centralized)")
+    p.add_argument(
+        "--deadline",
+        type=_seconds,
+        default=2.0,
+        metavar="S",
+        help="a neighbour silent for S seconds is failed (heartbeats every S/4); no step waits longer than n_agents x S (default 2)",
+    )
+    p.add_argument("--join-timeout", type=_seconds, default=60.0, metavar="S", help="seconds an agent waits for its neighbours to join (default 60)")
+    p.add_argument(
+        "--p-drop", type=_probability, default=0.0, metavar="P", help="injected loss: each message is dropped by its sender with probability P"
+    )
+    p.add_argument("--seed", type=_seed, metavar="S", help="seed of the injected loss (default 0)")
+
+
+def add_parsers(add: Callable[[str, str], Any]) -> None:
+    """Add ``deploy`` and ``agent`` to the ``teamkf`` parser (``add(name, help)`` returns a subparser)."""
+    p = add("deploy", "run one OS process per agent on this machine over Zenoh (loopback) and write the estimates teamkf filter writes")
+    p.add_argument("scenario", metavar="SCENARIO")
+    p.add_argument(
+        "--measurements", required=True, metavar="FILE", help="the recorded log (as teamkf filter reads it); each agent keeps only its own column"
+    )
+    p.add_argument("--out", required=True, metavar="FILE", help="estimates step,agent,estimator,z0,... (.csv or .parquet)")
+    _run_flags(p)
+    p.add_argument("--record", metavar="DROPS", help="write the team's drop record (JSON) for teamkf filter --drops")
+    p.add_argument(
+        "--transport", choices=("zenoh", "queue"), default="zenoh", help="zenoh: one process per agent (default); queue: threads of this process"
+    )
+    p.add_argument(
+        "--kill", type=_kill_spec, metavar="AGENT:STEP", help="fault injection: agent AGENT's process is killed (SIGKILL) before step STEP"
+    )
+    p.add_argument(
+        "--timeout", type=_seconds, metavar="S", help="kill agents still running after S seconds (default: 120 + join timeout + steps x deadline)"
+    )
+    p.add_argument("--json", action="store_true", help="print one JSON object (per-agent reports, failures, misses)")
+    p.set_defaults(func=_command("cmd_deploy"))
+
+    p = add("agent", "run one agent of a scenario on this machine: it talks to the others through the roster's Zenoh endpoints")
+    p.add_argument("scenario", metavar="SCENARIO")
+    p.add_argument("--id", type=int, required=True, metavar="I", help="this agent's id (0-based, as in the scenario)")
+    p.add_argument("--roster", required=True, metavar="FILE", help="the roster (TOML/JSON): run_id, prefix, [[agents]] id and endpoint")
+    p.add_argument(
+        "--measurements",
+        required=True,
+        metavar="FILE",
+        help="a recorded log (its own column is used), or '-' for stdin: one line per step with y_i(k) as comma-separated numbers",
+    )
+    p.add_argument("--out", metavar="FILE", help="its estimates (.csv, .parquet or .npz); '-' prints 'step,z0,...' lines as they come")
+    p.add_argument("--report", metavar="FILE", help="write its report (JSON): steps, misses, frame counts, step latency, CPU")
+    p.add_argument(
+        "--stream",
+        metavar="FILE",
+        help="append every estimate to FILE as it is computed, one row of raw little-endian float64 per step (survives a crash)",
+    )
+    p.add_argument("--steps", type=int, metavar="T", help="steps to run (default: the log's, or the horizon for stdin)")
+    _run_flags(p)
+    p.add_argument("--kill-at", type=int, metavar="STEP", help="fault injection: the process kills itself (SIGKILL) before STEP")
+    p.set_defaults(func=_command("cmd_agent"))
