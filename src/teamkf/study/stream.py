@@ -20,13 +20,13 @@ streamed.
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator, Sequence
 
 import numpy as np
 
+from .._progress import bar as _progress_bar
 from .._validation import FloatArray
 from ..exceptions import UnsupportedOperationError
 from ..simulation.monte_carlo import team_stage_costs
@@ -426,29 +426,23 @@ def stream_filter(
     truth : states file (read whole: d_x numbers per step), optional
     cost_out : open binary file for the per-step realized costs (with ``truth``)
     chunk_rows : rows read per chunk (memory ~ chunk_rows × (d_y + estimators × d_z) numbers)
-    progress : a tqdm bar on stderr (None: only when stderr is a terminal)
+    progress : the package's progress bar (:mod:`teamkf._progress`; None: only on a terminal)
     """
     names = list(scenario.estimators if estimators is None else estimators)
     if scenario.horizon is not None:
         raise UnsupportedOperationError("filter", "streaming a finite-horizon scenario", "omit horizon (steady-state designs) to stream")
     streams = []
     for name in names:
-        d = scenario.design(name)
-        if not hasattr(d, "steady_form"):
-            raise UnsupportedOperationError(
-                name, "streaming (steady-state LTI form)", "it has no steady_form(); give the scenario a horizon to filter in memory"
-            )
-        streams.append(SteadyStream(d))
+        scenario.family(name).require(
+            "steady_form", "streaming a file through its steady-state LTI form (give the scenario a horizon to filter in memory)"
+        )
+        streams.append(SteadyStream(scenario.design(name)))
     system, cost = scenario.system, scenario.cost
     n, dz = system.n_agents, cost.dz
     known: KnownInputs | None = known_inputs(scenario)
     x_true = None
     costs_tot = {name: 0.0 for name in names} if truth is not None else None
-    bar = None
-    if progress or (progress is None and sys.stderr.isatty()):
-        from tqdm import tqdm
-
-        bar = tqdm(desc="teamkf filter", unit=" rows", unit_scale=True, file=sys.stderr)
+    bar = _progress_bar(None, desc="teamkf filter", unit=" rows", unit_scale=True, enabled=progress)
     writer = _Writer(out, fmt, ["step", "agent", "estimator"] + [f"z{c}" for c in range(dz)])
     cwriter = _Writer(cost_out, fmt, ["step", "estimator", "cost"]) if cost_out is not None else None
     m_next = None if known is None else known.x0_mean.copy()
@@ -540,8 +534,7 @@ def stream_filter(
         writer.close()
         if cwriter is not None:
             cwriter.close()
-        if bar is not None:
-            bar.close()
+        bar.close()
     if x_true is not None:
         x_true.finish(T)
     return StreamSummary(T, rows_in, rows_out, tuple(names), costs_tot)

@@ -40,7 +40,7 @@ designed as if it knew in advance which measurements of the others will be
 missing. Online, agents learn the others' gaps only through the graph; the
 online-feasible optimum is in general worse.
 
-Families whose designs declare ``handles_missing`` (the centralized filter,
+Families whose registry records declare ``missing_data`` (the centralized filter,
 MTMSE, per-agent MMSE) filter logs with gaps; any other family raises
 :class:`~teamkf.exceptions.UnsupportedOperationError` naming the family and
 the first missing (agent, step).

@@ -131,7 +131,7 @@ def known_inputs(scenario: Any) -> KnownInputs | None:
     """The known means of a scenario (``[system] x0_mean, B, u, b``; ``[[agents]] D, d``), validated, or None."""
     from ...exceptions import ScenarioError
 
-    raw = getattr(scenario, "raw", {}) or {}
+    raw = scenario.raw or {}
     s = raw.get("system", {}) or {}
     agents = raw.get("agents", []) or []
     keys = ("x0_mean", "B", "u", "b")

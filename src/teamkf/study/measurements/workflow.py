@@ -34,15 +34,15 @@ def design_for_log(scenario: Any, name: str, log: MeasurementLog) -> Any:
 
     Without gaps: the scenario's own design. With gaps: the design on
     :func:`masked_system` for the log's steps (finite horizon), when the family
-    declares ``handles_missing``; otherwise an
+    declares the ``missing_data`` capability; otherwise an
     :class:`~teamkf.exceptions.UnsupportedOperationError` naming the family
     and the first missing (agent, step).
     """
     if not log.has_gaps:
         return scenario.design(name)
-    from ...estimators.registry import get_family
-
-    fam = (getattr(scenario, "families", None) or {}).get(name) or get_family(name, "estimators")
+    fam = scenario.family(name)
+    if not fam.missing_data:
+        raise _missing_error(name, log)
     if "finite" not in fam.horizons:
         raise _missing_error(name, log, "it has no finite-horizon (time-varying) design")
     sysm = masked_system(scenario.system, log.present)
@@ -51,8 +51,6 @@ def design_for_log(scenario: Any, name: str, log: MeasurementLog) -> Any:
         d = fam.build(sysm, scenario.cost, graph=scenario.graph, structure=scenario.information, horizon=log.n_steps, options=opts)
     except TeamkfError as exc:
         raise _missing_error(name, log, f"its design on the time-varying model of the gaps failed ({exc})") from exc
-    if not getattr(d, "handles_missing", False):
-        raise _missing_error(name, log)
     return d
 
 
