@@ -1,0 +1,593 @@
+r"""The drop-aware team filter ``mtmse_lossy`` (alias ``mtmse-lossy``): minimum EXPECTED team MSE over lossy links.
+
+Problem
+-------
+Links drop each packet independently (edge e: probability p_e; with a jitter bound J_e a packet
+also counts as lost when it is late, so it arrives on time with probability
+q_e = (1 - p_e)/(J_e + 1)). Minimize the expected team cost
+
+.. math::  J_T = \sum_{k=0}^{T-1} E\big[(Lx(k) - \hat z(k))^\top S\, (Lx(k) - \hat z(k))\big]
+
+over estimates that each agent computes from what actually reached it.
+
+The class (stated; exact within it)
+-----------------------------------
+Every agent j runs its own Kalman filter on its own measurements (prior 0, Σ_x) and floods its
+innovation ν_j(s) = y_j(s) - C_j x̂_j(s|s-1) (relays forward every item once, like the MTMSE
+relays). Agent i's estimate at step k is
+
+.. math::  \hat z_i(k) = L_i \hat x_i(k|k) + \sum_{(j,s) \in \mathcal I_i(k)} G_i(k; j, s)\, d_i(j, s)\, \nu_j(s),      (1)
+
+where 𝓘_i(k) are the items that can have reached i on time by k (s ≤ k - ℓ_ji; the last ``memory``
+steps when a memory is set), d_i(j, s) ∈ {0, 1} says whether ν_j(s) arrived on time
+(:mod:`teamkf.estimators._arrivals`; late items are not used), and the gains G_i(k) are chosen
+offline. The innovations ν_j(0:s) span y_j(0:s), so
+
+* at p = 0 (every d = 1) the class is every linear function of the full information of eq. (14):
+  its optimum is the MTMSE filter (Theorem 2);
+* at p = 1 (only own items) it is every linear function of y_i(0:k): its optimum is the team
+  optimum of the own-history structure (``InformationStructure.own_window(n, T)``);
+* G = 0 is the local Kalman filter (family ``local``), so the design never costs more than it.
+
+A missed item contributes zero, its prior mean (ν_j(s) is zero-mean and independent of the link
+events); the gains are the best *for the probability* of each miss, not for its realization
+(they do not depend on the arrival pattern). This is the class "gains indexed by the step only";
+pattern-dependent gains (the missed-packet rule of the nominal design is one) are not in it.
+
+Optimality conditions and algorithm
+-----------------------------------
+With e_i(k) = x(k) - x̂_i(k|k), the error of agent i is L_i e_i(k) - G_i D_i ν, and because the link
+events are independent of the noises, the expected cost of step k is the quadratic
+
+.. math::  J_k(G) = \operatorname{Tr}(S \bar L P_e \bar L^\top) - 2\langle G, \eta\rangle + \langle G, \Gamma G\rangle,
+           \qquad \eta_i = \sum_j S_{ij} L_j \Theta_j(k) Q_i,
+           \qquad \Gamma_{ij} = S_{ij} \otimes (\Sigma_{\nu\nu}[\mathcal I_i, \mathcal I_j] \circ M_{ij}),
+
+where Θ_j(k) = cov(e_j(k|k), ν), Q_i = diag(P(d_i = 1)), and M_ij[a, b] = E[d_i(a) d_j(b)] (exact:
+the product of the marginals plus the corrections of the items whose paths share a link event).
+It is convex; the stationarity (Radner) conditions Σ_j S_ij E[(L_j e_j - G_j D_j ν) ν' D_i] = 0 are
+Γ G = η, one symmetric positive definite system per step (Cholesky), and J_k* = Tr(S L̄ P_e L̄ᵀ) - ⟨G, η⟩.
+The steps decouple because (1) is linear in the data, not in earlier estimates.
+
+The covariances come from one forward pass over the stacked local-filter errors
+ε(s) = (e_1(s|s-1), …, e_n(s|s-1)), ε(s+1) = A(I - K C) ε(s) - A K v(s) + 1 ⊗ w(s), whose transition
+is stable (detectable agents), so no quantity of the size of x(k) enters (unstable processes are fine).
+
+Complexity: items N_i(k) ≤ k Σ_j d_y^j per agent; step k costs O((Σ_i d_z N_i)^3) (Cholesky);
+``memory = m`` bounds N_i by m Σ_j d_y^j, the class then drops the innovations older than m steps
+(the own ones stay in x̂_i(k|k)).
+
+Lower bound
+-----------
+:attr:`LossyTeamDesign.lower_bound` is certified: any strategy over lossy links uses a subset of the
+full information plus link events independent of the Gaussian variables, so each stage cost is at
+least the MTMSE stage cost of the full information structure (randomization independent of the data
+cannot lower a convex quadratic team cost). ``info["gap"]`` is the relative gap to it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+import scipy.linalg as sla
+
+from .. import _validation as V
+from .._validation import FloatArray
+from ..exceptions import ArgumentError, ShapeError
+from ..models import LinearGaussianSystem, TeamCost
+from ..network.graph import CommGraph
+from ._arrivals import ArrivalModel
+from .base import Design, check_measurements
+from .checks import check_graph, check_model
+from .registry import Family, Option, _register_builtin, register_alias
+
+__all__ = ["LossyTeamDesign", "LossyTeamAgent", "design_mtmse_lossy", "local_filter_moments"]
+
+
+# ---------------------------------------------------------------------------
+# second moments of the local filters' errors and innovations
+# ---------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class LocalMoments:
+    """Exact second moments of every agent's own Kalman filter, over the horizon.
+
+    K : list over steps of lists over agents of (d_x, d_y^j) gains
+    Sigma : (N, N) covariance of all innovations ν = (ν(0), ..., ν(T-1)), ν(s) = (ν_1(s), ..., ν_n(s))
+    Theta : list over steps k of (n d_x, N_k) arrays cov(e(k|k), ν(0:k)), N_k = (k+1) Σ d_y
+    Pe : list over steps of (n d_x, n d_x) covariances of e(k|k) = (e_1(k|k), ..., e_n(k|k))
+    """
+
+    K: list[list[FloatArray]]
+    Sigma: FloatArray
+    Theta: list[FloatArray]
+    Pe: list[FloatArray]
+
+
+def local_filter_moments(system: LinearGaussianSystem, T: int) -> LocalMoments:
+    r"""Joint covariances of the agents' local Kalman filters (see the module docstring).
+
+    ε(0) = 1 ⊗ x(0); e(k|k) = U ε(k) - K̄ v(k), U = diag(I - K_j C_j); ν(k) = C̄ ε(k) + v(k);
+    ε(k+1) = Ā e(k|k) + 1 ⊗ w(k). With Z(k) = cov(ε(k), ν(0:k-1)):
+    Θ(k) = [U Z(k), U P_ε C̄ᵀ - K̄ R], Z(k+1) = Ā Θ(k), cov(ν(k), ν(0:k-1)) = C̄ Z(k).
+    """
+    n, dx, dyt = system.n_agents, system.dx, system.dy_total
+    Sigma = np.zeros((T * dyt, T * dyt))
+    ones = np.ones((n, n))
+    P_eps = np.kron(ones, system.Sigma_x)
+    P_loc = [np.array(system.Sigma_x, dtype=float) for _ in range(n)]
+    Z = np.zeros((n * dx, 0))
+    Ks, Thetas, Pes = [], [], []
+    for k in range(T):
+        Cs = [system.C_at(j, k) for j in range(n)]
+        Rs = [system.R_at(j, k) for j in range(n)]
+        K = []
+        for j in range(n):
+            Sy = Cs[j] @ P_loc[j] @ Cs[j].T + Rs[j]
+            if Sy.size:
+                Kj = sla.cho_solve(sla.cho_factor(0.5 * (Sy + Sy.T), lower=True), Cs[j] @ P_loc[j]).T
+            else:
+                Kj = np.zeros((dx, 0))
+            K.append(Kj)
+        Ks.append(K)
+        U = sla.block_diag(*[np.eye(dx) - K[j] @ Cs[j] for j in range(n)])
+        Kb = sla.block_diag(*K) if dyt else np.zeros((n * dx, 0))
+        Cb = sla.block_diag(*Cs) if dyt else np.zeros((0, n * dx))
+        R = system.R_stack(k)
+        blk = slice(k * dyt, (k + 1) * dyt)
+        Sigma[blk, : k * dyt] = Cb @ Z
+        Sigma[: k * dyt, blk] = Sigma[blk, : k * dyt].T
+        Sv = Cb @ P_eps @ Cb.T + R
+        Sigma[blk, blk] = 0.5 * (Sv + Sv.T)
+        Theta = np.hstack([U @ Z, U @ P_eps @ Cb.T - Kb @ R])
+        Thetas.append(Theta)
+        Pe = U @ P_eps @ U.T + Kb @ R @ Kb.T
+        Pe = 0.5 * (Pe + Pe.T)
+        Pes.append(Pe)
+        A = system.A_at(k)
+        Ab = np.kron(np.eye(n), A)
+        Z = Ab @ Theta
+        P_eps = Ab @ Pe @ Ab.T + np.kron(ones, system.Q_at(k))
+        P_eps = 0.5 * (P_eps + P_eps.T)
+        for j in range(n):
+            IKC = np.eye(dx) - K[j] @ Cs[j]
+            Pf = IKC @ P_loc[j] @ IKC.T + K[j] @ Rs[j] @ K[j].T
+            Pp = A @ Pf @ A.T + system.Q_at(k)
+            P_loc[j] = 0.5 * (Pp + Pp.T)
+    return LocalMoments(Ks, Sigma, Thetas, Pes)
+
+
+# ---------------------------------------------------------------------------
+# the items each agent may hold, and their joint arrival moments
+# ---------------------------------------------------------------------------
+def _items(arr: ArrivalModel, i: int, k: int, memory: int | None) -> list[tuple[int, int]]:
+    """𝓘_i(k): items (j, s) that can be on time at i by step k, ordered by step then source."""
+    lo = 0 if memory is None else max(0, k - memory + 1)
+    out = []
+    for s in range(lo, k + 1):
+        for j in range(arr.n_agents):
+            if s <= k - arr.ell[j, i] and arr.prob[j, i] > 0.0:
+                out.append((j, s))
+    return out
+
+
+def _moment_matrix(arr: ArrivalModel, i: int, items_i: Sequence[tuple[int, int]], l: int, items_l: Sequence[tuple[int, int]]) -> FloatArray:
+    """M_il[a, b] = E[d_i(a) d_l(b)] for items a of agent i and b of agent l (per item, not per row)."""
+    qi = np.array([arr.prob[j, i] for (j, _) in items_i])
+    ql = np.array([arr.prob[h, l] for (h, _) in items_l])
+    M = np.outer(qi, ql)
+    pos_l = {it: b for b, it in enumerate(items_l)}
+    for a, (j, s) in enumerate(items_i):
+        if i == l and (j, s) in pos_l and j != i:
+            M[a, pos_l[(j, s)]] = arr.prob[j, i]  # E[d^2] = E[d]
+        for h in range(arr.n_agents):
+            corr = arr.pairs.get(((j, i), (h, l)))
+            if not corr:
+                continue
+            for delta, c in corr.items():
+                if i == l and j == h and delta == 0:
+                    continue  # the item with itself (set above)
+                b = pos_l.get((h, s + delta))
+                if b is not None:
+                    M[a, b] += c
+    return M
+
+
+def _rows(system: LinearGaussianSystem, items: Sequence[tuple[int, int]]) -> np.ndarray:
+    """Positions of the items' entries in the stacked ν = (ν(0), ..., ν(T-1))."""
+    dyt, off = system.dy_total, system.offsets
+    parts = [s * dyt + int(off[j]) + np.arange(system.dy[j]) for (j, s) in items]
+    return np.concatenate(parts).astype(int) if parts else np.zeros(0, dtype=int)
+
+
+def _expand(M: FloatArray, system: LinearGaussianSystem, items_a: Sequence[tuple[int, int]], items_b: Sequence[tuple[int, int]]) -> FloatArray:
+    ra = np.repeat(np.arange(len(items_a)), [system.dy[j] for (j, _) in items_a])
+    rb = np.repeat(np.arange(len(items_b)), [system.dy[j] for (j, _) in items_b])
+    return M[np.ix_(ra, rb)]
+
+
+def _solve_step(
+    system: LinearGaussianSystem, cost: TeamCost, arr: ArrivalModel, mom: LocalMoments, k: int, memory: int | None, fill: bool = True
+) -> tuple[list[list[tuple[int, int]]], list[FloatArray], float, float]:
+    """Gains G_i(k) (d_z × rows of 𝓘_i(k)), the optimal stage cost, and the local-KF stage cost."""
+    n, dx, dz = system.n_agents, system.dx, cost.dz
+    S, L = cost.S_at(k), cost.L_at(k)
+    Lb = sla.block_diag(*[L[i * dz : (i + 1) * dz] for i in range(n)])  # (n dz, n dx): L_i on e_i
+    c0 = float(np.trace(S @ Lb @ mom.Pe[k] @ Lb.T))
+    items = [_items(arr, i, k, memory) for i in range(n)]
+    rows = [_rows(system, it) for it in items]
+    qrow = [_expand(np.array([[arr.prob[j, i] for (j, _) in items[i]]]), system, [(0, 0)], items[i])[0] if items[i] else np.zeros(0) for i in range(n)]
+    # the fill of a missed item: its best linear predictor from the agent's own innovations (always held)
+    own = [_rows(system, [(j, s) for (j, s) in items[i] if j == i]) for i in range(n)]
+    H = []
+    for i in range(n):
+        if fill and own[i].size and rows[i].size:
+            cf = sla.cho_factor(mom.Sigma[np.ix_(own[i], own[i])], lower=True, check_finite=False)
+            H.append(sla.cho_solve(cf, mom.Sigma[np.ix_(own[i], rows[i])], check_finite=False).T)  # (rows_i, own_i)
+        else:
+            H.append(np.zeros((rows[i].size, own[i].size)))
+    W = S @ Lb @ mom.Theta[k]  # row block i: Σ_j S_ij L_j Θ_j
+    eta = [W[i * dz : (i + 1) * dz][:, rows[i]] * qrow[i][None, :] + (W[i * dz : (i + 1) * dz][:, own[i]] @ H[i].T) * (1.0 - qrow[i])[None, :] for i in range(n)]
+    sizes = [dz * r.size for r in rows]
+    offs = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
+    Gam = np.zeros((offs[-1], offs[-1]))
+    for i in range(n):
+        for l in range(i, n):
+            if not sizes[i] or not sizes[l]:
+                continue
+            M11 = _expand(_moment_matrix(arr, i, items[i], l, items[l]), system, items[i], items[l])
+            X = mom.Sigma[np.ix_(rows[i], rows[l])] * M11
+            if fill:
+                M10 = qrow[i][:, None] - M11  # E[d_i(a) (1 - d_l(b))]
+                M01 = qrow[l][None, :] - M11
+                M00 = 1.0 - qrow[i][:, None] - qrow[l][None, :] + M11
+                X = X + (mom.Sigma[np.ix_(rows[i], own[l])] @ H[l].T) * M10 + (H[i] @ mom.Sigma[np.ix_(own[i], rows[l])]) * M01
+                X = X + (H[i] @ mom.Sigma[np.ix_(own[i], own[l])] @ H[l].T) * M00
+            Sil = S[i * dz : (i + 1) * dz, l * dz : (l + 1) * dz]
+            blk = X * Sil[0, 0] if dz == 1 else np.kron(X, Sil)  # unknown order: (item row, z component)
+            Gam[offs[i] : offs[i + 1], offs[l] : offs[l + 1]] = blk
+            if l != i:
+                Gam[offs[l] : offs[l + 1], offs[i] : offs[i + 1]] = blk.T
+    rhs = np.concatenate([e.T.ravel() for e in eta]) if offs[-1] else np.zeros(0)
+    if offs[-1]:
+        cf = sla.cho_factor(Gam, lower=True, check_finite=False)
+        g = sla.cho_solve(cf, rhs, check_finite=False)
+    else:
+        g = np.zeros(0)
+    G = [g[offs[i] : offs[i + 1]].reshape(-1, dz).T for i in range(n)]
+    J = c0 - float(g @ rhs)
+    return items, G, J, c0, H
+
+
+# ---------------------------------------------------------------------------
+# the design
+# ---------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False, kw_only=True)
+class LossyTeamDesign(Design):
+    """The drop-aware team filter (1) with its exact expected cost (module docstring).
+
+    Attributes
+    ----------
+    graph : CommGraph
+    p_drop, jitter : the link model it is designed for (a number, or {(a, b): value})
+    memory : int or None      innovations older than this many steps are not used (None: all)
+    arrivals : ArrivalModel   the on-time probabilities it uses
+    items : per step, per agent, the items (j, s) of 𝓘_i(k)
+    gains : per step, per agent, G_i(k) of shape (d_z, Σ d_y^j over 𝓘_i(k))
+    K_local : per step, per agent, the local Kalman gains
+    lower_bound_stages : (T,) certified lower bound of every stage cost (MTMSE, full information)
+    local_stages : (T,) stage costs of the local Kalman filters (G = 0)
+    """
+
+    graph: CommGraph
+    p_drop: Any
+    jitter: Any
+    memory: int | None
+    arrivals: ArrivalModel = field(repr=False)
+    items: tuple[tuple[tuple[tuple[int, int], ...], ...], ...] = field(repr=False)
+    gains: tuple[tuple[FloatArray, ...], ...] = field(repr=False)
+    fills: tuple[tuple[FloatArray, ...], ...] = field(repr=False)
+    K_local: tuple[tuple[FloatArray, ...], ...] = field(repr=False)
+    lower_bound_stages: FloatArray = field(repr=False)
+    local_stages: FloatArray = field(repr=False)
+
+    @property
+    def lower_bound(self) -> float:
+        """Certified lower bound of the expected total cost of ANY strategy on these lossy links."""
+        return float(np.sum(self.lower_bound_stages))
+
+    @property
+    def gap(self) -> float:
+        """(J_T - lower bound) / lower bound."""
+        return (float(self.total_cost or 0.0) - self.lower_bound) / self.lower_bound
+
+    @property
+    def tolerates_losses(self) -> bool:
+        return True
+
+    # --- Monte Carlo ---------------------------------------------------------------------
+    def errors(self, paths: Any, *, p_drop: Any = None, jitter: Any = None, rng: Any = None, arrived: Any = None) -> FloatArray:
+        """Team errors e(k) = L x(k) - ẑ(k), (n_runs, T', n d_z), with sampled link events.
+
+        By default every item arrives (reliable links, as the lossless Monte Carlo assumes); give
+        ``p_drop`` (and ``jitter``) with ``rng`` to sample on-time events per edge and step
+        (:meth:`ArrivalModel.sample`), or ``arrived`` (n_runs, T', n, n) booleans d_i(j, s) directly.
+        Vectorized over runs: the local filters' errors are propagated from the primitive noises and
+        the estimate (1) is a batched product with the arrival-masked innovations.
+        """
+        sysm, cost = self.system, self.cost
+        x0 = np.asarray(paths.x, dtype=float)[:, 0]
+        w = np.asarray(paths.w, dtype=float)
+        v = np.concatenate([np.asarray(vi, dtype=float) for vi in paths.v], axis=2)
+        n_runs, T = v.shape[:2]
+        if self.horizon is not None and T > self.horizon:
+            raise ShapeError(f"paths: expected at most horizon = {self.horizon} steps, found {T}")
+        n, dx, dz, dyt = sysm.n_agents, sysm.dx, cost.dz, sysm.dy_total
+        if arrived is None:
+            if p_drop is None:
+                arrived = np.ones((n_runs, T, n, n), dtype=bool)
+            else:
+                arr = ArrivalModel.build(self.graph, p_drop, 0 if jitter is None else jitter)
+                arrived = arr.sample(n_runs, T, np.random.default_rng(rng))
+        arrived = np.asarray(arrived, dtype=bool)
+        if arrived.shape != (n_runs, T, n, n):
+            raise ShapeError(f"arrived: expected shape {(n_runs, T, n, n)}, found {arrived.shape}")
+        off = sysm.offsets
+        eps = np.tile(x0, (1, n))  # ε(0) = 1 ⊗ x(0)
+        nu = np.zeros((n_runs, T * dyt))
+        mask = np.zeros((n_runs, T * dyt, n))  # mask[:, row, i] = d_i(source of row, step of row)
+        for s in range(T):
+            for j in range(n):
+                rr = slice(s * dyt + int(off[j]), s * dyt + int(off[j]) + sysm.dy[j])
+                mask[:, rr, :] = arrived[:, s, j, :][:, None, :]
+        out = np.empty((n_runs, T, n * dz))
+        for k in range(T):
+            Cs = [sysm.C_at(j, k) for j in range(n)]
+            K = self.K_local[k]
+            nu_k = np.hstack([eps[:, j * dx : (j + 1) * dx] @ Cs[j].T for j in range(n)]) + v[:, k]
+            nu[:, k * dyt : (k + 1) * dyt] = nu_k
+            ef = np.hstack(
+                [
+                    eps[:, j * dx : (j + 1) * dx] - nu_k[:, int(off[j]) : int(off[j]) + sysm.dy[j]] @ K[j].T
+                    for j in range(n)
+                ]
+            )  # e_j(k|k) = e_j(k|k-1) - K_j ν_j(k)
+            L = cost.L_at(k)
+            for i in range(n):
+                rows = _rows(sysm, self.items[k][i])
+                z = ef[:, i * dx : (i + 1) * dx] @ L[i * dz : (i + 1) * dz].T
+                if rows.size:
+                    own = _rows(sysm, [(j, s) for (j, s) in self.items[k][i] if j == i])
+                    m = mask[:, rows, i]
+                    f = nu[:, rows] * m + (1.0 - m) * (nu[:, own] @ self.fills[k][i].T)  # the fill of a missed item
+                    z = z - f @ self.gains[k][i].T
+                out[:, k, i * dz : (i + 1) * dz] = z
+            A = sysm.A_at(k)
+            eps = ef @ np.kron(np.eye(n), A).T + (np.tile(w[:, k], (1, n)) if k < w.shape[1] else 0.0)
+        return out
+
+    # --- online agents -------------------------------------------------------------------
+    def graph_agents(self) -> list[Any]:
+        """One agent per node: its own Kalman filter, flooding of innovations, the estimate (1) on what arrived on time."""
+        return [LossyTeamAgent(self, i) for i in range(self.n_agents)]
+
+    @property
+    def delivery_graph(self) -> CommGraph | None:
+        return self.graph
+
+    # --- what the CLI writes ---------------------------------------------------------------
+    def details(self) -> dict[str, Any]:
+        return {
+            "p_drop": self.p_drop if not isinstance(self.p_drop, dict) else {f"{a}->{b}": v for (a, b), v in self.p_drop.items()},
+            "jitter": self.jitter if not isinstance(self.jitter, dict) else {f"{a}->{b}": v for (a, b), v in self.jitter.items()},
+            "memory": self.memory,
+            "lower_bound": self.lower_bound,
+            "gap": self.gap,
+            "local_kf_cost": float(np.sum(self.local_stages)),
+            "class": "gains per step on the on-time innovations of every agent's own Kalman filter (pattern-independent)",
+        }
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Costs, the bound, the on-time probabilities ``q_arrival`` [j, i], and per step k and agent i the gains
+        ``G_{i}_t{k}`` with their items ``items_{i}_t{k}`` ((source, step) rows) and the local gains ``K_{i}_t{k}``."""
+        out = {
+            **super().arrays(),
+            "lower_bound_stages": np.asarray(self.lower_bound_stages),
+            "local_stages": np.asarray(self.local_stages),
+            "q_arrival": np.asarray(self.arrivals.prob),
+        }
+        for k, step in enumerate(self.gains):
+            for i, G in enumerate(step):
+                out[f"G_{i}_t{k}"] = np.asarray(G)
+                out[f"items_{i}_t{k}"] = np.asarray(self.items[k][i], dtype=np.int64).reshape(-1, 2)
+                out[f"K_{i}_t{k}"] = np.asarray(self.K_local[k][i])
+        return out
+
+
+class LossyTeamAgent:
+    """Agent i of a :class:`LossyTeamDesign` on the message-passing runtime (any links).
+
+    Runs its own Kalman filter, floods ν_i(k) and every item it learns for the first time (payload:
+    list of (j, s, ν_j(s))), records when each item arrived, and outputs (1) using the items that
+    arrived on time (at s + ℓ_ji). It never needs a message, so lost and late packets are fine.
+    """
+
+    def __init__(self, design: LossyTeamDesign, index: int):
+        self.design = design
+        self.index = index
+        self.system = design.system
+
+    def init_state(self, n_runs: int) -> dict[str, Any]:
+        return {"xhat": np.zeros((n_runs, self.system.dx)), "items": {}, "n_runs": n_runs}
+
+    def step(self, state: dict[str, Any], k: int, own: Any, inbox: Sequence[Any]) -> tuple[dict[str, Any], FloatArray, list[Any]]:
+        d, i, sysm = self.design, self.index, self.system
+        xhat = state["xhat"] if k == 0 else state["xhat"] @ sysm.A_at(k - 1).T
+        y = np.asarray(own, dtype=float)
+        nu = y - xhat @ sysm.C_at(i, k).T
+        xhat = xhat + nu @ d.K_local[k][i].T
+        items = dict(state["items"])
+        new = []
+        for j, s, val in [(i, k, nu), *[p for (_, _, payload) in inbox for p in payload]]:
+            if (j, s) not in items:
+                on_time = k == s + int(d.arrivals.ell[j, i])
+                items[(j, s)] = np.asarray(val) if on_time else None  # late items are kept out of (1)
+                new.append((j, s, val))
+        z = xhat @ d.cost.L_block(i, k).T
+        its = d.items[k][i]
+        if its:
+            nu_own = np.hstack([items[(j, s)] for (j, s) in its if j == i])
+            fill = nu_own @ d.fills[k][i].T  # the predictions of every item from the own innovations
+            parts, col = [], 0
+            for j, s in its:
+                dj = sysm.dy[j]
+                val = items.get((j, s))
+                parts.append(fill[:, col : col + dj] if val is None else val)
+                col += dj
+            z = z + np.hstack(parts) @ d.gains[k][i].T
+        return {"xhat": xhat, "items": items, "n_runs": state["n_runs"]}, z, new
+
+
+# ---------------------------------------------------------------------------
+# entry point
+# ---------------------------------------------------------------------------
+def _p_value(x: Any, name: str) -> Any:
+    if isinstance(x, dict):
+        return {tuple(int(v) for v in e): V.probability(p, f"{name}[{list(e)}]") for e, p in x.items()}
+    return V.probability(x, name)
+
+
+def _jitter_value(x: Any, name: str) -> Any:
+    if isinstance(x, dict):
+        return {tuple(int(v) for v in e): V.integer(j, f"{name}[{list(e)}]", minimum=0) for e, j in x.items()}
+    return V.integer(x, name, minimum=0)
+
+
+def design_mtmse_lossy(
+    system: LinearGaussianSystem,
+    cost: TeamCost,
+    graph: CommGraph,
+    horizon: int | None = None,
+    *,
+    p_drop: Any = None,
+    jitter: Any = 0,
+    memory: int | None = None,
+    fill: bool = True,
+    bound: bool = True,
+    progress: bool | None = None,
+) -> LossyTeamDesign:
+    """Design the drop-aware team filter for links that drop packets with probability ``p_drop``.
+
+    Parameters
+    ----------
+    system, cost : the model and the team cost (S, L)
+    graph : CommGraph
+        The links (delays); items are flooded over it.
+    horizon : int
+        T (finite horizon only).
+    p_drop : float in [0, 1] or {(source, target): p}
+        Drop probability of every packet (or per edge). Required (a scenario gives its ``[network] p_drop``).
+    jitter : int >= 0 or {(source, target): J}
+        A packet late by 1..J steps counts as lost (its item is not used): on-time probability (1 - p)/(J + 1).
+    memory : int or None
+        Use only the innovations of the last ``memory`` steps (bounds the work; None: all, the exact class).
+    bound : bool
+        Also compute the certified lower bound (the MTMSE stage costs of the full information).
+
+    Returns
+    -------
+    LossyTeamDesign
+        ``stage_costs``/``total_cost`` exact expected costs, ``lower_bound``, ``gap``.
+
+    Examples
+    --------
+    >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph
+    >>> sys, cost, g = LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 10.0), CommGraph.line(4)
+    >>> d0 = design_mtmse_lossy(sys, cost, g, 8, p_drop=0.0)
+    >>> d5 = design_mtmse_lossy(sys, cost, g, 8, p_drop=0.5)
+    >>> d0.lower_bound <= d0.total_cost <= d5.total_cost <= d5.info["local_kf_cost"]
+    True
+    """
+    from .._resources import progress as _progress
+
+    check_model(system, cost)
+    check_graph(graph, system.n_agents)
+    if horizon is None:
+        raise ArgumentError(
+            "horizon: the drop-aware design is finite-horizon only (its gains act on every past innovation); give horizon = T",
+            argument="horizon",
+        )
+    T = V.positive_int(horizon, "horizon")
+    system.require_horizon(T)
+    cost.require_horizon(T)
+    if p_drop is None:
+        raise ArgumentError(
+            "p_drop: the drop-aware design needs the drop probability; give p_drop = p (or a [network] p_drop in the scenario)",
+            argument="p_drop",
+        )
+    p = _p_value(p_drop, "p_drop")
+    J = _jitter_value(jitter, "jitter")
+    mem = None if memory is None else V.positive_int(memory, "memory")
+    arr = ArrivalModel.build(graph, p, J)
+    mom = local_filter_moments(system, T)
+    res = [_solve_step(system, cost, arr, mom, k, mem, fill) for k in _progress(range(T), total=T, desc="mtmse_lossy design", enabled=progress)]
+    stage = np.array([r[2] for r in res])
+    local = np.array([r[3] for r in res])
+    if bound:
+        from .team import design_mtmse
+
+        lb = np.asarray(design_mtmse(system, cost, graph, T).stage_costs, dtype=float)
+        lb = np.minimum(lb, stage)  # equal at p = 0 up to round-off: never report a bound above the cost
+    else:
+        lb = np.full(T, np.nan)
+    d = LossyTeamDesign(
+        estimator="mtmse_lossy",
+        horizon=T,
+        system=system,
+        cost=cost,
+        stage_costs=stage,
+        info={"p_drop": p, "jitter": J, "memory": mem, "local_kf_cost": float(local.sum())},
+        graph=graph,
+        p_drop=p,
+        jitter=J,
+        memory=mem,
+        arrivals=arr,
+        items=tuple(tuple(tuple(it) for it in r[0]) for r in res),
+        gains=tuple(tuple(r[1]) for r in res),
+        fills=tuple(tuple(r[4]) for r in res),
+        K_local=tuple(tuple(K) for K in mom.K),
+        lower_bound_stages=lb,
+        local_stages=local,
+    )
+    d.info["lower_bound"] = d.lower_bound
+    d.info["gap"] = d.gap
+    return d
+
+
+def _check_p(v: Any, key: str) -> Any:
+    return None if v is None else _p_value(v, key)
+
+
+def _check_memory(v: Any, key: str) -> Any:
+    return None if v is None else V.positive_int(v, key)
+
+
+FAMILY = _register_builtin(
+    Family(
+        name="mtmse_lossy",
+        design=design_mtmse_lossy,
+        title="drop-aware team filter: minimum expected team MSE for links that drop packets with a known probability (exact cost, certified bound)",
+        uses="graph",
+        horizons=frozenset({"finite"}),
+        analytic_cost=True,
+        strongly_connected=True,
+        options=(
+            Option(name="p_drop", default=None, check=_check_p, doc="drop probability (default: the scenario's [network] p_drop)"),
+            Option(name="jitter", default=0, check=lambda v, k: _jitter_value(v, k), doc="late packets (by up to J steps) count as lost"),
+            Option(name="memory", default=None, check=_check_memory, doc="use the innovations of the last m steps only (none: all)"),
+        ),
+        example="design_mtmse_lossy(system, cost, graph, horizon=50, p_drop=0.2)",
+    )
+)
+register_alias("mtmse-lossy", "mtmse_lossy")
