@@ -161,37 +161,166 @@ def local_filter_moments(system: LinearGaussianSystem, T: int) -> LocalMoments:
 # ---------------------------------------------------------------------------
 # the items each agent may hold, and their joint arrival moments
 # ---------------------------------------------------------------------------
-def _items(arr: ArrivalModel, i: int, k: int, memory: int | None) -> list[tuple[int, int]]:
-    """𝓘_i(k): items (j, s) that can be on time at i by step k, ordered by step then source."""
-    lo = 0 if memory is None else max(0, k - memory + 1)
-    out = []
-    for s in range(lo, k + 1):
-        for j in range(arr.n_agents):
-            if s <= k - arr.ell[j, i] and arr.prob[j, i] > 0.0:
-                out.append((j, s))
-    return out
+@dataclass(frozen=True, eq=False)
+class _Slots:
+    """Every (agent i, item (j, s)) of the horizon, ordered by the step k0 = s + ℓ_ji from which it can be held.
+
+    agent, src, step, due : per slot;  rows : per slot-row, the position in ν;  owner : per slot-row, the agent;
+    q : per slot-row, P(on time);  H : (rows, N) the fill of each slot-row (its predictor from the agent's own
+    innovations ν_i(0 : k0)), applied to the filled vector f = d ν + (1 - d) H ν (:func:`_second_moment`).
+    """
+
+    agent: np.ndarray
+    src: np.ndarray
+    step: np.ndarray
+    due: np.ndarray
+    row_slot: np.ndarray
+    rows: np.ndarray
+    owner: np.ndarray
+    q: np.ndarray
+    H: FloatArray
+    arr: ArrivalModel
+    Sigma: FloatArray
+    fill: bool
 
 
-def _moment_matrix(arr: ArrivalModel, i: int, items_i: Sequence[tuple[int, int]], l: int, items_l: Sequence[tuple[int, int]]) -> FloatArray:
-    """M_il[a, b] = E[d_i(a) d_l(b)] for items a of agent i and b of agent l (per item, not per row)."""
-    qi = np.array([arr.prob[j, i] for (j, _) in items_i])
-    ql = np.array([arr.prob[h, l] for (h, _) in items_l])
-    M = np.outer(qi, ql)
-    pos_l = {it: b for b, it in enumerate(items_l)}
-    for a, (j, s) in enumerate(items_i):
-        if i == l and (j, s) in pos_l and j != i:
-            M[a, pos_l[(j, s)]] = arr.prob[j, i]  # E[d^2] = E[d]
-        for h in range(arr.n_agents):
-            corr = arr.pairs.get(((j, i), (h, l)))
-            if not corr:
+def _slots(system: LinearGaussianSystem, arr: ArrivalModel, Sigma: FloatArray, T: int, fill: bool) -> _Slots:
+    n, dyt, off = system.n_agents, system.dy_total, system.offsets
+    lst = [(s + int(arr.ell[j, i]), i, j, s) for i in range(n) for j in range(n) for s in range(T) if s + arr.ell[j, i] <= T - 1 and arr.prob[j, i] > 0]
+    lst.sort()
+    due = np.array([x[0] for x in lst], dtype=int)
+    agent = np.array([x[1] for x in lst], dtype=int)
+    src = np.array([x[2] for x in lst], dtype=int)
+    step = np.array([x[3] for x in lst], dtype=int)
+    dys = np.array([system.dy[j] for j in src], dtype=int)
+    row_slot = np.repeat(np.arange(len(lst)), dys)
+    rows = np.concatenate([step[a] * dyt + int(off[src[a]]) + np.arange(dys[a]) for a in range(len(lst))]).astype(int) if lst else np.zeros(0, dtype=int)
+    owner = agent[row_slot]
+    q = arr.prob[src, agent][row_slot]
+    N = Sigma.shape[0]
+    H = np.zeros((rows.size, N))
+    if fill:
+        own_rows = [np.concatenate([s_ * dyt + int(off[i]) + np.arange(system.dy[i]) for s_ in range(T)]).astype(int) for i in range(n)]
+        chol = [sla.cholesky(Sigma[np.ix_(o, o)], lower=True) if o.size else None for o in own_rows]
+        for a in range(len(lst)):
+            i, j = agent[a], src[a]
+            if i == j or chol[i] is None:
                 continue
+            m = (due[a] + 1) * system.dy[i]  # own innovations ν_i(0 : k0)
+            Lc = chol[i][:m, :m]  # type: ignore[index]
+            o = own_rows[i][:m]
+            rr = rows[row_slot == a]
+            H[np.ix_(np.flatnonzero(row_slot == a), o)] = sla.cho_solve((Lc, True), Sigma[np.ix_(o, rr)], check_finite=False).T
+    return _Slots(agent, src, step, due, row_slot, rows, owner, q, H, arr, Sigma, fill)
+
+
+def _second_moment(sl: _Slots, idx: np.ndarray) -> FloatArray:
+    """X[idx, idx] with X = E[f f'] over the slot-rows ``idx`` (f = d ν + (1 - d) H ν, exact arrival moments)."""
+    arr, Sigma = sl.arr, sl.Sigma
+    slots = np.unique(sl.row_slot[idx])
+    where = {int(a): t for t, a in enumerate(slots)}
+    qs = arr.prob[sl.src[slots], sl.agent[slots]]
+    M = np.outer(qs, qs)
+    index = {(int(sl.agent[a]), int(sl.src[a]), int(sl.step[a])): t for t, a in enumerate(slots)}
+    for t, a in enumerate(slots):
+        i, j, s_ = int(sl.agent[a]), int(sl.src[a]), int(sl.step[a])
+        M[t, t] = qs[t]  # E[d^2] = E[d]
+        if i == j:
+            continue
+        for (ka, kb), corr in arr.pairs.items():
+            if ka != (j, i):
+                continue
+            h, l = kb
             for delta, c in corr.items():
-                if i == l and j == h and delta == 0:
-                    continue  # the item with itself (set above)
-                b = pos_l.get((h, s + delta))
-                if b is not None:
-                    M[a, b] += c
-    return M
+                u = index.get((l, h, s_ + delta))
+                if u is not None and u != t:
+                    M[t, u] += c
+    loc = np.array([where[int(a)] for a in sl.row_slot[idx]], dtype=int)
+    M11 = M[np.ix_(loc, loc)]
+    rows = sl.rows[idx]
+    X = Sigma[np.ix_(rows, rows)] * M11
+    if sl.fill:
+        H = sl.H[idx]
+        nz = np.flatnonzero(np.any(H != 0.0, axis=0))  # the own-innovation columns the fills use
+        Hn = H[:, nz]
+        q = sl.q[idx]
+        SP = Sigma[np.ix_(rows, nz)] @ Hn.T  # P Σ H'
+        X += SP * (q[:, None] - M11) + SP.T * (q[None, :] - M11) + (Hn @ Sigma[np.ix_(nz, nz)] @ Hn.T) * (1.0 - q[:, None] - q[None, :] + M11)
+    return 0.5 * (X + X.T)
+
+
+def _solve_all(
+    system: LinearGaussianSystem, cost: TeamCost, arr: ArrivalModel, mom: LocalMoments, T: int, memory: int | None, fill: bool, progress: bool | None
+) -> tuple[list[list[list[tuple[int, int]]]], list[list[FloatArray]], list[list[FloatArray]], np.ndarray, np.ndarray]:
+    """Gains, fills and stage costs of every step.
+
+    The slots are ordered by the step from which they can be held, and E[f f'] does not depend on k,
+    so with a constant S the matrix Γ(k) of step k is the leading n_k × n_k block of Γ(T-1): one
+    Cholesky factorization serves every step (its leading block is the factor of Γ(k)).
+    """
+    from .._resources import progress as _progress
+
+    n, dx, dz = system.n_agents, system.dx, cost.dz
+    sl = _slots(system, arr, mom.Sigma, T, fill)
+    R = sl.rows.size
+    zidx = (sl.owner[:, None] * dz + np.arange(dz)[None, :]).ravel()  # unknown (row, z component) -> row of S
+    rr = np.repeat(np.arange(R), dz)
+    const_S = not cost.is_time_varying
+    chol = None
+    stages, locs = np.zeros(T), np.zeros(T)
+    gains: list[list[FloatArray]] = []
+    fills: list[list[FloatArray]] = []
+    items: list[list[list[tuple[int, int]]]] = []
+    for k in _progress(range(T), total=T, desc="mtmse_lossy design", enabled=progress):
+        S, L = cost.S_at(k), cost.L_at(k)
+        Lb = sla.block_diag(*[L[i * dz : (i + 1) * dz] for i in range(n)])
+        c0 = float(np.trace(S @ Lb @ mom.Pe[k] @ Lb.T))
+        live_rows = np.flatnonzero(sl.due[sl.row_slot] <= k)
+        if memory is not None:
+            live_rows = live_rows[sl.step[sl.row_slot[live_rows]] >= k - memory + 1]
+        u = (live_rows[:, None] * dz + np.arange(dz)[None, :]).ravel()  # unknowns of step k
+        W = S @ Lb @ mom.Theta[k]  # (n dz, N_k): row block i is Σ_j S_ij L_j Θ_j
+        Nk = W.shape[1]
+        cols = sl.rows[live_rows]
+        V1 = W[:, cols]
+        V2 = W @ sl.H[live_rows][:, :Nk].T
+        zr = zidx[u]
+        rk = rr[u]
+        qk = sl.q[rk]
+        pos = np.searchsorted(live_rows, rk)
+        eta = qk * V1[zr, pos] + (1.0 - qk) * V2[zr, pos]
+        if u.size:
+            prefix = memory is None and const_S
+            if prefix and chol is None:
+                G_all = _second_moment(sl, np.arange(R))[np.ix_(rr, rr)] * S[np.ix_(zidx, zidx)]
+                chol = sla.cholesky(G_all, lower=True, check_finite=False)
+            if prefix:
+                Lk = chol[: u.size, : u.size]  # type: ignore[index]
+                g = sla.cho_solve((Lk, True), eta, check_finite=False)
+            else:
+                Gk = _second_moment(sl, live_rows)[np.ix_(pos, pos)] * S[np.ix_(zr, zr)]
+                g = sla.cho_solve(sla.cho_factor(Gk, lower=True, check_finite=False), eta, check_finite=False)
+        else:
+            g = np.zeros(0)
+        stages[k] = c0 - float(g @ eta)
+        locs[k] = c0
+        Gk_list, Fk_list, Ik_list = [], [], []
+        for i in range(n):
+            mine = np.flatnonzero(sl.owner[live_rows] == i)
+            slots_i = list(dict.fromkeys(sl.row_slot[live_rows[mine]].tolist()))
+            Ik_list.append([(int(sl.src[a]), int(sl.step[a])) for a in slots_i])
+            gi = g.reshape(-1, dz)[mine].T if u.size else np.zeros((dz, 0))
+            Gk_list.append(gi)
+            Fk_list.append(sl.H[live_rows[mine]][:, _own_cols(system, i, k)])
+        gains.append(Gk_list)
+        fills.append(Fk_list)
+        items.append(Ik_list)
+    return items, gains, fills, stages, locs
+
+
+def _own_cols(system: LinearGaussianSystem, i: int, k: int) -> np.ndarray:
+    """Positions in ν of agent i's own innovations ν_i(0:k) (the columns its fills act on at step k)."""
+    return _rows(system, [(i, s) for s in range(k + 1)])
 
 
 def _rows(system: LinearGaussianSystem, items: Sequence[tuple[int, int]]) -> np.ndarray:
@@ -199,65 +328,6 @@ def _rows(system: LinearGaussianSystem, items: Sequence[tuple[int, int]]) -> np.
     dyt, off = system.dy_total, system.offsets
     parts = [s * dyt + int(off[j]) + np.arange(system.dy[j]) for (j, s) in items]
     return np.concatenate(parts).astype(int) if parts else np.zeros(0, dtype=int)
-
-
-def _expand(M: FloatArray, system: LinearGaussianSystem, items_a: Sequence[tuple[int, int]], items_b: Sequence[tuple[int, int]]) -> FloatArray:
-    ra = np.repeat(np.arange(len(items_a)), [system.dy[j] for (j, _) in items_a])
-    rb = np.repeat(np.arange(len(items_b)), [system.dy[j] for (j, _) in items_b])
-    return M[np.ix_(ra, rb)]
-
-
-def _solve_step(
-    system: LinearGaussianSystem, cost: TeamCost, arr: ArrivalModel, mom: LocalMoments, k: int, memory: int | None, fill: bool = True
-) -> tuple[list[list[tuple[int, int]]], list[FloatArray], float, float]:
-    """Gains G_i(k) (d_z × rows of 𝓘_i(k)), the optimal stage cost, and the local-KF stage cost."""
-    n, dx, dz = system.n_agents, system.dx, cost.dz
-    S, L = cost.S_at(k), cost.L_at(k)
-    Lb = sla.block_diag(*[L[i * dz : (i + 1) * dz] for i in range(n)])  # (n dz, n dx): L_i on e_i
-    c0 = float(np.trace(S @ Lb @ mom.Pe[k] @ Lb.T))
-    items = [_items(arr, i, k, memory) for i in range(n)]
-    rows = [_rows(system, it) for it in items]
-    qrow = [_expand(np.array([[arr.prob[j, i] for (j, _) in items[i]]]), system, [(0, 0)], items[i])[0] if items[i] else np.zeros(0) for i in range(n)]
-    # the fill of a missed item: its best linear predictor from the agent's own innovations (always held)
-    own = [_rows(system, [(j, s) for (j, s) in items[i] if j == i]) for i in range(n)]
-    H = []
-    for i in range(n):
-        if fill and own[i].size and rows[i].size:
-            cf = sla.cho_factor(mom.Sigma[np.ix_(own[i], own[i])], lower=True, check_finite=False)
-            H.append(sla.cho_solve(cf, mom.Sigma[np.ix_(own[i], rows[i])], check_finite=False).T)  # (rows_i, own_i)
-        else:
-            H.append(np.zeros((rows[i].size, own[i].size)))
-    W = S @ Lb @ mom.Theta[k]  # row block i: Σ_j S_ij L_j Θ_j
-    eta = [W[i * dz : (i + 1) * dz][:, rows[i]] * qrow[i][None, :] + (W[i * dz : (i + 1) * dz][:, own[i]] @ H[i].T) * (1.0 - qrow[i])[None, :] for i in range(n)]
-    sizes = [dz * r.size for r in rows]
-    offs = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
-    Gam = np.zeros((offs[-1], offs[-1]))
-    for i in range(n):
-        for l in range(i, n):
-            if not sizes[i] or not sizes[l]:
-                continue
-            M11 = _expand(_moment_matrix(arr, i, items[i], l, items[l]), system, items[i], items[l])
-            X = mom.Sigma[np.ix_(rows[i], rows[l])] * M11
-            if fill:
-                M10 = qrow[i][:, None] - M11  # E[d_i(a) (1 - d_l(b))]
-                M01 = qrow[l][None, :] - M11
-                M00 = 1.0 - qrow[i][:, None] - qrow[l][None, :] + M11
-                X = X + (mom.Sigma[np.ix_(rows[i], own[l])] @ H[l].T) * M10 + (H[i] @ mom.Sigma[np.ix_(own[i], rows[l])]) * M01
-                X = X + (H[i] @ mom.Sigma[np.ix_(own[i], own[l])] @ H[l].T) * M00
-            Sil = S[i * dz : (i + 1) * dz, l * dz : (l + 1) * dz]
-            blk = X * Sil[0, 0] if dz == 1 else np.kron(X, Sil)  # unknown order: (item row, z component)
-            Gam[offs[i] : offs[i + 1], offs[l] : offs[l + 1]] = blk
-            if l != i:
-                Gam[offs[l] : offs[l + 1], offs[i] : offs[i + 1]] = blk.T
-    rhs = np.concatenate([e.T.ravel() for e in eta]) if offs[-1] else np.zeros(0)
-    if offs[-1]:
-        cf = sla.cho_factor(Gam, lower=True, check_finite=False)
-        g = sla.cho_solve(cf, rhs, check_finite=False)
-    else:
-        g = np.zeros(0)
-    G = [g[offs[i] : offs[i + 1]].reshape(-1, dz).T for i in range(n)]
-    J = c0 - float(g @ rhs)
-    return items, G, J, c0, H
 
 
 # ---------------------------------------------------------------------------
@@ -358,7 +428,7 @@ class LossyTeamDesign(Design):
                 rows = _rows(sysm, self.items[k][i])
                 z = ef[:, i * dx : (i + 1) * dx] @ L[i * dz : (i + 1) * dz].T
                 if rows.size:
-                    own = _rows(sysm, [(j, s) for (j, s) in self.items[k][i] if j == i])
+                    own = _own_cols(sysm, i, k)
                     m = mask[:, rows, i]
                     f = nu[:, rows] * m + (1.0 - m) * (nu[:, own] @ self.fills[k][i].T)  # the fill of a missed item
                     z = z - f @ self.gains[k][i].T
@@ -437,7 +507,7 @@ class LossyTeamAgent:
         z = xhat @ d.cost.L_block(i, k).T
         its = d.items[k][i]
         if its:
-            nu_own = np.hstack([items[(j, s)] for (j, s) in its if j == i])
+            nu_own = np.hstack([items[(i, s)] for s in range(k + 1)])
             fill = nu_own @ d.fills[k][i].T  # the predictions of every item from the own innovations
             parts, col = [], 0
             for j, s in its:
@@ -509,8 +579,6 @@ def design_mtmse_lossy(
     >>> d0.lower_bound <= d0.total_cost <= d5.total_cost <= d5.info["local_kf_cost"]
     True
     """
-    from .._resources import progress as _progress
-
     check_model(system, cost)
     check_graph(graph, system.n_agents)
     if horizon is None:
@@ -531,9 +599,7 @@ def design_mtmse_lossy(
     mem = None if memory is None else V.positive_int(memory, "memory")
     arr = ArrivalModel.build(graph, p, J)
     mom = local_filter_moments(system, T)
-    res = [_solve_step(system, cost, arr, mom, k, mem, fill) for k in _progress(range(T), total=T, desc="mtmse_lossy design", enabled=progress)]
-    stage = np.array([r[2] for r in res])
-    local = np.array([r[3] for r in res])
+    items, gains, fills, stage, local = _solve_all(system, cost, arr, mom, T, mem, fill, progress)
     if bound:
         from .team import design_mtmse
 
@@ -553,9 +619,9 @@ def design_mtmse_lossy(
         jitter=J,
         memory=mem,
         arrivals=arr,
-        items=tuple(tuple(tuple(it) for it in r[0]) for r in res),
-        gains=tuple(tuple(r[1]) for r in res),
-        fills=tuple(tuple(r[4]) for r in res),
+        items=tuple(tuple(tuple(it) for it in step) for step in items),
+        gains=tuple(tuple(step) for step in gains),
+        fills=tuple(tuple(step) for step in fills),
         K_local=tuple(tuple(K) for K in mom.K),
         lower_bound_stages=lb,
         local_stages=local,
