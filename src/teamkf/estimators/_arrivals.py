@@ -79,6 +79,17 @@ class ArrivalModel:
     prob: np.ndarray = field(repr=False)
     pairs: dict[tuple[tuple[int, int], tuple[int, int]], dict[int, float]] = field(repr=False)
 
+    @property
+    def pairs_from(self) -> dict[tuple[int, int], list[tuple[tuple[int, int], dict[int, float]]]]:
+        """``pairs`` grouped by the first (source, target) key (cached)."""
+        cache = self.__dict__.get("_pairs_from")
+        if cache is None:
+            cache = {}
+            for (a, b), corr in self.pairs.items():
+                cache.setdefault(a, []).append((b, corr))
+            object.__setattr__(self, "_pairs_from", cache)
+        return cache
+
     @classmethod
     def build(cls, graph: Any, p_drop: Any, jitter: Any = 0) -> "ArrivalModel":
         """From a :class:`~teamkf.network.graph.CommGraph`, a drop probability (number or {(a, b): p}) and a jitter bound."""

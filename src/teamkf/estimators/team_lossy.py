@@ -202,6 +202,7 @@ def _slots(system: LinearGaussianSystem, arr: ArrivalModel, Sigma: FloatArray, T
     if fill:
         own_rows = [np.concatenate([s_ * dyt + int(off[i]) + np.arange(system.dy[i]) for s_ in range(T)]).astype(int) for i in range(n)]
         chol = [sla.cholesky(Sigma[np.ix_(o, o)], lower=True) if o.size else None for o in own_rows]
+        starts = np.concatenate([[0], np.cumsum(dys)]).astype(int)
         for a in range(len(lst)):
             i, j = agent[a], src[a]
             if i == j or chol[i] is None:
@@ -209,8 +210,8 @@ def _slots(system: LinearGaussianSystem, arr: ArrivalModel, Sigma: FloatArray, T
             m = (due[a] + 1) * system.dy[i]  # own innovations ν_i(0 : k0)
             Lc = chol[i][:m, :m]  # type: ignore[index]
             o = own_rows[i][:m]
-            rr = rows[row_slot == a]
-            H[np.ix_(np.flatnonzero(row_slot == a), o)] = sla.cho_solve((Lc, True), Sigma[np.ix_(o, rr)], check_finite=False).T
+            here = np.arange(starts[a], starts[a + 1])
+            H[np.ix_(here, o)] = sla.cho_solve((Lc, True), Sigma[np.ix_(o, rows[here])], check_finite=False).T
     return _Slots(agent, src, step, due, row_slot, rows, owner, q, H, arr, Sigma, fill)
 
 
@@ -227,10 +228,7 @@ def _second_moment(sl: _Slots, idx: np.ndarray) -> FloatArray:
         M[t, t] = qs[t]  # E[d^2] = E[d]
         if i == j:
             continue
-        for (ka, kb), corr in arr.pairs.items():
-            if ka != (j, i):
-                continue
-            h, l = kb
+        for (h, l), corr in arr.pairs_from.get((j, i), ()):
             for delta, c in corr.items():
                 u = index.get((l, h, s_ + delta))
                 if u is not None and u != t:
