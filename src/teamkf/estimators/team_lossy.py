@@ -74,6 +74,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from .. import _validation as V
+from .._blas import blas_threads
 from .._validation import FloatArray
 from ..exceptions import ArgumentError, ShapeError
 from ..models import LinearGaussianSystem, TeamCost
@@ -543,6 +544,7 @@ def design_mtmse_lossy(
     memory: int | None = None,
     fill: bool = True,
     bound: bool = True,
+    threads: int | None = 1,
     progress: bool | None = None,
 ) -> LossyTeamDesign:
     """Design the drop-aware team filter for links that drop packets with probability ``p_drop``.
@@ -560,6 +562,10 @@ def design_mtmse_lossy(
         A packet late by 1..J steps counts as lost (its item is not used): on-time probability (1 - p)/(J + 1).
     memory : int or None
         Use only the innovations of the last ``memory`` steps (bounds the work; None: all, the exact class).
+    fill : bool
+        Replace a missed item by its predictor from the agent's own innovations (else by zero, its mean).
+    threads : int or None
+        BLAS threads for the design (1: robust on a shared machine; None: the library's default).
     bound : bool
         Also compute the certified lower bound (the MTMSE stage costs of the full information).
 
@@ -596,8 +602,9 @@ def design_mtmse_lossy(
     J = _jitter_value(jitter, "jitter")
     mem = None if memory is None else V.positive_int(memory, "memory")
     arr = ArrivalModel.build(graph, p, J)
-    mom = local_filter_moments(system, T)
-    items, gains, fills, stage, local = _solve_all(system, cost, arr, mom, T, mem, fill, progress)
+    with blas_threads(threads):
+        mom = local_filter_moments(system, T)
+        items, gains, fills, stage, local = _solve_all(system, cost, arr, mom, T, mem, fill, progress)
     if bound:
         from .team import design_mtmse
 
