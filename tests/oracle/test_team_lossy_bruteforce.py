@@ -69,7 +69,7 @@ def _arrival_steps(graph: CommGraph, ok: dict, T: int, n: int):
     """Flooding-once: arrival step of item (j, s) at agent i (None: never), from the edge-step outcomes."""
     learned = {(j, s, j): s for j in range(n) for s in range(T)}
     for t in range(T):
-        for (a, b, dl) in graph.edges:
+        for a, b, dl in graph.edges:
             for (j, s, u), when in list(learned.items()):
                 if u == a and when == t and ok[(a, b, t)]:
                     key = (j, s, b)

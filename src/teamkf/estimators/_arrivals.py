@@ -138,16 +138,16 @@ class ArrivalModel:
             for e in {e for p in paths[key] for (e, _) in p}:
                 by_edge.setdefault(e, []).append(key)
         candidates = {(a, b) for lst in by_edge.values() for a in lst for b in lst}
-        for a, b in sorted(candidates):
+        for ka, kb in sorted(candidates):
             for delta in range(-span, span + 1):
-                shifted = [frozenset((e, o + delta) for (e, o) in p) for p in paths[b]]
-                ev_a = {ev for p in paths[a] for ev in p}
+                shifted = [frozenset((e, o + delta) for (e, o) in p) for p in paths[kb]]
+                ev_a = {ev for p in paths[ka] for ev in p}
                 if not any(ev in ev_a for p in shifted for ev in p):
                     continue
-                joint = prob[a] + prob[b] - _union_prob(paths[a] + shifted, q)
-                c = float(joint - prob[a] * prob[b])
+                joint = prob[ka] + prob[kb] - _union_prob(paths[ka] + shifted, q)
+                c = float(joint - prob[ka] * prob[kb])
                 if abs(c) > 0.0:
-                    pairs.setdefault((a, b), {})[delta] = c
+                    pairs.setdefault((ka, kb), {})[delta] = c
         return cls(n, ell, edges, q, paths, prob, pairs)
 
     def sample(self, n_runs: int, n_steps: int, rng: np.random.Generator) -> np.ndarray:

@@ -34,7 +34,7 @@ from typing import Any, Callable, Literal, Mapping
 from .. import _validation as V
 from ..exceptions import ArgumentError, GraphError, TeamkfError
 
-__all__ = ["Family", "Option", "register_family", "register_alias", "unregister_family", "families", "get_family", "load_plugin", "ENTRY_POINT_GROUP", "PLUGINS_ENV"]
+__all__ = ["Family", "Option", "register_family", "unregister_family", "families", "get_family", "load_plugin", "ENTRY_POINT_GROUP", "PLUGINS_ENV"]
 
 #: environment variable with plugin modules or files to load (separated by os.pathsep), as ``teamkf --plugin``
 PLUGINS_ENV = "TEAMKF_PLUGINS"

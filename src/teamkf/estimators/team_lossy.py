@@ -80,7 +80,7 @@ from ..exceptions import ArgumentError, ShapeError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
 from ._arrivals import ArrivalModel
-from .base import Design, check_measurements
+from .base import Design
 from .checks import check_graph, check_model
 from .registry import Family, Option, _register_builtin, register_alias
 
@@ -183,11 +183,14 @@ class _Slots:
     arr: ArrivalModel
     Sigma: FloatArray
     fill: bool
+    own_rows: list[np.ndarray]
 
 
 def _slots(system: LinearGaussianSystem, arr: ArrivalModel, Sigma: FloatArray, T: int, fill: bool) -> _Slots:
     n, dyt, off = system.n_agents, system.dy_total, system.offsets
-    lst = [(s + int(arr.ell[j, i]), i, j, s) for i in range(n) for j in range(n) for s in range(T) if s + arr.ell[j, i] <= T - 1 and arr.prob[j, i] > 0]
+    lst = [
+        (s + int(arr.ell[j, i]), i, j, s) for i in range(n) for j in range(n) for s in range(T) if s + arr.ell[j, i] <= T - 1 and arr.prob[j, i] > 0
+    ]
     lst.sort()
     due = np.array([x[0] for x in lst], dtype=int)
     agent = np.array([x[1] for x in lst], dtype=int)
@@ -195,7 +198,9 @@ def _slots(system: LinearGaussianSystem, arr: ArrivalModel, Sigma: FloatArray, T
     step = np.array([x[3] for x in lst], dtype=int)
     dys = np.array([system.dy[j] for j in src], dtype=int)
     row_slot = np.repeat(np.arange(len(lst)), dys)
-    rows = np.concatenate([step[a] * dyt + int(off[src[a]]) + np.arange(dys[a]) for a in range(len(lst))]).astype(int) if lst else np.zeros(0, dtype=int)
+    rows = (
+        np.concatenate([step[a] * dyt + int(off[src[a]]) + np.arange(dys[a]) for a in range(len(lst))]).astype(int) if lst else np.zeros(0, dtype=int)
+    )
     owner = agent[row_slot]
     q = arr.prob[src, agent][row_slot]
     N = Sigma.shape[0]
@@ -213,7 +218,8 @@ def _slots(system: LinearGaussianSystem, arr: ArrivalModel, Sigma: FloatArray, T
             o = own_rows[i][:m]
             here = np.arange(starts[a], starts[a + 1])
             H[np.ix_(here, o)] = sla.cho_solve((Lc, True), Sigma[np.ix_(o, rows[here])], check_finite=False).T
-    return _Slots(agent, src, step, due, row_slot, rows, owner, q, H, arr, Sigma, fill)
+    own_all = [np.concatenate([s_ * dyt + int(off[i]) + np.arange(system.dy[i]) for s_ in range(T)]).astype(int) for i in range(n)]
+    return _Slots(agent, src, step, due, row_slot, rows, owner, q, H, arr, Sigma, fill, own_all)
 
 
 def _second_moment(sl: _Slots, idx: np.ndarray) -> FloatArray:
@@ -238,13 +244,24 @@ def _second_moment(sl: _Slots, idx: np.ndarray) -> FloatArray:
     M11 = M[np.ix_(loc, loc)]
     rows = sl.rows[idx]
     X = Sigma[np.ix_(rows, rows)] * M11
-    if sl.fill:
-        H = sl.H[idx]
-        nz = np.flatnonzero(np.any(H != 0.0, axis=0))  # the own-innovation columns the fills use
-        Hn = H[:, nz]
+    if sl.fill:  # agent by agent: the fill of agent i's rows acts on its own innovations only
         q = sl.q[idx]
-        SP = Sigma[np.ix_(rows, nz)] @ Hn.T  # P Σ H'
-        X += SP * (q[:, None] - M11) + SP.T * (q[None, :] - M11) + (Hn @ Sigma[np.ix_(nz, nz)] @ Hn.T) * (1.0 - q[:, None] - q[None, :] + M11)
+        owners = sl.owner[idx]
+        blocks = [np.flatnonzero(owners == i) for i in range(len(sl.own_rows))]
+        Hs = [sl.H[idx[b]][:, sl.own_rows[i]] for i, b in enumerate(blocks)]
+        HS = [Hs[i] @ Sigma[sl.own_rows[i]] for i in range(len(blocks))]  # H_i Σ, (rows_i, N)
+        for i, bi in enumerate(blocks):
+            if not bi.size:
+                continue
+            for l, bl in enumerate(blocks):
+                if not bl.size:
+                    continue
+                m11 = M11[np.ix_(bi, bl)]
+                t10 = HS[l][:, rows[bi]].T  # P Σ H_l'
+                t01 = HS[i][:, rows[bl]]  # H_i Σ P'
+                t00 = HS[i][:, sl.own_rows[l]] @ Hs[l].T  # H_i Σ H_l'
+                qi, ql = q[bi][:, None], q[bl][None, :]
+                X[np.ix_(bi, bl)] += t10 * (qi - m11) + t01 * (ql - m11) + t00 * (1.0 - qi - ql + m11)
     return 0.5 * (X + X.T)
 
 
@@ -259,7 +276,7 @@ def _solve_all(
     """
     from .._resources import progress as _progress
 
-    n, dx, dz = system.n_agents, system.dx, cost.dz
+    n, dz = system.n_agents, cost.dz
     sl = _slots(system, arr, mom.Sigma, T, fill)
     R = sl.rows.size
     zidx = (sl.owner[:, None] * dz + np.arange(dz)[None, :]).ravel()  # unknown (row, z component) -> row of S
@@ -417,10 +434,7 @@ class LossyTeamDesign(Design):
             nu_k = np.hstack([eps[:, j * dx : (j + 1) * dx] @ Cs[j].T for j in range(n)]) + v[:, k]
             nu[:, k * dyt : (k + 1) * dyt] = nu_k
             ef = np.hstack(
-                [
-                    eps[:, j * dx : (j + 1) * dx] - nu_k[:, int(off[j]) : int(off[j]) + sysm.dy[j]] @ K[j].T
-                    for j in range(n)
-                ]
+                [eps[:, j * dx : (j + 1) * dx] - nu_k[:, int(off[j]) : int(off[j]) + sysm.dy[j]] @ K[j].T for j in range(n)]
             )  # e_j(k|k) = e_j(k|k-1) - K_j ν_j(k)
             L = cost.L_at(k)
             for i in range(n):
