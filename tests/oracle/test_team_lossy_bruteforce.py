@@ -47,7 +47,7 @@ def _joint(system: LinearGaussianSystem, T: int):
 
 
 def _local_maps(d, T):
-    """Linear maps over (x, y) of every agent's x̂_i(k|k) and of every ν_j(s)."""
+    """Linear maps over (x, y) of every agent's x̂_i(k|k) and of every item (ν_j(s), or y_j(s))."""
     sysm = d.system
     n, dx, dyt = sysm.n_agents, sysm.dx, sysm.dy_total
     off = sysm.offsets
@@ -59,8 +59,9 @@ def _local_maps(d, T):
         for k in range(T):
             ysel = np.zeros((sysm.dy[i], width))
             ysel[:, T * dx + k * dyt + int(off[i]) + np.arange(sysm.dy[i])] = np.eye(sysm.dy[i])
-            nu[(i, k)] = ysel - sysm.C_at(i, k) @ pred
-            xf[(i, k)] = pred + d.K_local[k][i] @ nu[(i, k)]
+            innov = ysel - sysm.C_at(i, k) @ pred
+            nu[(i, k)] = ysel if d.coordinates == "measurements" else innov  # what the agents flood
+            xf[(i, k)] = pred + d.K_local[k][i] @ innov
             pred = sysm.A_at(k) @ xf[(i, k)]
     return xf, nu
 
@@ -145,10 +146,11 @@ def _tiny(n: int):
     return sysm, TeamCost(S=S, L=L, n_agents=n)
 
 
+@pytest.mark.parametrize("items", ["measurements", "innovations"])
 @pytest.mark.parametrize(("n", "graph", "p"), [(2, CommGraph.complete(2, delay=1), 0.3), (3, CommGraph.line(3), 0.4)])
-def test_expected_cost_and_optimality_by_enumeration(n, graph, p):
+def test_expected_cost_and_optimality_by_enumeration(n, graph, p, items):
     sysm, cost = _tiny(n)
-    d = design_mtmse_lossy(sysm, cost, graph, T, p_drop=p)
+    d = design_mtmse_lossy(sysm, cost, graph, T, p_drop=p, items=items)
     expected, best = _brute(d, graph, p)
     np.testing.assert_allclose(d.stage_costs, expected, rtol=1e-10)  # the exact expected cost
     for k in range(T):

@@ -159,6 +159,24 @@ def local_filter_moments(system: LinearGaussianSystem, T: int) -> LocalMoments:
     return LocalMoments(Ks, Sigma, Thetas, Pes)
 
 
+def innovations_to_measurements(system: LinearGaussianSystem, K: Sequence[Sequence[FloatArray]], T: int) -> FloatArray:
+    r"""B with y = B ν (stacked over steps): y_j(s) = ν_j(s) + C_j(s) x̂_j(s|s-1), x̂_j linear in ν_j(0:s-1).
+
+    x̂_j(s+1|s) = A(s) (x̂_j(s|s-1) + K_j(s) ν_j(s)); block lower triangular, agent by agent.
+    """
+    n, dx, dyt, off = system.n_agents, system.dx, system.dy_total, system.offsets
+    B = np.eye(T * dyt)
+    for j in range(n):
+        cols_j = [s * dyt + int(off[j]) + np.arange(system.dy[j]) for s in range(T)]
+        pred = np.zeros((dx, T * dyt))  # x̂_j(s|s-1) as a map of ν
+        for s in range(T):
+            B[cols_j[s]] += system.C_at(j, s) @ pred
+            upd = pred.copy()
+            upd[:, cols_j[s]] += K[s][j]
+            pred = system.A_at(s) @ upd
+    return B
+
+
 # ---------------------------------------------------------------------------
 # the items each agent may hold, and their joint arrival moments
 # ---------------------------------------------------------------------------
@@ -370,6 +388,7 @@ class LossyTeamDesign(Design):
     p_drop: Any
     jitter: Any
     memory: int | None
+    coordinates: str
     arrivals: ArrivalModel = field(repr=False)
     items: tuple[tuple[tuple[tuple[int, int], ...], ...], ...] = field(repr=False)
     gains: tuple[tuple[FloatArray, ...], ...] = field(repr=False)
@@ -422,6 +441,7 @@ class LossyTeamDesign(Design):
         off = sysm.offsets
         eps = np.tile(x0, (1, n))  # ε(0) = 1 ⊗ x(0)
         nu = np.zeros((n_runs, T * dyt))
+        yv = np.concatenate([np.asarray(yi, dtype=float) for yi in paths.y], axis=2).reshape(n_runs, -1) if self.coordinates == "measurements" else nu
         mask = np.zeros((n_runs, T * dyt, n))  # mask[:, row, i] = d_i(source of row, step of row)
         for s in range(T):
             for j in range(n):
@@ -443,7 +463,8 @@ class LossyTeamDesign(Design):
                 if rows.size:
                     own = _own_cols(sysm, i, k)
                     m = mask[:, rows, i]
-                    f = nu[:, rows] * m + (1.0 - m) * (nu[:, own] @ self.fills[k][i].T)  # the fill of a missed item
+                    vals = nu if self.coordinates == "innovations" else yv
+                    f = vals[:, rows] * m + (1.0 - m) * (vals[:, own] @ self.fills[k][i].T)  # the fill of a missed item
                     z = z - f @ self.gains[k][i].T
                 out[:, k, i * dz : (i + 1) * dz] = z
             A = sysm.A_at(k)
@@ -468,7 +489,8 @@ class LossyTeamDesign(Design):
             "lower_bound": self.lower_bound,
             "gap": self.gap,
             "local_kf_cost": float(np.sum(self.local_stages)),
-            "class": "gains per step on the on-time innovations of every agent's own Kalman filter (pattern-independent)",
+            "items": self.coordinates,
+            "class": f"gains per step on the on-time {self.coordinates} (pattern-independent), missed ones filled from the agent's own",
         }
 
     def arrays(self) -> dict[str, np.ndarray]:
@@ -512,7 +534,8 @@ class LossyTeamAgent:
         xhat = xhat + nu @ d.K_local[k][i].T
         items = dict(state["items"])
         new = []
-        for j, s, val in [(i, k, nu), *[p for (_, _, payload) in inbox for p in payload]]:
+        mine = y if d.coordinates == "measurements" else nu  # the item this agent floods
+        for j, s, val in [(i, k, mine), *[p for (_, _, payload) in inbox for p in payload]]:
             if (j, s) not in items:
                 on_time = k == s + int(d.arrivals.ell[j, i])
                 items[(j, s)] = np.asarray(val) if on_time else None  # late items are kept out of (1)
@@ -556,6 +579,7 @@ def design_mtmse_lossy(
     p_drop: Any = None,
     jitter: Any = 0,
     memory: int | None = None,
+    items: str = "auto",
     fill: bool = True,
     bound: bool = True,
     threads: int | None = 1,
@@ -576,6 +600,12 @@ def design_mtmse_lossy(
         A packet late by 1..J steps counts as lost (its item is not used): on-time probability (1 - p)/(J + 1).
     memory : int or None
         Use only the innovations of the last ``memory`` steps (bounds the work; None: all, the exact class).
+    items : "auto", "measurements" or "innovations"
+        What the agents flood and the gains act on: the raw measurements y_j(s), or the innovations
+        ν_j(s) of the sender's own Kalman filter. Both give MTMSE at p = 0 and the own-history optimum
+        at p = 1; in between they are different classes (a missed raw measurement is predicted well
+        from the agent's own ones when the agents measure alike). "auto": measurements when every A(k)
+        is stable (spectral radius < 1), else innovations (bounded second moments on unstable processes).
     fill : bool
         Replace a missed item by its predictor from the agent's own innovations (else by zero, its mean).
     threads : int or None
@@ -615,9 +645,15 @@ def design_mtmse_lossy(
     p = _p_value(p_drop, "p_drop")
     J = _jitter_value(jitter, "jitter")
     mem = None if memory is None else V.positive_int(memory, "memory")
+    coords = V.choice(items, "items", ("auto", "measurements", "innovations"))
+    if coords == "auto":
+        coords = "measurements" if _stable(system, T) else "innovations"
     arr = ArrivalModel.build(graph, p, J)
     with blas_threads(threads):
         mom = local_filter_moments(system, T)
+        if coords == "measurements":  # items are the raw y_j(s) = Σ_t B(s, t) ν_j(t)
+            B = innovations_to_measurements(system, mom.K, T)
+            mom = LocalMoments(mom.K, B @ mom.Sigma @ B.T, [Th @ B[: Th.shape[1], : Th.shape[1]].T for Th in mom.Theta], mom.Pe)
         items, gains, fills, stage, local = _solve_all(system, cost, arr, mom, T, mem, fill, progress)
     if bound:
         from .team import design_mtmse
@@ -632,11 +668,12 @@ def design_mtmse_lossy(
         system=system,
         cost=cost,
         stage_costs=stage,
-        info={"p_drop": p, "jitter": J, "memory": mem, "local_kf_cost": float(local.sum())},
+        info={"p_drop": p, "jitter": J, "memory": mem, "items": coords, "local_kf_cost": float(local.sum())},
         graph=graph,
         p_drop=p,
         jitter=J,
         memory=mem,
+        coordinates=coords,
         arrivals=arr,
         items=tuple(tuple(tuple(it) for it in step) for step in items),
         gains=tuple(tuple(step) for step in gains),
@@ -648,6 +685,12 @@ def design_mtmse_lossy(
     d.info["lower_bound"] = d.lower_bound
     d.info["gap"] = d.gap
     return d
+
+
+def _stable(system: LinearGaussianSystem, T: int) -> bool:
+    """True when every A(k), k < T, has spectral radius < 1 (raw measurements keep bounded second moments)."""
+    steps = range(T) if system.is_time_varying else range(1)
+    return all(float(np.max(np.abs(np.linalg.eigvals(system.A_at(k))))) < 1.0 for k in steps)
 
 
 def _check_p(v: Any, key: str) -> Any:
@@ -670,7 +713,13 @@ FAMILY = _register_builtin(
         options=(
             Option(name="p_drop", default=None, check=_check_p, doc="drop probability (default: the scenario's [network] p_drop)"),
             Option(name="jitter", default=0, check=lambda v, k: _jitter_value(v, k), doc="late packets (by up to J steps) count as lost"),
-            Option(name="memory", default=None, check=_check_memory, doc="use the innovations of the last m steps only (none: all)"),
+            Option(name="memory", default=None, check=_check_memory, doc="use the items of the last m steps only (none: all)"),
+            Option(
+                name="items",
+                default="auto",
+                check=lambda v, k: V.choice(v, k, ("auto", "measurements", "innovations")),
+                doc="what agents flood: raw measurements or their own filter's innovations (auto: measurements for a stable A)",
+            ),
         ),
         example="design_mtmse_lossy(system, cost, graph, horizon=50, p_drop=0.2)",
     )
