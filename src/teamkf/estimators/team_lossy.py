@@ -12,16 +12,19 @@ over estimates that each agent computes from what actually reached it.
 
 The class (stated; exact within it)
 -----------------------------------
-Every agent j runs its own Kalman filter on its own measurements (prior 0, Σ_x) and floods its
-innovation ν_j(s) = y_j(s) - C_j x̂_j(s|s-1) (relays forward every item once, like the MTMSE
-relays). Agent i's estimate at step k is
+Every agent j runs its own Kalman filter on its own measurements (prior 0, Σ_x) and floods one item
+u_j(s) per step: its raw measurement y_j(s) (``items="measurements"``, the default for a stable A)
+or its filter's innovation ν_j(s) = y_j(s) - C_j x̂_j(s|s-1) (``items="innovations"``, the default
+for an unstable A); relays forward every item once, like the MTMSE relays. Agent i's estimate is
 
-.. math::  \hat z_i(k) = L_i \hat x_i(k|k) + \sum_{(j,s) \in \mathcal I_i(k)} G_i(k; j, s)\, d_i(j, s)\, \nu_j(s),      (1)
+.. math::  \hat z_i(k) = L_i \hat x_i(k|k) + \sum_{(j,s) \in \mathcal I_i(k)} G_i(k; j, s)\, f_i(j, s),
+           \quad f_i(j, s) = d_i(j, s)\, u_j(s) + (1 - d_i(j, s))\, H_i(j, s)\, u_i(0 : s + \ell_{ji}),      (1)
 
 where 𝓘_i(k) are the items that can have reached i on time by k (s ≤ k - ℓ_ji; the last ``memory``
-steps when a memory is set), d_i(j, s) ∈ {0, 1} says whether ν_j(s) arrived on time
-(:mod:`teamkf.estimators._arrivals`; late items are not used), and the gains G_i(k) are chosen
-offline. The innovations ν_j(0:s) span y_j(0:s), so
+steps when a memory is set), d_i(j, s) ∈ {0, 1} says whether the item arrived on time
+(:mod:`teamkf.estimators._arrivals`; late items are not used), H_i(j, s) is the best linear
+predictor of the item from the agent's own items (the fill of a miss; zero with ``fill=False``)
+and the gains G_i(k) are chosen offline. u_j(0:s) spans y_j(0:s), so
 
 * at p = 0 (every d = 1) the class is every linear function of the full information of eq. (14):
   its optimum is the MTMSE filter (Theorem 2);
@@ -29,33 +32,36 @@ offline. The innovations ν_j(0:s) span y_j(0:s), so
   optimum of the own-history structure (``InformationStructure.own_window(n, T)``);
 * G = 0 is the local Kalman filter (family ``local``), so the design never costs more than it.
 
-A missed item contributes zero, its prior mean (ν_j(s) is zero-mean and independent of the link
-events); the gains are the best *for the probability* of each miss, not for its realization
-(they do not depend on the arrival pattern). This is the class "gains indexed by the step only";
-pattern-dependent gains (the missed-packet rule of the nominal design is one) are not in it.
+The gains are the best *for the probability* of each miss, not for its realization (they do not
+depend on the arrival pattern; only the fill does, through d). Gains that re-weight with the
+realized pattern (the missed-packet rule of the nominal design does) are not in the class.
 
 Optimality conditions and algorithm
 -----------------------------------
-With e_i(k) = x(k) - x̂_i(k|k), the error of agent i is L_i e_i(k) - G_i D_i ν, and because the link
+With e_i(k) = x(k) - x̂_i(k|k), the error of agent i is L_i e_i(k) - G_i f_i, and because the link
 events are independent of the noises, the expected cost of step k is the quadratic
 
 .. math::  J_k(G) = \operatorname{Tr}(S \bar L P_e \bar L^\top) - 2\langle G, \eta\rangle + \langle G, \Gamma G\rangle,
-           \qquad \eta_i = \sum_j S_{ij} L_j \Theta_j(k) Q_i,
-           \qquad \Gamma_{ij} = S_{ij} \otimes (\Sigma_{\nu\nu}[\mathcal I_i, \mathcal I_j] \circ M_{ij}),
+           \qquad \eta_i = \sum_j S_{ij} L_j E[e_j(k) f_i^\top],
+           \qquad \Gamma_{(i,a),(j,b)} = S_{ij}\, E[f_i(a) f_j(b)^\top],
 
-where Θ_j(k) = cov(e_j(k|k), ν), Q_i = diag(P(d_i = 1)), and M_ij[a, b] = E[d_i(a) d_j(b)] (exact:
-the product of the marginals plus the corrections of the items whose paths share a link event).
-It is convex; the stationarity (Radner) conditions Σ_j S_ij E[(L_j e_j - G_j D_j ν) ν' D_i] = 0 are
-Γ G = η, one symmetric positive definite system per step (Cholesky), and J_k* = Tr(S L̄ P_e L̄ᵀ) - ⟨G, η⟩.
-The steps decouple because (1) is linear in the data, not in earlier estimates.
+E[f_i(a) f_j(b)ᵀ] = M₁₁∘Σ + M₁₀∘(Σ H_jᵀ) + M₀₁∘(H_i Σ) + M₀₀∘(H_i Σ H_jᵀ), with Σ the covariance of
+the items and M₁₁ = E[d_i(a) d_j(b)], M₁₀ = E[d_i(a)(1 - d_j(b))], ... exact (the product of the
+marginals plus the corrections of the items whose paths share a link event). It is convex; the
+stationarity (Radner) conditions Σ_j S_ij E[(L_j e_j - G_j f_j) f_iᵀ] = 0 are Γ G = η, symmetric
+positive definite, and J_k* = Tr(S L̄ P_e L̄ᵀ) - ⟨G, η⟩. The steps decouple because (1) is linear in
+the data, not in earlier estimates. The slots (agent, item) are ordered by the step from which they
+can be held and E[f fᵀ] does not depend on k, so (constant S, no memory) Γ(k) is the leading block of
+Γ(T-1): one Cholesky factorization serves every step.
 
 The covariances come from one forward pass over the stacked local-filter errors
 ε(s) = (e_1(s|s-1), …, e_n(s|s-1)), ε(s+1) = A(I - K C) ε(s) - A K v(s) + 1 ⊗ w(s), whose transition
-is stable (detectable agents), so no quantity of the size of x(k) enters (unstable processes are fine).
+is stable (detectable agents); with innovation items no quantity of the size of x(k) enters
+(unstable processes are fine), raw measurements are y = B ν.
 
-Complexity: items N_i(k) ≤ k Σ_j d_y^j per agent; step k costs O((Σ_i d_z N_i)^3) (Cholesky);
-``memory = m`` bounds N_i by m Σ_j d_y^j, the class then drops the innovations older than m steps
-(the own ones stay in x̂_i(k|k)).
+Complexity: R = Σ_i Σ_j d_y^j (T - ℓ_ji) slot rows; O(R³/3) once (one factorization), or with
+``memory = m`` O(T (m Σ_i Σ_j d_y^j)³) (a factorization per step; items older than m steps are not
+used, the own ones stay in x̂_i(k|k) and the fills).
 
 Lower bound
 -----------
@@ -654,7 +660,7 @@ def design_mtmse_lossy(
         if coords == "measurements":  # items are the raw y_j(s) = Σ_t B(s, t) ν_j(t)
             B = innovations_to_measurements(system, mom.K, T)
             mom = LocalMoments(mom.K, B @ mom.Sigma @ B.T, [Th @ B[: Th.shape[1], : Th.shape[1]].T for Th in mom.Theta], mom.Pe)
-        items, gains, fills, stage, local = _solve_all(system, cost, arr, mom, T, mem, fill, progress)
+        held, gains, fills, stage, local = _solve_all(system, cost, arr, mom, T, mem, fill, progress)
     if bound:
         from .team import design_mtmse
 
@@ -675,7 +681,7 @@ def design_mtmse_lossy(
         memory=mem,
         coordinates=coords,
         arrivals=arr,
-        items=tuple(tuple(tuple(it) for it in step) for step in items),
+        items=tuple(tuple(tuple(it) for it in step) for step in held),
         gains=tuple(tuple(step) for step in gains),
         fills=tuple(tuple(step) for step in fills),
         K_local=tuple(tuple(K) for K in mom.K),
