@@ -163,9 +163,9 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
                     pts.sort()
                     x = np.array([q[0] for q in pts])
                     color, marker, dash = style[name]
-                    if name in (f"{LOSSY} (exact)", "lower bound"):  # analytic: no interval
+                    if name in (LOSSY, f"{LOSSY} (exact)", "lower bound"):  # the drop-aware design in black
                         color = "black"
-                        dash = ":" if name == "lower bound" else "--"
+                        dash = {LOSSY: "-", "lower bound": ":"}.get(name, "--")
                     (line,) = ax.plot(x, [q[1] for q in pts], dash, marker=marker, color=color, label=name, ms=3)
                     ax.fill_between(x, [q[2] for q in pts], [q[3] for q in pts], alpha=0.15, color=color)
                     handles.setdefault(name, line)
