@@ -332,8 +332,15 @@ def _solve_all(
         if u.size:
             prefix = memory is None and const_S
             if prefix and chol is None:
-                G_all = _second_moment(sl, np.arange(R))[np.ix_(rr, rr)] * S[np.ix_(zidx, zidx)]
-                chol = sla.cholesky(G_all, lower=True, check_finite=False)
+                G_all = _second_moment(sl, np.arange(R))
+                if dz == 1:  # in place: the largest array of the design is formed once
+                    for a in range(n):
+                        ra = np.flatnonzero(sl.owner == a)
+                        G_all[ra] *= S[a][sl.owner][None, :]
+                else:
+                    G_all = G_all[np.ix_(rr, rr)] * S[np.ix_(zidx, zidx)]
+                chol = sla.cholesky(G_all, lower=True, check_finite=False, overwrite_a=True)
+                del G_all
             if prefix:
                 Lk = chol[: u.size, : u.size]  # type: ignore[index]
                 g = sla.cho_solve((Lk, True), eta, check_finite=False)
