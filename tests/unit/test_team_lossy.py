@@ -111,8 +111,7 @@ def test_registry_alias_and_scenario_network(platoon):
 
 def test_validation(platoon):
     sysm, cost, g = platoon
-    with pytest.raises(ArgumentError, match="p_drop"):
-        design_mtmse_lossy(sysm, cost, g, 5)
+    assert design_mtmse_lossy(sysm, cost, g, 5).p_drop == 0.0  # reliable links unless told
     with pytest.raises(ArgumentError, match="horizon"):
         design_mtmse_lossy(sysm, cost, g, None, p_drop=0.1)
     with pytest.raises(ArgumentError, match="p_drop"):

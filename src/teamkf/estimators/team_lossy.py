@@ -571,15 +571,34 @@ class LossyTeamAgent:
 # ---------------------------------------------------------------------------
 # entry point
 # ---------------------------------------------------------------------------
-def _p_value(x: Any, name: str) -> Any:
+def _per_edge(x: Any, name: str) -> Any:
+    """A number, or per edge: {(source, target): value} or [[source, target, value], ...] (as in ``[network]``)."""
+    if isinstance(x, (list, tuple)):
+        try:
+            x = {(int(a), int(b)): v for (a, b, v) in x}
+        except (TypeError, ValueError):
+            raise ArgumentError(f"{name}: expected a number or [[source, target, value], ...], found {V.describe(x)}", argument=name) from None
     if isinstance(x, dict):
-        return {tuple(int(v) for v in e): V.probability(p, f"{name}[{list(e)}]") for e, p in x.items()}
+        out = {}
+        for e, v in x.items():
+            if not (isinstance(e, tuple) and len(e) == 2 and all(isinstance(u, (int, np.integer)) for u in e)):
+                raise ArgumentError(f"{name}: expected a number or {{(source, target): value}}, found the key {e!r}", argument=name)
+            out[(int(e[0]), int(e[1]))] = v
+        return out
+    return x
+
+
+def _p_value(x: Any, name: str) -> Any:
+    x = _per_edge(x, name)
+    if isinstance(x, dict):
+        return {e: V.probability(p, f"{name}[{list(e)}]") for e, p in x.items()}
     return V.probability(x, name)
 
 
 def _jitter_value(x: Any, name: str) -> Any:
+    x = _per_edge(x, name)
     if isinstance(x, dict):
-        return {tuple(int(v) for v in e): V.integer(j, f"{name}[{list(e)}]", minimum=0) for e, j in x.items()}
+        return {e: V.integer(j, f"{name}[{list(e)}]", minimum=0) for e, j in x.items()}
     return V.integer(x, name, minimum=0)
 
 
@@ -608,7 +627,8 @@ def design_mtmse_lossy(
     horizon : int
         T (finite horizon only).
     p_drop : float in [0, 1] or {(source, target): p}
-        Drop probability of every packet (or per edge). Required (a scenario gives its ``[network] p_drop``).
+        Drop probability of every packet (or per edge). A scenario gives its ``[network] p_drop``;
+        None means reliable links (0: the design is then the MTMSE filter).
     jitter : int >= 0 or {(source, target): J}
         A packet late by 1..J steps counts as lost (its item is not used): on-time probability (1 - p)/(J + 1).
     memory : int or None
@@ -650,11 +670,8 @@ def design_mtmse_lossy(
     T = V.positive_int(horizon, "horizon")
     system.require_horizon(T)
     cost.require_horizon(T)
-    if p_drop is None:
-        raise ArgumentError(
-            "p_drop: the drop-aware design needs the drop probability; give p_drop = p (or a [network] p_drop in the scenario)",
-            argument="p_drop",
-        )
+    if p_drop is None:  # a scenario fills it from its [network] table; plain calls: reliable links (= MTMSE)
+        p_drop = 0.0
     p = _p_value(p_drop, "p_drop")
     J = _jitter_value(jitter, "jitter")
     mem = None if memory is None else V.positive_int(memory, "memory")
