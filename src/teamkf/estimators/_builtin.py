@@ -2,5 +2,5 @@
 
 from importlib import import_module
 
-for _name in ("kalman", "team", "kcf", "cikf", "local", "diffusion", "ci", "icf", "hcmci"):
+for _name in ("kalman", "team", "kcf", "cikf", "local", "diffusion", "ci", "icf", "hcmci", "team_lossy"):
     import_module(f"{__package__}.{_name}")

@@ -234,6 +234,8 @@ class Family:
 # the registry
 # ---------------------------------------------------------------------------
 _REGISTRY: dict[str, Family] = {}
+#: other accepted spellings of a family's name (``"mtmse-lossy"`` for ``mtmse_lossy``): alias -> name
+_ALIASES: dict[str, str] = {}
 _BUILTINS_LOADED = False
 _ENTRY_POINTS_LOADED = False
 
@@ -297,6 +299,13 @@ def _load_entry_points() -> None:
             warnings.warn(f"teamkf: the family entry point {ep.name!r} ({ep.value}) could not be loaded: {exc}", stacklevel=2)
 
 
+def register_alias(alias: str, name: str) -> None:
+    """Accept ``alias`` wherever the family ``name`` is named (scenario files, the CLI, :func:`get_family`)."""
+    if not isinstance(alias, str) or not alias or not isinstance(name, str):
+        raise ArgumentError(f"alias: expected two names, found {alias!r} -> {name!r}", argument="alias")
+    _ALIASES[alias] = name
+
+
 def families() -> dict[str, Family]:
     """Every registered family, name -> record (built-ins first, then entry points and plugins, then user registrations)."""
     _load_builtins()
@@ -309,6 +318,8 @@ def get_family(name: Any, key: str = "estimator") -> Family:
     fams = families()
     if isinstance(name, str) and name in fams:
         return fams[name]
+    if isinstance(name, str) and _ALIASES.get(name) in fams:
+        return fams[_ALIASES[name]]
     avail = ", ".join(fams)
     if not isinstance(name, str):
         raise ArgumentError(f"{key}: expected an estimator name (a string), found {V.describe(name)}; available: {avail}", argument=key)

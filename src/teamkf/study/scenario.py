@@ -146,6 +146,9 @@ class Scenario(ScenarioBase):
         opts = self.options.get(estimator)
         if opts is None:
             opts = _family_options(fam, {})
+        if "p_drop" in fam.option_names and opts.get("p_drop") is None and "network" in self.raw:  # drop-aware families
+            lm = self.links
+            opts = {**opts, "p_drop": lm.p_drop, **({"jitter": lm.jitter} if "jitter" in fam.option_names else {})}
         try:
             out = fam.build(self.system, self.cost, graph=self.graph, structure=self.information, horizon=T, options=opts)
         except ScenarioError:

@@ -1,0 +1,758 @@
+r"""The drop-aware team filter ``mtmse_lossy`` (alias ``mtmse-lossy``): minimum EXPECTED team MSE over lossy links.
+
+Problem
+-------
+Links drop each packet independently (edge e: probability p_e; with a jitter bound J_e a packet
+also counts as lost when it is late, so it arrives on time with probability
+q_e = (1 - p_e)/(J_e + 1)). Minimize the expected team cost
+
+.. math::  J_T = \sum_{k=0}^{T-1} E\big[(Lx(k) - \hat z(k))^\top S\, (Lx(k) - \hat z(k))\big]
+
+over estimates that each agent computes from what actually reached it.
+
+The class (stated; exact within it)
+-----------------------------------
+Every agent j runs its own Kalman filter on its own measurements (prior 0, Σ_x) and floods one item
+u_j(s) per step: its raw measurement y_j(s) (``items="measurements"``, the default for a stable A)
+or its filter's innovation ν_j(s) = y_j(s) - C_j x̂_j(s|s-1) (``items="innovations"``, the default
+for an unstable A); relays forward every item once, like the MTMSE relays. Agent i's estimate is
+
+.. math::  \hat z_i(k) = L_i \hat x_i(k|k) + \sum_{(j,s) \in \mathcal I_i(k)} G_i(k; j, s)\, f_i(j, s),
+           \quad f_i(j, s) = d_i(j, s)\, u_j(s) + (1 - d_i(j, s))\, H_i(j, s)\, u_i(0 : s + \ell_{ji}),      (1)
+
+where 𝓘_i(k) are the items that can have reached i on time by k (s ≤ k - ℓ_ji; the last ``memory``
+steps when a memory is set), d_i(j, s) ∈ {0, 1} says whether the item arrived on time
+(:mod:`teamkf.estimators._arrivals`; late items are not used), H_i(j, s) is the best linear
+predictor of the item from the agent's own items (the fill of a miss; zero with ``fill=False``)
+and the gains G_i(k) are chosen offline. u_j(0:s) spans y_j(0:s), so
+
+* at p = 0 (every d = 1) the class is every linear function of the full information of eq. (14):
+  its optimum is the MTMSE filter (Theorem 2);
+* at p = 1 (only own items) it is every linear function of y_i(0:k): its optimum is the team
+  optimum of the own-history structure (``InformationStructure.own_window(n, T)``);
+* G = 0 is the local Kalman filter (family ``local``), so the design never costs more than it.
+
+The gains are the best *for the probability* of each miss, not for its realization (they do not
+depend on the arrival pattern; only the fill does, through d). Gains that re-weight with the
+realized pattern (the missed-packet rule of the nominal design does) are not in the class.
+
+Optimality conditions and algorithm
+-----------------------------------
+With e_i(k) = x(k) - x̂_i(k|k), the error of agent i is L_i e_i(k) - G_i f_i, and because the link
+events are independent of the noises, the expected cost of step k is the quadratic
+
+.. math::  J_k(G) = \operatorname{Tr}(S \bar L P_e \bar L^\top) - 2\langle G, \eta\rangle + \langle G, \Gamma G\rangle,
+           \qquad \eta_i = \sum_j S_{ij} L_j E[e_j(k) f_i^\top],
+           \qquad \Gamma_{(i,a),(j,b)} = S_{ij}\, E[f_i(a) f_j(b)^\top],
+
+E[f_i(a) f_j(b)ᵀ] = M₁₁∘Σ + M₁₀∘(Σ H_jᵀ) + M₀₁∘(H_i Σ) + M₀₀∘(H_i Σ H_jᵀ), with Σ the covariance of
+the items and M₁₁ = E[d_i(a) d_j(b)], M₁₀ = E[d_i(a)(1 - d_j(b))], ... exact (the product of the
+marginals plus the corrections of the items whose paths share a link event). It is convex; the
+stationarity (Radner) conditions Σ_j S_ij E[(L_j e_j - G_j f_j) f_iᵀ] = 0 are Γ G = η, symmetric
+positive definite, and J_k* = Tr(S L̄ P_e L̄ᵀ) - ⟨G, η⟩. The steps decouple because (1) is linear in
+the data, not in earlier estimates. The slots (agent, item) are ordered by the step from which they
+can be held and E[f fᵀ] does not depend on k, so (constant S, no memory) Γ(k) is the leading block of
+Γ(T-1): one Cholesky factorization serves every step.
+
+The covariances come from one forward pass over the stacked local-filter errors
+ε(s) = (e_1(s|s-1), …, e_n(s|s-1)), ε(s+1) = A(I - K C) ε(s) - A K v(s) + 1 ⊗ w(s), whose transition
+is stable (detectable agents); with innovation items no quantity of the size of x(k) enters
+(unstable processes are fine), raw measurements are y = B ν.
+
+Complexity: R = Σ_i Σ_j d_y^j (T - ℓ_ji) slot rows; O(R³/3) once (one factorization), or with
+``memory = m`` O(T (m Σ_i Σ_j d_y^j)³) (a factorization per step; items older than m steps are not
+used, the own ones stay in x̂_i(k|k) and the fills).
+
+Lower bound
+-----------
+:attr:`LossyTeamDesign.lower_bound` is certified: any strategy over lossy links uses a subset of the
+full information plus link events independent of the Gaussian variables, so each stage cost is at
+least the MTMSE stage cost of the full information structure (randomization independent of the data
+cannot lower a convex quadratic team cost). ``info["gap"]`` is the relative gap to it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+from .. import _validation as V
+from .._blas import blas_threads
+from .._lazy import scipy_linalg as sla  # SciPy loads on first use
+from .._validation import FloatArray
+from ..exceptions import ArgumentError, ShapeError
+from ..models import LinearGaussianSystem, TeamCost
+from ..network.graph import CommGraph
+from ._arrivals import ArrivalModel
+from .base import Design
+from .checks import check_graph, check_model
+from .registry import Family, Option, _register_builtin, register_alias
+
+__all__ = ["LossyTeamDesign", "LossyTeamAgent", "design_mtmse_lossy", "local_filter_moments"]
+
+
+# ---------------------------------------------------------------------------
+# second moments of the local filters' errors and innovations
+# ---------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class LocalMoments:
+    """Exact second moments of every agent's own Kalman filter, over the horizon.
+
+    K : list over steps of lists over agents of (d_x, d_y^j) gains
+    Sigma : (N, N) covariance of all innovations ν = (ν(0), ..., ν(T-1)), ν(s) = (ν_1(s), ..., ν_n(s))
+    Theta : list over steps k of (n d_x, N_k) arrays cov(e(k|k), ν(0:k)), N_k = (k+1) Σ d_y
+    Pe : list over steps of (n d_x, n d_x) covariances of e(k|k) = (e_1(k|k), ..., e_n(k|k))
+    """
+
+    K: list[list[FloatArray]]
+    Sigma: FloatArray
+    Theta: list[FloatArray]
+    Pe: list[FloatArray]
+
+
+def local_filter_moments(system: LinearGaussianSystem, T: int) -> LocalMoments:
+    r"""Joint covariances of the agents' local Kalman filters (see the module docstring).
+
+    ε(0) = 1 ⊗ x(0); e(k|k) = U ε(k) - K̄ v(k), U = diag(I - K_j C_j); ν(k) = C̄ ε(k) + v(k);
+    ε(k+1) = Ā e(k|k) + 1 ⊗ w(k). With Z(k) = cov(ε(k), ν(0:k-1)):
+    Θ(k) = [U Z(k), U P_ε C̄ᵀ - K̄ R], Z(k+1) = Ā Θ(k), cov(ν(k), ν(0:k-1)) = C̄ Z(k).
+    """
+    n, dx, dyt = system.n_agents, system.dx, system.dy_total
+    Sigma = np.zeros((T * dyt, T * dyt))
+    ones = np.ones((n, n))
+    P_eps = np.kron(ones, system.Sigma_x)
+    P_loc = [np.array(system.Sigma_x, dtype=float) for _ in range(n)]
+    Z = np.zeros((n * dx, 0))
+    Ks, Thetas, Pes = [], [], []
+    for k in range(T):
+        Cs = [system.C_at(j, k) for j in range(n)]
+        Rs = [system.R_at(j, k) for j in range(n)]
+        K = []
+        for j in range(n):
+            Sy = Cs[j] @ P_loc[j] @ Cs[j].T + Rs[j]
+            if Sy.size:
+                Kj = sla.cho_solve(sla.cho_factor(0.5 * (Sy + Sy.T), lower=True), Cs[j] @ P_loc[j]).T
+            else:
+                Kj = np.zeros((dx, 0))
+            K.append(Kj)
+        Ks.append(K)
+        U = sla.block_diag(*[np.eye(dx) - K[j] @ Cs[j] for j in range(n)])
+        Kb = sla.block_diag(*K) if dyt else np.zeros((n * dx, 0))
+        Cb = sla.block_diag(*Cs) if dyt else np.zeros((0, n * dx))
+        R = system.R_stack(k)
+        blk = slice(k * dyt, (k + 1) * dyt)
+        Sigma[blk, : k * dyt] = Cb @ Z
+        Sigma[: k * dyt, blk] = Sigma[blk, : k * dyt].T
+        Sv = Cb @ P_eps @ Cb.T + R
+        Sigma[blk, blk] = 0.5 * (Sv + Sv.T)
+        Theta = np.hstack([U @ Z, U @ P_eps @ Cb.T - Kb @ R])
+        Thetas.append(Theta)
+        Pe = U @ P_eps @ U.T + Kb @ R @ Kb.T
+        Pe = 0.5 * (Pe + Pe.T)
+        Pes.append(Pe)
+        A = system.A_at(k)
+        Ab = np.kron(np.eye(n), A)
+        Z = Ab @ Theta
+        P_eps = Ab @ Pe @ Ab.T + np.kron(ones, system.Q_at(k))
+        P_eps = 0.5 * (P_eps + P_eps.T)
+        for j in range(n):
+            IKC = np.eye(dx) - K[j] @ Cs[j]
+            Pf = IKC @ P_loc[j] @ IKC.T + K[j] @ Rs[j] @ K[j].T
+            Pp = A @ Pf @ A.T + system.Q_at(k)
+            P_loc[j] = 0.5 * (Pp + Pp.T)
+    return LocalMoments(Ks, Sigma, Thetas, Pes)
+
+
+def innovations_to_measurements(system: LinearGaussianSystem, K: Sequence[Sequence[FloatArray]], T: int) -> FloatArray:
+    r"""B with y = B ν (stacked over steps): y_j(s) = ν_j(s) + C_j(s) x̂_j(s|s-1), x̂_j linear in ν_j(0:s-1).
+
+    x̂_j(s+1|s) = A(s) (x̂_j(s|s-1) + K_j(s) ν_j(s)); block lower triangular, agent by agent.
+    """
+    n, dx, dyt, off = system.n_agents, system.dx, system.dy_total, system.offsets
+    B = np.eye(T * dyt)
+    for j in range(n):
+        cols_j = [s * dyt + int(off[j]) + np.arange(system.dy[j]) for s in range(T)]
+        pred = np.zeros((dx, T * dyt))  # x̂_j(s|s-1) as a map of ν
+        for s in range(T):
+            B[cols_j[s]] += system.C_at(j, s) @ pred
+            upd = pred.copy()
+            upd[:, cols_j[s]] += K[s][j]
+            pred = system.A_at(s) @ upd
+    return B
+
+
+# ---------------------------------------------------------------------------
+# the items each agent may hold, and their joint arrival moments
+# ---------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class _Slots:
+    """Every (agent i, item (j, s)) of the horizon, ordered by the step k0 = s + ℓ_ji from which it can be held.
+
+    agent, src, step, due : per slot;  rows : per slot-row, the position in ν;  owner : per slot-row, the agent;
+    q : per slot-row, P(on time);  H : (rows, N) the fill of each slot-row (its predictor from the agent's own
+    innovations ν_i(0 : k0)), applied to the filled vector f = d ν + (1 - d) H ν (:func:`_second_moment`).
+    """
+
+    agent: np.ndarray
+    src: np.ndarray
+    step: np.ndarray
+    due: np.ndarray
+    row_slot: np.ndarray
+    rows: np.ndarray
+    owner: np.ndarray
+    q: np.ndarray
+    H: FloatArray
+    arr: ArrivalModel
+    Sigma: FloatArray
+    fill: bool
+    own_rows: list[np.ndarray]
+
+
+def _slots(system: LinearGaussianSystem, arr: ArrivalModel, Sigma: FloatArray, T: int, fill: bool) -> _Slots:
+    n, dyt, off = system.n_agents, system.dy_total, system.offsets
+    lst = [
+        (s + int(arr.ell[j, i]), i, j, s) for i in range(n) for j in range(n) for s in range(T) if s + arr.ell[j, i] <= T - 1 and arr.prob[j, i] > 0
+    ]
+    lst.sort()
+    due = np.array([x[0] for x in lst], dtype=int)
+    agent = np.array([x[1] for x in lst], dtype=int)
+    src = np.array([x[2] for x in lst], dtype=int)
+    step = np.array([x[3] for x in lst], dtype=int)
+    dys = np.array([system.dy[j] for j in src], dtype=int)
+    row_slot = np.repeat(np.arange(len(lst)), dys)
+    rows = (
+        np.concatenate([step[a] * dyt + int(off[src[a]]) + np.arange(dys[a]) for a in range(len(lst))]).astype(int) if lst else np.zeros(0, dtype=int)
+    )
+    owner = agent[row_slot]
+    q = arr.prob[src, agent][row_slot]
+    N = Sigma.shape[0]
+    H = np.zeros((rows.size, N))
+    if fill:
+        own_rows = [np.concatenate([s_ * dyt + int(off[i]) + np.arange(system.dy[i]) for s_ in range(T)]).astype(int) for i in range(n)]
+        chol = [sla.cholesky(Sigma[np.ix_(o, o)], lower=True) if o.size else None for o in own_rows]
+        starts = np.concatenate([[0], np.cumsum(dys)]).astype(int)
+        for a in range(len(lst)):
+            i, j = agent[a], src[a]
+            if i == j or chol[i] is None:
+                continue
+            m = (due[a] + 1) * system.dy[i]  # own innovations ν_i(0 : k0)
+            Lc = chol[i][:m, :m]  # type: ignore[index]
+            o = own_rows[i][:m]
+            here = np.arange(starts[a], starts[a + 1])
+            H[np.ix_(here, o)] = sla.cho_solve((Lc, True), Sigma[np.ix_(o, rows[here])], check_finite=False).T
+    own_all = [np.concatenate([s_ * dyt + int(off[i]) + np.arange(system.dy[i]) for s_ in range(T)]).astype(int) for i in range(n)]
+    return _Slots(agent, src, step, due, row_slot, rows, owner, q, H, arr, Sigma, fill, own_all)
+
+
+def _second_moment(sl: _Slots, idx: np.ndarray) -> FloatArray:
+    """X[idx, idx] with X = E[f f'] over the slot-rows ``idx`` (f = d ν + (1 - d) H ν, exact arrival moments)."""
+    arr, Sigma = sl.arr, sl.Sigma
+    slots = np.unique(sl.row_slot[idx])
+    where = {int(a): t for t, a in enumerate(slots)}
+    qs = arr.prob[sl.src[slots], sl.agent[slots]]
+    M = np.outer(qs, qs)
+    index = {(int(sl.agent[a]), int(sl.src[a]), int(sl.step[a])): t for t, a in enumerate(slots)}
+    for t, a in enumerate(slots):
+        i, j, s_ = int(sl.agent[a]), int(sl.src[a]), int(sl.step[a])
+        M[t, t] = qs[t]  # E[d^2] = E[d]
+        if i == j:
+            continue
+        for (h, l), corr in arr.pairs_from.get((j, i), ()):
+            for delta, c in corr.items():
+                u = index.get((l, h, s_ + delta))
+                if u is not None and u != t:
+                    M[t, u] += c
+    loc = np.array([where[int(a)] for a in sl.row_slot[idx]], dtype=int)
+    M11 = M[np.ix_(loc, loc)]
+    rows = sl.rows[idx]
+    X = Sigma[np.ix_(rows, rows)] * M11
+    if sl.fill:  # agent by agent: the fill of agent i's rows acts on its own innovations only
+        q = sl.q[idx]
+        owners = sl.owner[idx]
+        blocks = [np.flatnonzero(owners == i) for i in range(len(sl.own_rows))]
+        Hs = [sl.H[idx[b]][:, sl.own_rows[i]] for i, b in enumerate(blocks)]
+        HS = [Hs[i] @ Sigma[sl.own_rows[i]] for i in range(len(blocks))]  # H_i Σ, (rows_i, N)
+        for i, bi in enumerate(blocks):
+            if not bi.size:
+                continue
+            for l, bl in enumerate(blocks):
+                if not bl.size:
+                    continue
+                m11 = M11[np.ix_(bi, bl)]
+                t10 = HS[l][:, rows[bi]].T  # P Σ H_l'
+                t01 = HS[i][:, rows[bl]]  # H_i Σ P'
+                t00 = HS[i][:, sl.own_rows[l]] @ Hs[l].T  # H_i Σ H_l'
+                qi, ql = q[bi][:, None], q[bl][None, :]
+                X[np.ix_(bi, bl)] += t10 * (qi - m11) + t01 * (ql - m11) + t00 * (1.0 - qi - ql + m11)
+    return 0.5 * (X + X.T)
+
+
+def _solve_all(
+    system: LinearGaussianSystem, cost: TeamCost, arr: ArrivalModel, mom: LocalMoments, T: int, memory: int | None, fill: bool, progress: bool | None
+) -> tuple[list[list[list[tuple[int, int]]]], list[list[FloatArray]], list[list[FloatArray]], np.ndarray, np.ndarray]:
+    """Gains, fills and stage costs of every step.
+
+    The slots are ordered by the step from which they can be held, and E[f f'] does not depend on k,
+    so with a constant S the matrix Γ(k) of step k is the leading n_k × n_k block of Γ(T-1): one
+    Cholesky factorization serves every step (its leading block is the factor of Γ(k)).
+    """
+    from .._resources import progress as _progress
+
+    n, dz = system.n_agents, cost.dz
+    sl = _slots(system, arr, mom.Sigma, T, fill)
+    R = sl.rows.size
+    zidx = (sl.owner[:, None] * dz + np.arange(dz)[None, :]).ravel()  # unknown (row, z component) -> row of S
+    rr = np.repeat(np.arange(R), dz)
+    const_S = not cost.is_time_varying
+    chol = None
+    stages, locs = np.zeros(T), np.zeros(T)
+    gains: list[list[FloatArray]] = []
+    fills: list[list[FloatArray]] = []
+    items: list[list[list[tuple[int, int]]]] = []
+    for k in _progress(range(T), total=T, desc="mtmse_lossy design", enabled=progress):
+        S, L = cost.S_at(k), cost.L_at(k)
+        Lb = sla.block_diag(*[L[i * dz : (i + 1) * dz] for i in range(n)])
+        c0 = float(np.trace(S @ Lb @ mom.Pe[k] @ Lb.T))
+        live_rows = np.flatnonzero(sl.due[sl.row_slot] <= k)
+        if memory is not None:
+            live_rows = live_rows[sl.step[sl.row_slot[live_rows]] >= k - memory + 1]
+        u = (live_rows[:, None] * dz + np.arange(dz)[None, :]).ravel()  # unknowns of step k
+        W = S @ Lb @ mom.Theta[k]  # (n dz, N_k): row block i is Σ_j S_ij L_j Θ_j
+        Nk = W.shape[1]
+        cols = sl.rows[live_rows]
+        V1 = W[:, cols]
+        V2 = W @ sl.H[live_rows][:, :Nk].T
+        zr = zidx[u]
+        rk = rr[u]
+        qk = sl.q[rk]
+        pos = np.searchsorted(live_rows, rk)
+        eta = qk * V1[zr, pos] + (1.0 - qk) * V2[zr, pos]
+        if u.size:
+            prefix = memory is None and const_S
+            if prefix and chol is None:
+                G_all = _second_moment(sl, np.arange(R))
+                if dz == 1:  # in place: the largest array of the design is formed once
+                    for a in range(n):
+                        ra = np.flatnonzero(sl.owner == a)
+                        G_all[ra] *= S[a][sl.owner][None, :]
+                else:
+                    G_all = G_all[np.ix_(rr, rr)] * S[np.ix_(zidx, zidx)]
+                chol = sla.cholesky(G_all, lower=True, check_finite=False, overwrite_a=True)
+                del G_all
+            if prefix:
+                Lk = chol[: u.size, : u.size]  # type: ignore[index]
+                g = sla.cho_solve((Lk, True), eta, check_finite=False)
+            else:
+                Gk = _second_moment(sl, live_rows)[np.ix_(pos, pos)] * S[np.ix_(zr, zr)]
+                g = sla.cho_solve(sla.cho_factor(Gk, lower=True, check_finite=False), eta, check_finite=False)
+        else:
+            g = np.zeros(0)
+        stages[k] = c0 - float(g @ eta)
+        locs[k] = c0
+        Gk_list, Fk_list, Ik_list = [], [], []
+        for i in range(n):
+            mine = np.flatnonzero(sl.owner[live_rows] == i)
+            slots_i = list(dict.fromkeys(sl.row_slot[live_rows[mine]].tolist()))
+            Ik_list.append([(int(sl.src[a]), int(sl.step[a])) for a in slots_i])
+            gi = g.reshape(-1, dz)[mine].T if u.size else np.zeros((dz, 0))
+            Gk_list.append(gi)
+            Fk_list.append(sl.H[live_rows[mine]][:, _own_cols(system, i, k)])
+        gains.append(Gk_list)
+        fills.append(Fk_list)
+        items.append(Ik_list)
+    return items, gains, fills, stages, locs
+
+
+def _own_cols(system: LinearGaussianSystem, i: int, k: int) -> np.ndarray:
+    """Positions in ν of agent i's own innovations ν_i(0:k) (the columns its fills act on at step k)."""
+    return _rows(system, [(i, s) for s in range(k + 1)])
+
+
+def _rows(system: LinearGaussianSystem, items: Sequence[tuple[int, int]]) -> np.ndarray:
+    """Positions of the items' entries in the stacked ν = (ν(0), ..., ν(T-1))."""
+    dyt, off = system.dy_total, system.offsets
+    parts = [s * dyt + int(off[j]) + np.arange(system.dy[j]) for (j, s) in items]
+    return np.concatenate(parts).astype(int) if parts else np.zeros(0, dtype=int)
+
+
+# ---------------------------------------------------------------------------
+# the design
+# ---------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False, kw_only=True)
+class LossyTeamDesign(Design):
+    """The drop-aware team filter (1) with its exact expected cost (module docstring).
+
+    Attributes
+    ----------
+    graph : CommGraph
+    p_drop, jitter : the link model it is designed for (a number, or {(a, b): value})
+    memory : int or None      innovations older than this many steps are not used (None: all)
+    arrivals : ArrivalModel   the on-time probabilities it uses
+    items : per step, per agent, the items (j, s) of 𝓘_i(k)
+    gains : per step, per agent, G_i(k) of shape (d_z, Σ d_y^j over 𝓘_i(k))
+    K_local : per step, per agent, the local Kalman gains
+    lower_bound_stages : (T,) certified lower bound of every stage cost (MTMSE, full information)
+    local_stages : (T,) stage costs of the local Kalman filters (G = 0)
+    """
+
+    graph: CommGraph
+    p_drop: Any
+    jitter: Any
+    memory: int | None
+    coordinates: str
+    arrivals: ArrivalModel = field(repr=False)
+    items: tuple[tuple[tuple[tuple[int, int], ...], ...], ...] = field(repr=False)
+    gains: tuple[tuple[FloatArray, ...], ...] = field(repr=False)
+    fills: tuple[tuple[FloatArray, ...], ...] = field(repr=False)
+    K_local: tuple[tuple[FloatArray, ...], ...] = field(repr=False)
+    lower_bound_stages: FloatArray = field(repr=False)
+    local_stages: FloatArray = field(repr=False)
+
+    @property
+    def lower_bound(self) -> float:
+        """Certified lower bound of the expected total cost of ANY strategy on these lossy links."""
+        return float(np.sum(self.lower_bound_stages))
+
+    @property
+    def gap(self) -> float:
+        """(J_T - lower bound) / lower bound."""
+        return (float(self.total_cost or 0.0) - self.lower_bound) / self.lower_bound
+
+    @property
+    def tolerates_losses(self) -> bool:
+        return True
+
+    # --- Monte Carlo ---------------------------------------------------------------------
+    def errors(self, paths: Any, *, p_drop: Any = None, jitter: Any = None, rng: Any = None, arrived: Any = None) -> FloatArray:
+        """Team errors e(k) = L x(k) - ẑ(k), (n_runs, T', n d_z), with sampled link events.
+
+        By default every item arrives (reliable links, as the lossless Monte Carlo assumes); give
+        ``p_drop`` (and ``jitter``) with ``rng`` to sample on-time events per edge and step
+        (:meth:`ArrivalModel.sample`), or ``arrived`` (n_runs, T', n, n) booleans d_i(j, s) directly.
+        Vectorized over runs: the local filters' errors are propagated from the primitive noises and
+        the estimate (1) is a batched product with the arrival-masked innovations.
+        """
+        sysm, cost = self.system, self.cost
+        x0 = np.asarray(paths.x, dtype=float)[:, 0]
+        w = np.asarray(paths.w, dtype=float)
+        v = np.concatenate([np.asarray(vi, dtype=float) for vi in paths.v], axis=2)
+        n_runs, T = v.shape[:2]
+        if self.horizon is not None and T > self.horizon:
+            raise ShapeError(f"paths: expected at most horizon = {self.horizon} steps, found {T}")
+        n, dx, dz, dyt = sysm.n_agents, sysm.dx, cost.dz, sysm.dy_total
+        if arrived is None:
+            if p_drop is None:
+                arrived = np.ones((n_runs, T, n, n), dtype=bool)
+            else:
+                arr = ArrivalModel.build(self.graph, p_drop, 0 if jitter is None else jitter)
+                arrived = arr.sample(n_runs, T, np.random.default_rng(rng))
+        arrived = np.asarray(arrived, dtype=bool)
+        if arrived.shape != (n_runs, T, n, n):
+            raise ShapeError(f"arrived: expected shape {(n_runs, T, n, n)}, found {arrived.shape}")
+        off = sysm.offsets
+        eps = np.tile(x0, (1, n))  # ε(0) = 1 ⊗ x(0)
+        nu = np.zeros((n_runs, T * dyt))
+        yv = np.concatenate([np.asarray(yi, dtype=float) for yi in paths.y], axis=2).reshape(n_runs, -1) if self.coordinates == "measurements" else nu
+        mask = np.zeros((n_runs, T * dyt, n))  # mask[:, row, i] = d_i(source of row, step of row)
+        for s in range(T):
+            for j in range(n):
+                rr = slice(s * dyt + int(off[j]), s * dyt + int(off[j]) + sysm.dy[j])
+                mask[:, rr, :] = arrived[:, s, j, :][:, None, :]
+        out = np.empty((n_runs, T, n * dz))
+        for k in range(T):
+            Cs = [sysm.C_at(j, k) for j in range(n)]
+            K = self.K_local[k]
+            nu_k = np.hstack([eps[:, j * dx : (j + 1) * dx] @ Cs[j].T for j in range(n)]) + v[:, k]
+            nu[:, k * dyt : (k + 1) * dyt] = nu_k
+            ef = np.hstack(
+                [eps[:, j * dx : (j + 1) * dx] - nu_k[:, int(off[j]) : int(off[j]) + sysm.dy[j]] @ K[j].T for j in range(n)]
+            )  # e_j(k|k) = e_j(k|k-1) - K_j ν_j(k)
+            L = cost.L_at(k)
+            for i in range(n):
+                rows = _rows(sysm, self.items[k][i])
+                z = ef[:, i * dx : (i + 1) * dx] @ L[i * dz : (i + 1) * dz].T
+                if rows.size:
+                    own = _own_cols(sysm, i, k)
+                    m = mask[:, rows, i]
+                    vals = nu if self.coordinates == "innovations" else yv
+                    f = vals[:, rows] * m + (1.0 - m) * (vals[:, own] @ self.fills[k][i].T)  # the fill of a missed item
+                    z = z - f @ self.gains[k][i].T
+                out[:, k, i * dz : (i + 1) * dz] = z
+            A = sysm.A_at(k)
+            eps = ef @ np.kron(np.eye(n), A).T + (np.tile(w[:, k], (1, n)) if k < w.shape[1] else 0.0)
+        return out
+
+    # --- online agents -------------------------------------------------------------------
+    def graph_agents(self) -> list[Any]:
+        """One agent per node: its own Kalman filter, flooding of innovations, the estimate (1) on what arrived on time."""
+        return [LossyTeamAgent(self, i) for i in range(self.n_agents)]
+
+    @property
+    def delivery_graph(self) -> CommGraph | None:
+        return self.graph
+
+    # --- what the CLI writes ---------------------------------------------------------------
+    def details(self) -> dict[str, Any]:
+        return {
+            "p_drop": self.p_drop if not isinstance(self.p_drop, dict) else {f"{a}->{b}": v for (a, b), v in self.p_drop.items()},
+            "jitter": self.jitter if not isinstance(self.jitter, dict) else {f"{a}->{b}": v for (a, b), v in self.jitter.items()},
+            "memory": self.memory,
+            "lower_bound": self.lower_bound,
+            "gap": self.gap,
+            "local_kf_cost": float(np.sum(self.local_stages)),
+            "items": self.coordinates,
+            "class": f"gains per step on the on-time {self.coordinates} (pattern-independent), missed ones filled from the agent's own",
+        }
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Costs, the bound, the on-time probabilities ``q_arrival`` [j, i], and per step k and agent i the gains
+        ``G_{i}_t{k}`` with their items ``items_{i}_t{k}`` ((source, step) rows) and the local gains ``K_{i}_t{k}``."""
+        out = {
+            **super().arrays(),
+            "lower_bound_stages": np.asarray(self.lower_bound_stages),
+            "local_stages": np.asarray(self.local_stages),
+            "q_arrival": np.asarray(self.arrivals.prob),
+        }
+        for k, step in enumerate(self.gains):
+            for i, G in enumerate(step):
+                out[f"G_{i}_t{k}"] = np.asarray(G)
+                out[f"items_{i}_t{k}"] = np.asarray(self.items[k][i], dtype=np.int64).reshape(-1, 2)
+                out[f"K_{i}_t{k}"] = np.asarray(self.K_local[k][i])
+        return out
+
+
+class LossyTeamAgent:
+    """Agent i of a :class:`LossyTeamDesign` on the message-passing runtime (any links).
+
+    Runs its own Kalman filter, floods ν_i(k) and every item it learns for the first time (payload:
+    list of (j, s, ν_j(s))), records when each item arrived, and outputs (1) using the items that
+    arrived on time (at s + ℓ_ji). It never needs a message, so lost and late packets are fine.
+    """
+
+    def __init__(self, design: LossyTeamDesign, index: int):
+        self.design = design
+        self.index = index
+        self.system = design.system
+
+    def init_state(self, n_runs: int) -> dict[str, Any]:
+        return {"xhat": np.zeros((n_runs, self.system.dx)), "items": {}, "n_runs": n_runs}
+
+    def step(self, state: dict[str, Any], k: int, own: Any, inbox: Sequence[Any]) -> tuple[dict[str, Any], FloatArray, list[Any]]:
+        d, i, sysm = self.design, self.index, self.system
+        xhat = state["xhat"] if k == 0 else state["xhat"] @ sysm.A_at(k - 1).T
+        y = np.asarray(own, dtype=float)
+        nu = y - xhat @ sysm.C_at(i, k).T
+        xhat = xhat + nu @ d.K_local[k][i].T
+        items = dict(state["items"])
+        new = []
+        mine = y if d.coordinates == "measurements" else nu  # the item this agent floods
+        for j, s, val in [(i, k, mine), *[p for (_, _, payload) in inbox for p in payload]]:
+            if (j, s) not in items:
+                on_time = k == s + int(d.arrivals.ell[j, i])
+                items[(j, s)] = np.asarray(val) if on_time else None  # late items are kept out of (1)
+                new.append((j, s, val))
+        z = xhat @ d.cost.L_block(i, k).T
+        its = d.items[k][i]
+        if its:
+            nu_own = np.hstack([items[(i, s)] for s in range(k + 1)])
+            fill = nu_own @ d.fills[k][i].T  # the predictions of every item from the own innovations
+            parts, col = [], 0
+            for j, s in its:
+                dj = sysm.dy[j]
+                val = items.get((j, s))
+                parts.append(fill[:, col : col + dj] if val is None else val)
+                col += dj
+            z = z + np.hstack(parts) @ d.gains[k][i].T
+        return {"xhat": xhat, "items": items, "n_runs": state["n_runs"]}, z, new
+
+
+# ---------------------------------------------------------------------------
+# entry point
+# ---------------------------------------------------------------------------
+def _per_edge(x: Any, name: str) -> Any:
+    """A number, or per edge: {(source, target): value} or [[source, target, value], ...] (as in ``[network]``)."""
+    if isinstance(x, (list, tuple)):
+        try:
+            x = {(int(a), int(b)): v for (a, b, v) in x}
+        except (TypeError, ValueError):
+            raise ArgumentError(f"{name}: expected a number or [[source, target, value], ...], found {V.describe(x)}", argument=name) from None
+    if isinstance(x, dict):
+        out = {}
+        for e, v in x.items():
+            if not (isinstance(e, tuple) and len(e) == 2 and all(isinstance(u, (int, np.integer)) for u in e)):
+                raise ArgumentError(f"{name}: expected a number or {{(source, target): value}}, found the key {e!r}", argument=name)
+            out[(int(e[0]), int(e[1]))] = v
+        return out
+    return x
+
+
+def _p_value(x: Any, name: str) -> Any:
+    x = _per_edge(x, name)
+    if isinstance(x, dict):
+        return {e: V.probability(p, f"{name}[{list(e)}]") for e, p in x.items()}
+    return V.probability(x, name)
+
+
+def _jitter_value(x: Any, name: str) -> Any:
+    x = _per_edge(x, name)
+    if isinstance(x, dict):
+        return {e: V.integer(j, f"{name}[{list(e)}]", minimum=0) for e, j in x.items()}
+    return V.integer(x, name, minimum=0)
+
+
+def design_mtmse_lossy(
+    system: LinearGaussianSystem,
+    cost: TeamCost,
+    graph: CommGraph,
+    horizon: int | None = None,
+    *,
+    p_drop: Any = None,
+    jitter: Any = 0,
+    memory: int | None = None,
+    items: str = "auto",
+    fill: bool = True,
+    bound: bool = True,
+    threads: int | None = 1,
+    progress: bool | None = None,
+) -> LossyTeamDesign:
+    """Design the drop-aware team filter for links that drop packets with probability ``p_drop``.
+
+    Parameters
+    ----------
+    system, cost : the model and the team cost (S, L)
+    graph : CommGraph
+        The links (delays); items are flooded over it.
+    horizon : int
+        T (finite horizon only).
+    p_drop : float in [0, 1] or {(source, target): p}
+        Drop probability of every packet (or per edge). A scenario gives its ``[network] p_drop``;
+        None means reliable links (0: the design is then the MTMSE filter).
+    jitter : int >= 0 or {(source, target): J}
+        A packet late by 1..J steps counts as lost (its item is not used): on-time probability (1 - p)/(J + 1).
+    memory : int or None
+        Use only the innovations of the last ``memory`` steps (bounds the work; None: all, the exact class).
+    items : "auto", "measurements" or "innovations"
+        What the agents flood and the gains act on: the raw measurements y_j(s), or the innovations
+        ν_j(s) of the sender's own Kalman filter. Both give MTMSE at p = 0 and the own-history optimum
+        at p = 1; in between they are different classes (a missed raw measurement is predicted well
+        from the agent's own ones when the agents measure alike). "auto": measurements when every A(k)
+        is stable (spectral radius < 1), else innovations (bounded second moments on unstable processes).
+    fill : bool
+        Replace a missed item by its predictor from the agent's own innovations (else by zero, its mean).
+    threads : int or None
+        BLAS threads for the design (1: robust on a shared machine; None: the library's default).
+    bound : bool
+        Also compute the certified lower bound (the MTMSE stage costs of the full information).
+
+    Returns
+    -------
+    LossyTeamDesign
+        ``stage_costs``/``total_cost`` exact expected costs, ``lower_bound``, ``gap``.
+
+    Examples
+    --------
+    >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph
+    >>> sys, cost, g = LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 10.0), CommGraph.line(4)
+    >>> d0 = design_mtmse_lossy(sys, cost, g, 8, p_drop=0.0)
+    >>> d5 = design_mtmse_lossy(sys, cost, g, 8, p_drop=0.5)
+    >>> d0.lower_bound <= d0.total_cost <= d5.total_cost <= d5.info["local_kf_cost"]
+    True
+    """
+    check_model(system, cost)
+    check_graph(graph, system.n_agents)
+    if horizon is None:
+        raise ArgumentError(
+            "horizon: the drop-aware design is finite-horizon only (its gains act on every past innovation); give horizon = T",
+            argument="horizon",
+        )
+    T = V.positive_int(horizon, "horizon")
+    system.require_horizon(T)
+    cost.require_horizon(T)
+    if p_drop is None:  # a scenario fills it from its [network] table; plain calls: reliable links (= MTMSE)
+        p_drop = 0.0
+    p = _p_value(p_drop, "p_drop")
+    J = _jitter_value(jitter, "jitter")
+    mem = None if memory is None else V.positive_int(memory, "memory")
+    coords = V.choice(items, "items", ("auto", "measurements", "innovations"))
+    if coords == "auto":
+        coords = "measurements" if _stable(system, T) else "innovations"
+    arr = ArrivalModel.build(graph, p, J)
+    with blas_threads(threads):
+        mom = local_filter_moments(system, T)
+        if coords == "measurements":  # items are the raw y_j(s) = Σ_t B(s, t) ν_j(t)
+            B = innovations_to_measurements(system, mom.K, T)
+            mom = LocalMoments(mom.K, B @ mom.Sigma @ B.T, [Th @ B[: Th.shape[1], : Th.shape[1]].T for Th in mom.Theta], mom.Pe)
+        held, gains, fills, stage, local = _solve_all(system, cost, arr, mom, T, mem, fill, progress)
+    if bound:
+        from .registry import get_family  # the registered MTMSE family (families do not import each other)
+
+        nominal = get_family("mtmse").build(system, cost, graph=graph, structure=graph, horizon=T)
+        lb = np.asarray(nominal.stage_costs, dtype=float)
+        lb = np.minimum(lb, stage)  # equal at p = 0 up to round-off: never report a bound above the cost
+    else:
+        lb = np.full(T, np.nan)
+    d = LossyTeamDesign(
+        estimator="mtmse_lossy",
+        horizon=T,
+        system=system,
+        cost=cost,
+        stage_costs=stage,
+        info={"p_drop": p, "jitter": J, "memory": mem, "items": coords, "local_kf_cost": float(local.sum())},
+        graph=graph,
+        p_drop=p,
+        jitter=J,
+        memory=mem,
+        coordinates=coords,
+        arrivals=arr,
+        items=tuple(tuple(tuple(it) for it in step) for step in held),
+        gains=tuple(tuple(step) for step in gains),
+        fills=tuple(tuple(step) for step in fills),
+        K_local=tuple(tuple(K) for K in mom.K),
+        lower_bound_stages=lb,
+        local_stages=local,
+    )
+    d.info["lower_bound"] = d.lower_bound
+    d.info["gap"] = d.gap
+    return d
+
+
+def _stable(system: LinearGaussianSystem, T: int) -> bool:
+    """True when every A(k), k < T, has spectral radius < 1 (raw measurements keep bounded second moments)."""
+    steps = range(T) if system.is_time_varying else range(1)
+    return all(float(np.max(np.abs(np.linalg.eigvals(system.A_at(k))))) < 1.0 for k in steps)
+
+
+def _check_p(v: Any, key: str) -> Any:
+    return None if v is None else _p_value(v, key)
+
+
+def _check_memory(v: Any, key: str) -> Any:
+    return None if v is None else V.positive_int(v, key)
+
+
+FAMILY = _register_builtin(
+    Family(
+        name="mtmse_lossy",
+        design=design_mtmse_lossy,
+        title="drop-aware team filter: minimum expected team MSE for links that drop packets with a known probability (exact cost, certified bound)",
+        uses="graph",
+        horizons=frozenset({"finite"}),
+        analytic_cost=True,
+        strongly_connected=True,
+        options=(
+            Option(name="p_drop", default=None, check=_check_p, doc="drop probability (default: the scenario's [network] p_drop)"),
+            Option(name="jitter", default=0, check=lambda v, k: _jitter_value(v, k), doc="late packets (by up to J steps) count as lost"),
+            Option(name="memory", default=None, check=_check_memory, doc="use the items of the last m steps only (none: all)"),
+            Option(
+                name="items",
+                default="auto",
+                check=lambda v, k: V.choice(v, k, ("auto", "measurements", "innovations")),
+                doc="what agents flood: raw measurements or their own filter's innovations (auto: measurements for a stable A)",
+            ),
+        ),
+        example="design_mtmse_lossy(system, cost, graph, horizon=50, p_drop=0.2)",
+    )
+)
+register_alias("mtmse-lossy", "mtmse_lossy")
