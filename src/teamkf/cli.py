@@ -176,38 +176,18 @@ def _cmd_population(sc: Any, args: argparse.Namespace) -> int:
     return 0
 
 
-def _check_output(path: str, flag: str, suffixes: Sequence[str] | None = None) -> Path:
-    """Fail before any work when an output path has an unsupported extension or cannot be written."""
-    import os
+def _check_output(path: str, flag: str, suffixes: Sequence[str] | str | None = None, inputs: Sequence[Any] = ()) -> Path:
+    """Fail before any work when an output path is an input, has the wrong extension, or lies in a missing folder (teamkf.study.outputs)."""
+    from .study.outputs import check_output
 
-    p = Path(path)
-    if suffixes is not None and p.suffix.lower() not in suffixes:
-        raise ArgumentError(f"{flag}: expected a file name ending in {' or '.join(suffixes)}, found {path!r}", argument=flag)
-    if p.is_dir():
-        raise ArgumentError(f"{flag}: {path!r} is a directory; give a file name", argument=flag)
-    parent = p.parent if str(p.parent) else Path(".")
-    existing = parent
-    while not existing.exists():
-        existing = existing.parent
-    if not existing.is_dir() or not os.access(existing, os.W_OK) or (p.exists() and not os.access(p, os.W_OK)):
-        raise ArgumentError(f"{flag}: cannot write {path!r} (no permission or not a directory: {existing}); choose another path", argument=flag)
-    return p
+    return check_output(path, flag, fmt=suffixes, inputs=inputs)
 
 
 def _write_atomic(path: Path, write: Any) -> None:
     """Write through a temporary file in the same folder, renamed at the end: no partial file on failure."""
-    import os
-    import tempfile
+    from .study.outputs import write_atomic
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            write(fh)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_atomic(path, write)
 
 
 def _warn(message: str) -> None:
@@ -219,7 +199,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     from .study.evaluate import DEFAULT_MC_RUNS
 
     sc = _apply_network_flags(_load(args.scenario), args)
-    plot_to = _check_output(args.plot, "--plot", _PLOT_SUFFIXES) if args.plot else None
+    plot_to = _check_output(args.plot, "--plot", _PLOT_SUFFIXES, inputs=[args.scenario]) if args.plot else None
     if not hasattr(sc, "designs"):  # a [population] scenario: exact statistics, nothing simulated
         if args.monte_carlo:
             raise ArgumentError("--monte-carlo: a population scenario is evaluated exactly; nothing needs simulating", argument="--monte-carlo")
@@ -405,7 +385,7 @@ def _plot_stage_costs(designs: dict[str, Any], mc: dict[str, Any], sc: Any, out:
 # ---------------------------------------------------------------------------
 def _cmd_design(args: argparse.Namespace) -> int:
     sc = _load(args.scenario)
-    out_path = _check_output(args.out, "--out") if args.out else None
+    out_path = _check_output(args.out, "--out", "npz", inputs=[args.scenario]) if args.out else None
     if not hasattr(sc, "designs"):  # a [population] scenario
         if out_path is not None:
             res = sc.evaluate()
@@ -458,6 +438,7 @@ def _cmd_design(args: argparse.Namespace) -> int:
 def _cmd_demo(args: argparse.Namespace) -> int:
     from .demo import run_demo
 
+    _check_output_dir(args.out, "--out")
     run_demo(out_dir=args.out, quick=args.quick, echo=True)
     return 0
 
@@ -467,6 +448,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
     spec = load_sweep(args.sweep)  # everything is checked before anything is written
     out = Path(args.out) if args.out else Path(f"{Path(args.sweep).stem}.parquet")
+    _check_output_dir(str(out), "--out" if args.out else "--out (default)", inputs=[args.sweep, spec.scenario])
     scheduler = args.scheduler or "local"
     _check_scheduler(scheduler)
     if args.workers is not None and scheduler != "local":
@@ -534,10 +516,11 @@ def _cmd_filter(args: argparse.Namespace) -> int:
     """``teamkf filter SCENARIO --measurements FILE [--truth FILE] --out FILE [--estimators ...]``."""
     from .study import measurements as M
 
-    out_path = _check_output(args.out, "--out", (".csv", ".parquet"))
+    inputs = [args.scenario, args.measurements, args.truth]
+    out_path = _check_output(args.out, "--out", (".csv", ".parquet"), inputs=inputs)
     cost_path = out_path.with_name(f"{out_path.stem}-cost{out_path.suffix}") if args.truth else None
     if cost_path is not None:
-        _check_output(str(cost_path), "--out")
+        _check_output(str(cost_path), "--out (its cost file)", (".csv", ".parquet"), inputs=inputs)
     sc = _load(args.scenario)
     if not hasattr(sc, "designs"):
         raise ArgumentError(
@@ -768,19 +751,11 @@ def _open_scheduler(address: str) -> tuple[Any, list[Any]]:
         raise ArgumentError(f"--scheduler: {exc.detail}", argument="--scheduler") from None
 
 
-def _check_output_dir(path: str, flag: str) -> Path:
-    """An output folder that exists or can be created, and is writable; checked before any work."""
-    import os
+def _check_output_dir(path: str, flag: str, inputs: Sequence[Any] = ()) -> Path:
+    """An output folder that exists or whose parent exists, writable, not an input; checked before any work."""
+    from .study.outputs import check_output_dir
 
-    p = Path(path)
-    if p.exists() and not p.is_dir():
-        raise ArgumentError(f"{flag}: expected a folder, found the file {path!r}; choose another path", argument=flag)
-    existing = p
-    while not existing.exists():
-        existing = existing.parent
-    if not existing.is_dir() or not os.access(existing, os.W_OK):
-        raise ArgumentError(f"{flag}: cannot write into {path!r} (no permission or not a directory: {existing}); choose another path", argument=flag)
-    return p
+    return check_output_dir(path, flag, inputs=inputs)
 
 
 def _help_text() -> tuple[str, str]:

@@ -726,6 +726,9 @@ def _module_evaluate() -> PointFunction:
 def _check_out(spec: SweepSpec, out: Path, resume: bool) -> set[str]:
     """The ids of the points already in ``out``; refuses to mix results. Writes nothing."""
     if not out.exists():
+        parent = out.parent if str(out.parent) else Path(".")
+        if not parent.is_dir():
+            raise SweepError(f"{out}: the folder {str(parent)!r} does not exist; create it first (teamkf does not create folders) or fix --out")
         return set()
     if not out.is_dir():
         raise SweepError(f"{out}: exists and is a file; sweep results are a folder of Parquet parts, choose another --out")
@@ -782,7 +785,7 @@ class _Writer:
 
     def create(self) -> None:
         """Create the folder and its ``_sweep.json`` (kept as is when resuming)."""
-        self.out.mkdir(parents=True, exist_ok=True)
+        self.out.mkdir(exist_ok=True)  # the results folder itself; a missing parent was refused by _check_out
         for stale in self.out.glob(".part-*.tmp-*"):
             stale.unlink(missing_ok=True)
         manifest = self.out / MANIFEST_NAME
