@@ -34,6 +34,7 @@ __all__ = [
     "available_memory",
     "check_memory",
     "check_size",
+    "check_sweep",
     "check_work",
     "format_bytes",
     "format_seconds",
@@ -180,3 +181,45 @@ def check_size(n: float, argument: str, *, maximum: float, what: str, fix: str) 
     """
     if n > maximum:
         raise ResourceError(f"{argument}: {what} {n:,.0f} exceeds the largest this computation can hold ({maximum:,.0f}); {fix}", argument=argument)
+
+
+#: loop iterations a sweep's grid point costs besides its Monte Carlo (reading its scenario, designing, writing its Parquet part): ~10 ms
+POINT_LOOPS = 1e5
+
+
+def check_sweep(sizes: list[int], runs: int, T: int, dx: int, dy: int, n_agents: int, n_estimators: int) -> None:
+    """Refuse, before any grid point is built, a sweep whose grid or runs would take longer than the limit.
+
+    Parameters
+    ----------
+    sizes : list of int
+        The number of values of each grid key (the grid has their product of points).
+    runs, T : int
+        Monte Carlo runs per point (0: analytic only) and steps.
+    dx, dy, n_agents, n_estimators : int
+        The base scenario's sizes.
+
+    Raises
+    ------
+    teamkf.exceptions.ResourceError
+        Naming ``grid`` (too many points) or ``runs``.
+    """
+    n_points = math.prod(sizes)
+    shape = " x ".join(map(str, sizes))
+    check_work(
+        0.0,
+        f"a grid of {shape} = {n_points:,} points",
+        argument="grid",
+        fix="use fewer values per key (or split the sweep into several files)",
+        loops=n_points * POINT_LOOPS,
+    )
+    if runs:
+        per = 50.0 + dx * dx + dx * dy + n_estimators * n_agents * dx * (dx + dy)
+        check_work(
+            float(n_points) * runs * T * per,
+            f"{n_points:,} grid points x {runs:,} Monte Carlo runs x {T} steps x {n_estimators} estimators",
+            argument="runs",
+            fix="use fewer runs (the 95 % interval only shrinks like 1/sqrt(runs)) or fewer grid points",
+            loops=n_points * POINT_LOOPS,
+            rate=BATCHED_OPS,
+        )

@@ -42,8 +42,14 @@ def as_float_array(x: ArrayLike, name: str) -> FloatArray:
         raise ArgumentError(
             f"{name}: expected real numbers, found complex values; pass the real part explicitly if that is what you mean", argument=name
         )
+    if isinstance(x, (str, bytes)) or x is None:
+        raise ArgumentError(f"{name}: expected a numeric array, found {describe(x)}; pass numbers (a list or a numpy array)", argument=name)
     try:
         arr = np.asarray(x, dtype=float)
+    except OverflowError:
+        raise ShapeError(
+            f"{name}: expected finite numbers, found an integer too large for a float (beyond 1.8e308); check how {name} was built"
+        ) from None
     except (TypeError, ValueError) as exc:
         raise ShapeError(f"{name}: expected a numeric array, found {type(x).__name__} ({exc})") from None
     if not np.all(np.isfinite(arr)):

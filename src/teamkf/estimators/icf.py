@@ -67,8 +67,16 @@ __all__ = ["design_icf", "check_iterations", "check_rate", "consensus_rate"]
 
 
 def check_iterations(v: Any, key: str) -> int:
-    """The ``iterations`` option: consensus iterations per step of the ideal variant (an integer >= 1)."""
-    return V.integer(v, key, minimum=1, what="a number of consensus iterations")
+    """The ``iterations`` option: consensus iterations per step of the ideal variant (an integer in 1..MAX_ITERATIONS).
+
+    Consensus converges geometrically, so more than :data:`MAX_ITERATIONS` iterations a step
+    change nothing but the run time (10^9 of them would run for days): refused up front.
+    """
+    return V.integer(v, key, minimum=1, maximum=MAX_ITERATIONS, what="a number of consensus iterations")
+
+
+#: the most consensus iterations per step (ICF, HCMCI); consensus has converged to round-off long before
+MAX_ITERATIONS = 10_000
 
 
 def check_rate(v: Any, key: str) -> float | None:

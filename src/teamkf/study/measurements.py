@@ -262,7 +262,16 @@ def _read_table(path: Path, suffix: str) -> Any:
     pd = _pandas()
     if suffix == ".csv":
         try:
+            with open(path, "rb") as fh:
+                head = fh.read(4096)
+        except OSError:
+            head = b""
+        if head.startswith((b"\xff\xfe", b"\xfe\xff")) or b"\x00" in head:
+            raise _fmt_err(path, "", "expected a UTF-8 text file (CSV), found UTF-16 or binary data (NUL bytes); save it as UTF-8 CSV")
+        try:
             df = pd.read_csv(path, skipinitialspace=True)
+        except UnicodeDecodeError as exc:
+            raise _fmt_err(path, "", f"expected a UTF-8 text file (CSV), found undecodable bytes at position {exc.start}; save it as UTF-8") from None
         except pd.errors.EmptyDataError:
             raise _fmt_err(path, "", "the file is empty; expected a header row 'step,agent,y0,...'") from None
         except pd.errors.ParserError as exc:
@@ -282,6 +291,12 @@ def _coerce_numeric(df: Any, path: Path, csv: bool, row0: int = 0) -> Any:
         if not isinstance(col, str):
             raise _fmt_err(path, f"column {col!r}", "expected string column names")
         s = df[col]
+        if s.dtype.kind == "b" or (s.dtype.kind == "O" and s.map(lambda v: isinstance(v, (bool, np.bool_))).any()):
+            raise _fmt_err(path, f"column {col!r}", "expected numbers, found true/false values; write measurements as numbers (1.0, 0.0)")
+        if s.dtype.kind in "mM":
+            raise _fmt_err(
+                path, f"column {col!r}", f"expected numbers, found {'dates/times' if s.dtype.kind == 'M' else 'durations'}; give steps as integers"
+            )
         if s.dtype.kind not in "fiub":
             num = pd.to_numeric(s, errors="coerce")
             bad = np.flatnonzero(num.isna().to_numpy() & s.notna().to_numpy())
@@ -289,6 +304,12 @@ def _coerce_numeric(df: Any, path: Path, csv: bool, row0: int = 0) -> Any:
                 r = int(bad[0])
                 raise _fmt_err(path, _where(r + row0, col, csv), f"expected a number, found {s.iloc[r]!r}")
             df[col] = num.astype(float)
+        vals = df[col].to_numpy()
+        if vals.dtype.kind == "f" and np.isinf(vals).any():
+            r = int(np.flatnonzero(np.isinf(vals))[0])
+            raise _fmt_err(
+                path, _where(r + row0, col, csv), f"expected a finite number (empty or NaN = missing), found {float(vals[r])!r} (beyond 1.8e308?)"
+            )
     return df
 
 
@@ -304,7 +325,8 @@ def _int_column(df: Any, col: str, path: Path, csv: bool, row0: int = 0) -> np.n
     bad = np.flatnonzero(~np.isfinite(a) | (a != np.round(a)))
     if bad.size:
         r = int(bad[0])
-        raise _fmt_err(path, _where(r + row0, col, csv), f"expected a whole number, found {df[col].iloc[r]!r}")
+        v = df[col].iloc[r]
+        raise _fmt_err(path, _where(r + row0, col, csv), f"expected a whole number, found {v.item() if hasattr(v, 'item') else v!r}")
     return a.astype(np.int64)
 
 

@@ -56,10 +56,16 @@ def _raw_chunks(p: Path, suffix: str, chunk_rows: int) -> Iterator[Any]:
     import pandas as pd
 
     if suffix == ".csv":
+        with open(p, "rb") as fh:
+            head = fh.read(4096)
+        if head.startswith((b"\xff\xfe", b"\xfe\xff")) or b"\x00" in head:
+            raise _fmt_err(p, "", "expected a UTF-8 text file (CSV), found UTF-16 or binary data (NUL bytes); save it as UTF-8 CSV")
         try:
             reader = pd.read_csv(p, skipinitialspace=True, chunksize=chunk_rows)
             for df in reader:
                 yield df
+        except UnicodeDecodeError as exc:
+            raise _fmt_err(p, "", f"expected a UTF-8 text file (CSV), found undecodable bytes at position {exc.start}; save it as UTF-8") from None
         except pd.errors.EmptyDataError:
             raise _fmt_err(p, "", "the file is empty; expected a header row 'step,agent,y0,...'") from None
         except pd.errors.ParserError as exc:

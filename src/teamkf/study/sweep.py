@@ -132,6 +132,7 @@ import numpy as np
 
 from .. import _validation as V
 from .._blas import single_thread_blas
+from .._budget import check_sweep
 from ..exceptions import ScenarioError, TeamkfError
 from ..simulation.parallel import WORKER_ENV, _cpu_count, _open_client, local_cluster  # noqa: F401  (public here since 0.1)
 from .evaluate import evaluate_point, is_analytic  # noqa: F401  (evaluate_point is looked up by _module_evaluate)
@@ -366,6 +367,8 @@ def sweep_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", source:
     name = data.get("name", "sweep")
     if not isinstance(name, str) or not name.strip():
         raise _fail("name", f"expected a non-empty string, found {_describe(name)}")
+    if any(ord(c) < 32 or ord(c) == 127 for c in name):
+        raise _fail("name", f"expected printable text, found a control character in {name!r}; remove it")
     description = data.get("description", "")
     if not isinstance(description, str):
         raise _fail("description", f"expected a string, found {_describe(description)}")
@@ -395,6 +398,9 @@ def sweep_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", source:
                 raise _fail(f"estimators[{idx}]", f"{e!r} has no analytic cost; set runs >= 2 to evaluate it by Monte Carlo")
 
     grid, kinds = _grid(data["grid"])
+    sys_ = getattr(base, "system", None)  # sized before any point is built (teamkf._budget)
+    shape = (sys_.dx, sys_.dy_total, sys_.n_agents) if sys_ is not None else (1, 1, 1)
+    check_sweep([len(v) for v in grid.values()], runs if sys_ is not None else 0, base.horizon or 1, *shape, len(estimators))
     spec = SweepSpec(scenario, runs, seed, estimators, grid, base, name=name, description=description, source=source, kinds=kinds)
     cost_keys = _check_points(spec)
     object.__setattr__(spec, "cost_keys", cost_keys)
@@ -406,6 +412,8 @@ def _int(x: Any, key: str, minimum: int) -> int:
         raise _fail(key, f"expected an integer >= {minimum}, found {_describe(x)}")
     if x < minimum:
         raise _fail(key, f"expected an integer >= {minimum}, found {x}")
+    if x > _MAX_SEED:
+        raise _fail(key, f"expected an integer between {minimum} and 2**63 - 1, found {x:.3g}")
     return int(x)
 
 
