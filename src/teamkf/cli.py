@@ -553,7 +553,8 @@ def _cmd_filter(args: argparse.Namespace) -> int:
         print(dumps_json(out))
         return 0
     if res.loglik is not None:
-        print(f"log-likelihood of the data under the centralized filter: {res.loglik:.6f}")
+        ll = f"{res.loglik:.6f}" if np.isfinite(res.loglik) else f"{res.loglik} (non-finite: a measurement lies far outside what the model predicts)"
+        print(f"log-likelihood of the data under the centralized filter: {ll}")
     gaps = "no gaps" if not log.has_gaps else f"{sum(int(np.isnan(y).any(axis=1).sum()) for y in log.y)} agent-steps with missing values"
     print(f"{sc.name}: {log.n_steps} steps, {res.n_agents} agents ({gaps}); estimates of {', '.join(names)} written to {out_path}")
     if res.total_costs is not None:
@@ -900,6 +901,32 @@ def _one_line(exc: BaseException) -> str:
     return text or type(exc).__name__
 
 
+def _resource_line(exc: BaseException) -> str:
+    """One line for an error that a size or encoding check should have caught first."""
+    what = {
+        MemoryError: "not enough memory for this request",
+        RecursionError: "the input is nested too deeply",
+        OverflowError: "a number is too large for the computation",
+    }
+    head = next((w for t, w in what.items() if isinstance(exc, t)), "the input is not valid UTF-8 text")
+    return f"{head} ({type(exc).__name__}: {_one_line(exc)[:200]}); use smaller sizes or check the input (--debug shows where)"
+
+
+def _report_warnings(caught: Sequence[Any]) -> None:
+    """numpy's RuntimeWarnings of a command, as one ``teamkf: warning:`` line each kind (non-finite results are flagged in the output)."""
+    kinds: dict[str, int] = {}
+    for w in caught:
+        if issubclass(w.category, RuntimeWarning):
+            msg = " ".join(str(w.message).split())
+            kinds[msg] = kinds.get(msg, 0) + 1
+        else:
+            import warnings
+
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+    for msg, k in kinds.items():
+        _warn(f"numerical {msg}{f' ({k} times)' if k > 1 else ''}; results that are not finite are reported as diverged / null")
+
+
 def _load_plugins(argv: Sequence[str]) -> None:
     """Import the --plugin modules first, so that their families appear in --help and in scenario files."""
     from .estimators.registry import load_plugin
@@ -933,12 +960,23 @@ def main(argv: Sequence[str] | None = None) -> int:
         from ._progress import set_quiet
 
         set_quiet(True)
+    import warnings
+
     try:
-        return int(args.func(args))
+        with warnings.catch_warnings(record=True) as caught:  # numpy's RuntimeWarnings: one summary line, never raw
+            warnings.simplefilter("always", RuntimeWarning)
+            rc = int(args.func(args))
+        _report_warnings(caught)
+        return rc
     except (TeamkfError, OSError) as exc:
         if getattr(args, "debug", False):
             traceback.print_exc()
         print(f"teamkf: error: {_one_line(exc)}", file=sys.stderr)
+        return 2
+    except (MemoryError, RecursionError, OverflowError, UnicodeError) as exc:  # a size no check foresaw: still one line
+        if getattr(args, "debug", False):
+            traceback.print_exc()
+        print(f"teamkf: error: {_resource_line(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:  # pragma: no cover - interactive
         print("teamkf: interrupted", file=sys.stderr)

@@ -144,6 +144,11 @@ class TeamCost:
         n = V.positive_int(n_agents, "n_agents")
         d = V.positive_int(d, "d")
         lam = _nonneg(lam, "lambda")
+        if coupling == "ring" and n < 3:
+            raise ArgumentError(
+                f"n_agents: expected at least 3 agents for a ring (a closed formation), found {n}; use TeamCost.platoon for 2 agents, mse for 1",
+                argument="n_agents",
+            )
         if coupling == "average":
             W = np.ones((n, n)) / n**2
         else:

@@ -493,8 +493,14 @@ def monte_carlo(
             f"n_runs: expected at most 2^63 runs (run indices are 64-bit Philox counter words), found {R_}; split the study over seeds"
         )
     B = V.positive_int(batch, "batch")
+    V.instance(designs, "designs", Mapping, "a mapping name -> design (e.g. {'mtmse': design_mtmse(...)})")
     if not designs:
         raise ArgumentError("designs: expected at least one design", argument="designs")
+    for name, d in designs.items():
+        if not (hasattr(d, "system") and hasattr(d, "agents")):
+            raise ArgumentError(
+                f"designs[{name!r}]: expected a design (from a design_* function), found {V.describe(d)}", argument=f"designs[{name!r}]"
+            )
     V.choice(path, "path", ("errors", "runtime"))
     first_name, first = next(iter(designs.items()))
     system = first.system

@@ -153,6 +153,7 @@ def sample_paths(
     first_run : index of the first run drawn (with ``rng`` or a RunStreams): drawing runs a..b of a seed
         gives the numbers of those runs in any larger draw
     """
+    V.instance(system, "system", LinearGaussianSystem, "a LinearGaussianSystem")
     T = V.positive_int(n_steps, "n_steps")
     R_ = V.positive_int(n_runs, "n_runs")
     first = V.positive_int(first_run, "first_run", minimum=0)

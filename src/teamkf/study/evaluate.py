@@ -47,6 +47,11 @@ def evaluate_point(scenario: Any, estimators: Sequence[str] | None = None, runs:
     ``average_cost`` (the average LQ cost per agent; NaN when the memory-n
     closed loop diverges, and a DivergenceError where the exact filter does).
     """
+    if not hasattr(scenario, "estimators") or not hasattr(scenario, "horizon"):
+        from .._validation import describe
+        from ..exceptions import ArgumentError
+
+        raise ArgumentError(f"scenario: expected a Scenario (teamkf.load_scenario), found {describe(scenario)}", argument="scenario")
     if not hasattr(scenario, "designs"):  # a [population] scenario: exact statistics (study.population)
         return [_population_row(scenario, seed)]
     names = tuple(scenario.estimators if estimators is None else estimators)

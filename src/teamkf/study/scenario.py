@@ -210,7 +210,12 @@ def load_scenario(path: str | Path) -> Scenario:
         On a syntax error (with the file name, line and column) or an invalid
         scenario (the message starts with the key path).
     """
+    V.instance(path, "path", (str, Path), "the path of a scenario file (a string or a Path)")
     p = Path(path)
+    if not p.is_file():
+        if not p.exists():
+            raise FileNotFoundError(2, "no such scenario file", str(p))
+        raise ScenarioError(f"{p}: is not a file; expected a scenario file (.toml or .json)", argument=str(p))
     data = read_data_file(p)
     if "name" not in data:
         data = {"name": p.stem, **data}
