@@ -171,7 +171,10 @@ def real(x: Any, name: str, *, minimum: float | None = None, maximum: float | No
     """A finite real number in the given range (``strict``: the bounds themselves excluded); complex and bools rejected."""
     if isinstance(x, (bool, np.bool_)) or not isinstance(x, (int, float, np.integer, np.floating)):
         raise ArgumentError(f"{name}: expected {what}, found {describe(x)}", argument=name)
-    v = float(x)
+    try:
+        v = float(x)
+    except OverflowError:  # an integer beyond the float range (> 1.8e308)
+        v = float("inf") if x > 0 else float("-inf")
     lo, hi = (">", "<") if strict else (">=", "<=")
     bounds = (f" {lo} {minimum:g}" if minimum is not None else "") + (f" and {hi} {maximum:g}" if maximum is not None else "")
     if not np.isfinite(v):

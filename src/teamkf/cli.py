@@ -200,6 +200,8 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
     sc = _apply_network_flags(_load(args.scenario), args)
     plot_to = _check_output(args.plot, "--plot", _PLOT_SUFFIXES, inputs=[args.scenario]) if args.plot else None
+    if args.scheduler is not None:  # checked even when nothing ends up simulated: a typo must not pass silently
+        _check_scheduler(args.scheduler)
     if not hasattr(sc, "designs"):  # a [population] scenario: exact statistics, nothing simulated
         if args.monte_carlo:
             raise ArgumentError("--monte-carlo: a population scenario is evaluated exactly; nothing needs simulating", argument="--monte-carlo")
@@ -473,7 +475,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
                     "seed": spec.seed,
                     "estimators": list(spec.estimators),
                     "grid": {k: list(v) for k, v in spec.grid.items()},
-                    "rows": [dict(r) for r in res.rows],
+                    "rows": _strict_rows({"rows": [dict(r) for r in res.rows]})["rows"],  # non-finite costs: null and a non_finite mark
                 }
             )
         )

@@ -348,8 +348,12 @@ class CommGraph:
         return dist
 
     def is_strongly_connected(self) -> bool:
-        """Whether every agent has a directed path to every other agent."""
-        return bool(np.all(np.isfinite(self._distances)))
+        """Whether every agent has a directed path to every other agent (strong components: O(n + edges), no all-pairs matrix)."""
+        if "_distances" in self.__dict__:
+            return bool(np.all(np.isfinite(self._distances)))
+        from scipy.sparse.csgraph import connected_components
+
+        return self.n_agents == 1 or int(connected_components(self.adjacency(), directed=True, connection="strong")[0]) == 1
 
     def unreachable_pairs(self) -> list[tuple[int, int]]:
         """All ordered pairs ``(i, j)`` with no directed path ``i -> j``."""
@@ -370,7 +374,7 @@ class CommGraph:
             Naming the first (row-major) pair ``(i, j)`` with no directed path
             ``i -> j`` and suggesting an edge that fixes it.
         """
-        bad = self.unreachable_pairs()
+        bad = [] if self.is_strongly_connected() else self.unreachable_pairs()
         if bad:
             i, j = bad[0]
             more = f" ({len(bad)} unreachable ordered pairs in all)" if len(bad) > 1 else ""

@@ -748,6 +748,16 @@ def _check_out(spec: SweepSpec, out: Path, resume: bool) -> set[str]:
         raise SweepError(f"{out}: exists and is not a teamkf sweep results folder (no {MANIFEST_NAME}); choose another --out")
     if not resume:
         raise SweepError(f"{out}: results already exist; pass --resume (resume=True) to continue this sweep, or choose another --out")
+    foreign = [
+        e.name
+        for e in entries
+        if e.name != MANIFEST_NAME and not e.name.startswith(".") and not (e.name.startswith("part-") and e.name.endswith(".parquet"))
+    ]
+    if foreign:
+        raise SweepError(
+            f"{out}: holds {foreign[0]!r}{f' and {len(foreign) - 1} more entries' if len(foreign) > 1 else ''}, which no sweep writes; "
+            "Parquet readers would fail on it: move it out of the results folder, then --resume"
+        )
     try:
         info = json.loads(manifest.read_text(encoding="utf-8"))
         theirs = info["fingerprint"]
