@@ -288,10 +288,11 @@ def check_depth(data: Any, source: str = "scenario") -> None:
     while stack:
         node, depth, where = stack.pop()
         if depth > MAX_DEPTH:
+            top = re.split(r"[.\[]", where, maxsplit=1)[0] or source
             raise ScenarioError(
-                f"{where or source}: expected at most {MAX_DEPTH} levels of nested lists and tables, found more; "
+                f"{top}: expected at most {MAX_DEPTH} levels of nested lists and tables, found more (in {source}); "
                 "no scenario key is nested that deep: check the brackets",
-                argument=where or source,
+                argument=top,
             )
         if isinstance(node, Mapping):
             stack.extend((v, depth + 1, f"{where}.{k}" if where else str(k)) for k, v in node.items())
