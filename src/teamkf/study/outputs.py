@@ -187,7 +187,8 @@ def write_atomic(path: str | os.PathLike[str], writer: Callable[[Any], Any], *, 
         raise ArgumentError(f"{target}: the folder {str(folder)!r} does not exist; create it first", argument=str(target))
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=folder)
     try:
-        with os.fdopen(fd, "w" if text else "wb", **({"encoding": "utf-8", "newline": ""} if text else {})) as fh:
+        fh: Any = os.fdopen(fd, "w", encoding="utf-8", newline="") if text else os.fdopen(fd, "wb")
+        with fh:
             writer(fh)
         try:
             mode = target.stat().st_mode & 0o777 if target.exists() else 0o666 & ~_umask()

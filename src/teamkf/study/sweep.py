@@ -399,8 +399,8 @@ def sweep_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", source:
 
     grid, kinds = _grid(data["grid"])
     sys_ = getattr(base, "system", None)  # sized before any point is built (teamkf._budget)
-    shape = (sys_.dx, sys_.dy_total, sys_.n_agents) if sys_ is not None else (1, 1, 1)
-    check_sweep([len(v) for v in grid.values()], runs if sys_ is not None else 0, base.horizon or 1, *shape, len(estimators))
+    dx, dy, n_agents = (sys_.dx, sys_.dy_total, sys_.n_agents) if sys_ is not None else (1, 1, 1)
+    check_sweep([len(v) for v in grid.values()], runs if sys_ is not None else 0, base.horizon or 1, dx, dy, n_agents, len(estimators))
     spec = SweepSpec(scenario, runs, seed, estimators, grid, base, name=name, description=description, source=source, kinds=kinds)
     cost_keys = _check_points(spec)
     object.__setattr__(spec, "cost_keys", cost_keys)
