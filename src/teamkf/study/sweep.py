@@ -755,8 +755,9 @@ def _check_out(spec: SweepSpec, out: Path, resume: bool) -> set[str]:
     ]
     if foreign:
         raise SweepError(
-            f"{out}: holds {foreign[0]!r}{f' and {len(foreign) - 1} more entries' if len(foreign) > 1 else ''}, which no sweep writes; "
-            "Parquet readers would fail on it: move it out of the results folder, then --resume"
+            f"{out}: expected only Parquet parts and {MANIFEST_NAME}, found {foreign[0]!r}"
+            f"{f' and {len(foreign) - 1} more entries' if len(foreign) > 1 else ''} (no sweep writes it; Parquet readers would fail on it); "
+            "move it out of the results folder, then --resume"
         )
     try:
         info = json.loads(manifest.read_text(encoding="utf-8"))
