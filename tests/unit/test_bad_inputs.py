@@ -399,7 +399,7 @@ SWEEP_ROWS: list[tuple[str, Any, str]] = [
     ("sweep-population-runs", {"scenario": "interference", "runs": 10, "grid": {"population.a": [2.0]}}, "runs"),
     ("sweep-population-estimators", {"scenario": "interference", "estimators": ["mtmse"], "grid": {"population.a": [2.0]}}, "estimators"),
     ("sweep-population-bad-grid", {"scenario": "interference", "grid": {"population.n_agents": [0]}}, "population.n_agents"),
-    ("sweep-grid-huge", M(SWEEP_BASE, "grid", {"cost.lambda": [1.0 + k for k in range(400)], "graph.delay": list(range(1, 401))}), "grid"),
+    ("sweep-grid-huge", M(SWEEP_BASE, "grid", {"cost.lambda": [1.0 + k for k in range(1000)], "graph.delay": list(range(1, 1001))}), "grid"),
     ("sweep-runs-huge", M(SWEEP_BASE, "runs", 10**13), "runs"),
     ("sweep-runs-beyond-int64", M(SWEEP_BASE, "runs", 2**70), "runs"),
     ("sweep-name-control-character", M(SWEEP_BASE, "name", "a\nb"), "name"),
