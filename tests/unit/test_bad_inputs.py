@@ -495,7 +495,7 @@ def _api_rows() -> list[tuple[str, Callable[[], Any], str]]:
         ("system-A-strings", lambda: system(A=[["0.9", "0"], ["0", "0.8"]]), "A"),
         ("system-Q-booleans", lambda: system(Q=np.eye(2, dtype=bool)), "Q"),
         ("cost-ring-two-agents", lambda: TeamCost.ring(2, 1.0), "n_agents"),
-        ("cost-lambda-huge-integer", lambda: TeamCost.platoon(2, lam=10**400), "lambda"),
+        ("api-cost-lambda-huge-integer", lambda: TeamCost.platoon(2, lam=10**400), "lambda"),
         ("register-family-section-name", lambda: teamkf.register_family(name="network", design=len, title="x"), "name"),
         ("option-check-not-callable", lambda: teamkf.Option(name="gain", default=1.0, check="float"), "check"),
         ("graph-complete-huge", lambda: CommGraph.complete(10**6), "n"),
