@@ -216,6 +216,7 @@ SCENARIO_ROWS: list[tuple[str, Any, str]] = [
     ("R-one-step-sequence", M(BASE, "agents.0.R", [[[0.5]]]), "agents[0].R"),
     ("A-four-levels", M(BASE, "system.A", [[[[0.9, 0.1], [0.0, 0.8]]]] * 2), "system.A"),
     ("graph-delay-huge-integer", M(BASE, "graph.delay", 2**80), "graph.delay"),
+    ("edges-agent-id-written-as-float", M(BASE, "graph", {"edges": [[0, 1.0, 1], [1, 0, 1]]}), "graph.edges"),
     ("edges-delay-huge-float", M(BASE, "graph", {"edges": [[0, 1, 1e200], [1, 0, 1]]}), "graph.edges"),
     ("cost-lambda-huge-integer", M(BASE, "cost.lambda", 10**400), "cost.lambda"),
     ("horizon-huge-integer", M(BASE, "horizon", 10**40), "horizon"),

@@ -618,6 +618,11 @@ def _graph(g_tab: Any, n: int) -> CommGraph:
             edges = g["edges"]
             if not isinstance(edges, list):
                 raise _fail("graph.edges", f"expected a list of [from, to, delay] triples, found {_describe(edges)}")
+            for k, e in enumerate(edges):  # agent ids are labels: whole numbers as written, never 1.0
+                if isinstance(e, list) and len(e) == 3 and any(isinstance(v, float) for v in e[:2]):
+                    raise _fail(
+                        "graph.edges", f"edges[{k}]: expected integer agent ids (0, 1, ...), found {e[:2]!r}; write them without a decimal point"
+                    )
             graph = CommGraph(n, edges)  # type: ignore[arg-type]
         elif "kind" in g:
             kind = g["kind"]
