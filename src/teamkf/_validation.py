@@ -43,10 +43,10 @@ def as_float_array(x: ArrayLike, name: str) -> FloatArray:
             f"{name}: expected real numbers, found complex values; pass the real part explicitly if that is what you mean", argument=name
         )
     if isinstance(x, (str, bytes)) or x is None:
-        raise ArgumentError(f"{name}: expected a numeric array, found {describe(x)}; pass numbers (a list or a numpy array)", argument=name)
+        raise ShapeError(f"{name}: expected a numeric array, found {describe(x)}; pass numbers (a list or a numpy array)", argument=name)
     kind = _element_kind(x)
     if kind:
-        raise ArgumentError(f"{name}: expected numbers, found {kind}; numpy would turn them into numbers silently: pass floats", argument=name)
+        raise ShapeError(f"{name}: expected a numeric array, found {kind}; numpy would turn them into numbers silently: pass floats", argument=name)
     try:
         arr = np.asarray(x, dtype=float)
     except OverflowError:

@@ -12,7 +12,7 @@ import pytest
 
 from teamkf import _budget
 from teamkf.cli import main
-from teamkf.exceptions import ArgumentError, ResourceError, TeamkfError
+from teamkf.exceptions import ArgumentError, ResourceError, ShapeError, TeamkfError
 from teamkf.study.outputs import check_output, check_output_dir, same_file, write_atomic
 
 
@@ -147,7 +147,7 @@ def test_strings_are_not_silently_numbers_but_numbers_still_are() -> None:
     assert V.as_float_array([[1, 2.5]], "A").dtype == float
     assert V.as_float_array(np.arange(3), "A").shape == (3,)
     for bad in (["1"], np.array(["1.0"]), np.array([True]), [[1.0, False]], True):
-        with pytest.raises(ArgumentError, match="A: expected numbers"):
+        with pytest.raises(ShapeError, match="A: expected a numeric array, found (strings|booleans|a boolean)"):
             V.as_float_array(bad, "A")
 
 
