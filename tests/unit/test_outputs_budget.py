@@ -160,3 +160,15 @@ def test_resource_error_is_fast_and_allocates_nothing() -> None:
     with pytest.raises(ResourceError, match="n: a graph of 1,000,000 agents"):
         teamkf.CommGraph.complete(10**6)
     assert time.perf_counter() - t0 < 5.0
+
+
+@pytest.mark.parametrize("kind", ["average_tracking", "platoon", "ring"])
+def test_cost_builders_skip_only_a_check_that_holds_by_construction(kind: str) -> None:
+    import teamkf
+
+    c = getattr(teamkf.TeamCost, kind)(5, 3.5, d=2)
+    validated = teamkf.TeamCost(S=np.array(c.S[0]), L=np.array(c.L[0]), n_agents=5)  # through __post_init__'s checks
+    assert np.array_equal(c.S, validated.S) and np.array_equal(c.L, validated.L)
+    assert not c.S.flags.writeable and np.linalg.eigvalsh(c.S[0])[0] >= 1.0 - 1e-12  # I + lam W with W >= 0
+    with pytest.raises(ResourceError, match="n_agents: the .* team cost of 1,000,000 agents"):
+        getattr(teamkf.TeamCost, kind)(10**6, 1.0)
