@@ -42,13 +42,43 @@ def as_float_array(x: ArrayLike, name: str) -> FloatArray:
         raise ArgumentError(
             f"{name}: expected real numbers, found complex values; pass the real part explicitly if that is what you mean", argument=name
         )
+    if isinstance(x, (str, bytes)) or x is None:
+        raise ShapeError(f"{name}: expected a numeric array, found {describe(x)}; pass numbers (a list or a numpy array)", argument=name)
+    kind = _element_kind(x)
+    if kind:
+        raise ShapeError(f"{name}: expected a numeric array, found {kind}; numpy would turn them into numbers silently: pass floats", argument=name)
     try:
         arr = np.asarray(x, dtype=float)
+    except OverflowError:
+        raise ShapeError(
+            f"{name}: expected finite numbers, found an integer too large for a float (beyond 1.8e308); check how {name} was built"
+        ) from None
     except (TypeError, ValueError) as exc:
         raise ShapeError(f"{name}: expected a numeric array, found {type(x).__name__} ({exc})") from None
     if not np.all(np.isfinite(arr)):
         raise ShapeError(f"{name}: expected finite numbers, found NaN or inf; check how {name} was built")
     return arr
+
+
+def _element_kind(x: Any) -> str:
+    """``"strings"`` or ``"booleans"`` when ``x`` holds them (which ``np.asarray(x, float)`` would convert), else ``""``."""
+    if isinstance(x, (bool, np.bool_)):
+        return "a boolean"
+    if isinstance(x, np.ndarray):
+        return {"U": "strings", "S": "strings", "b": "booleans"}.get(x.dtype.kind, "")
+    if isinstance(x, (list, tuple)):
+        stack: list[Any] = [x]
+        seen = 0
+        while stack and seen < 100_000:  # nested lists as written by hand; large arrays come as ndarrays
+            v = stack.pop()
+            seen += 1
+            if isinstance(v, (list, tuple)):
+                stack.extend(v)
+            elif isinstance(v, (str, bytes)):
+                return "strings"
+            elif isinstance(v, (bool, np.bool_)):
+                return "booleans"
+    return ""
 
 
 def _has_complex(x: Any) -> bool:
@@ -141,7 +171,10 @@ def real(x: Any, name: str, *, minimum: float | None = None, maximum: float | No
     """A finite real number in the given range (``strict``: the bounds themselves excluded); complex and bools rejected."""
     if isinstance(x, (bool, np.bool_)) or not isinstance(x, (int, float, np.integer, np.floating)):
         raise ArgumentError(f"{name}: expected {what}, found {describe(x)}", argument=name)
-    v = float(x)
+    try:
+        v = float(x)
+    except OverflowError:  # an integer beyond the float range (> 1.8e308)
+        v = float("inf") if x > 0 else float("-inf")
     lo, hi = (">", "<") if strict else (">=", "<=")
     bounds = (f" {lo} {minimum:g}" if minimum is not None else "") + (f" and {hi} {maximum:g}" if maximum is not None else "")
     if not np.isfinite(v):
@@ -177,6 +210,13 @@ def choice(x: Any, name: str, choices: Sequence[str], *, what: str = "one of") -
     return x
 
 
+def instance(x: Any, name: str, types: type | tuple[type, ...], what: str, fix: str = "") -> Any:
+    """``x`` when it is one of ``types``; else an :class:`ArgumentError` naming ``name`` (the API's boundary check: no AttributeError later)."""
+    if not isinstance(x, types):
+        raise ArgumentError(f"{name}: expected {what}, found {describe(x)}{'; ' + fix if fix else ''}", argument=name)
+    return x
+
+
 def key_path(*parts: str | int) -> str:
     """Join a key path as the scenario reader writes it: ``key_path("agents", 2, "R") == "agents[2].R"``."""
     out = ""
@@ -204,6 +244,8 @@ def describe(x: Any) -> str:
     """A short description of a value read from a scenario file, for error messages."""
     from collections.abc import Mapping
 
+    if x is None:
+        return "None"
     if isinstance(x, bool):
         return f"the boolean {str(x).lower()}"
     if isinstance(x, (int, float)):

@@ -172,38 +172,18 @@ def _cmd_population(sc: Any, args: argparse.Namespace) -> int:
     return 0
 
 
-def _check_output(path: str, flag: str, suffixes: Sequence[str] | None = None) -> Path:
-    """Fail before any work when an output path has an unsupported extension or cannot be written."""
-    import os
+def _check_output(path: str, flag: str, suffixes: Sequence[str] | str | None = None, inputs: Sequence[Any] = ()) -> Path:
+    """Fail before any work when an output path is an input, has the wrong extension, or lies in a missing folder (teamkf.study.outputs)."""
+    from .study.outputs import check_output
 
-    p = Path(path)
-    if suffixes is not None and p.suffix.lower() not in suffixes:
-        raise ArgumentError(f"{flag}: expected a file name ending in {' or '.join(suffixes)}, found {path!r}", argument=flag)
-    if p.is_dir():
-        raise ArgumentError(f"{flag}: {path!r} is a directory; give a file name", argument=flag)
-    parent = p.parent if str(p.parent) else Path(".")
-    existing = parent
-    while not existing.exists():
-        existing = existing.parent
-    if not existing.is_dir() or not os.access(existing, os.W_OK) or (p.exists() and not os.access(p, os.W_OK)):
-        raise ArgumentError(f"{flag}: cannot write {path!r} (no permission or not a directory: {existing}); choose another path", argument=flag)
-    return p
+    return check_output(path, flag, fmt=suffixes, inputs=inputs)
 
 
 def _write_atomic(path: Path, write: Any) -> None:
     """Write through a temporary file in the same folder, renamed at the end: no partial file on failure."""
-    import os
-    import tempfile
+    from .study.outputs import write_atomic
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            write(fh)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_atomic(path, write)
 
 
 def _warn(message: str) -> None:
@@ -216,7 +196,9 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     from .study.evaluation import check_capabilities, evaluate
 
     sc = _apply_network_flags(_load(args.scenario), args)
-    plot_to = _check_output(args.plot, "--plot", _PLOT_SUFFIXES) if args.plot else None
+    plot_to = _check_output(args.plot, "--plot", _PLOT_SUFFIXES, inputs=[args.scenario]) if args.plot else None
+    if args.scheduler is not None:  # checked even when nothing ends up simulated: a typo must not pass silently
+        _check_scheduler(args.scheduler)
     if not sc.simulates:  # a [population] scenario: exact statistics, nothing simulated
         if args.monte_carlo:
             raise ArgumentError("--monte-carlo: a population scenario is evaluated exactly; nothing needs simulating", argument="--monte-carlo")
@@ -388,7 +370,7 @@ def _plot_stage_costs(designs: Mapping[str, Any], mc: Mapping[str, Any], sc: Any
 # ---------------------------------------------------------------------------
 def _cmd_design(args: argparse.Namespace) -> int:
     sc = _load(args.scenario)
-    out_path = _check_output(args.out, "--out") if args.out else None
+    out_path = _check_output(args.out, "--out", "npz", inputs=[args.scenario]) if args.out else None
     if not sc.simulates:  # a [population] scenario: its gains are exact statistics
         if out_path is not None:
             res = sc.evaluate()
@@ -441,6 +423,7 @@ def _cmd_design(args: argparse.Namespace) -> int:
 def _cmd_demo(args: argparse.Namespace) -> int:
     from .demo import run_demo
 
+    _check_output_dir(args.out, "--out")
     run_demo(out_dir=args.out, quick=args.quick, echo=True)
     return 0
 
@@ -450,6 +433,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
     spec = load_sweep(args.sweep)  # everything is checked before anything is written
     out = Path(args.out) if args.out else Path(f"{Path(args.sweep).stem}.parquet")
+    _check_output_dir(str(out), "--out" if args.out else "--out (default)", inputs=[args.sweep, spec.scenario])
     scheduler = args.scheduler or "local"
     _check_scheduler(scheduler)
     if args.workers is not None and scheduler != "local":
@@ -474,7 +458,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
                     "seed": spec.seed,
                     "estimators": list(spec.estimators),
                     "grid": {k: list(v) for k, v in spec.grid.items()},
-                    "rows": [dict(r) for r in res.rows],
+                    "rows": _strict_rows({"rows": [dict(r) for r in res.rows]})["rows"],  # non-finite costs: null and a non_finite mark
                 }
             )
         )
@@ -512,14 +496,15 @@ def _cmd_filter(args: argparse.Namespace) -> int:
     """``teamkf filter SCENARIO --measurements FILE [--truth FILE] --out FILE [--estimators ...]``."""
     from .study import measurements as M
 
-    if getattr(args, "drops", None):  # issue 23: replay a deployment's drop record
+    inputs = [args.scenario, args.measurements, args.truth, args.drops]
+    out_path = _check_output(args.out, "--out", (".csv", ".parquet"), inputs=inputs)
+    if args.drops:  # replay a deployment's drop record (teamkf deploy --record)
         from .study.deploy import cmd_filter_drops
 
         return cmd_filter_drops(args)
-    out_path = _check_output(args.out, "--out", (".csv", ".parquet"))
     cost_path = out_path.with_name(f"{out_path.stem}-cost{out_path.suffix}") if args.truth else None
     if cost_path is not None:
-        _check_output(str(cost_path), "--out")
+        _check_output(str(cost_path), "--out (its cost file)", (".csv", ".parquet"), inputs=inputs)
     sc = _load(args.scenario)
     sc.require_simulation("teamkf filter", "SCENARIO")
     names = list(args.estimators) if args.estimators else list(sc.estimators)
@@ -549,7 +534,8 @@ def _cmd_filter(args: argparse.Namespace) -> int:
         print(dumps_json(out))
         return 0
     if res.loglik is not None:
-        print(f"log-likelihood of the data under the centralized filter: {res.loglik:.6f}")
+        ll = f"{res.loglik:.6f}" if np.isfinite(res.loglik) else f"{res.loglik} (non-finite: a measurement lies far outside what the model predicts)"
+        print(f"log-likelihood of the data under the centralized filter: {ll}")
     gaps = "no gaps" if not log.has_gaps else f"{sum(int(np.isnan(y).any(axis=1).sum()) for y in log.y)} agent-steps with missing values"
     print(f"{sc.name}: {log.n_steps} steps, {res.n_agents} agents ({gaps}); estimates of {', '.join(names)} written to {out_path}")
     if res.total_costs is not None:
@@ -723,19 +709,11 @@ def _check_scheduler(address: str) -> None:
         ) from None
 
 
-def _check_output_dir(path: str, flag: str) -> Path:
-    """An output folder that exists or can be created, and is writable; checked before any work."""
-    import os
+def _check_output_dir(path: str, flag: str, inputs: Sequence[Any] = ()) -> Path:
+    """An output folder that exists or whose parent exists, writable, not an input; checked before any work."""
+    from .study.outputs import check_output_dir
 
-    p = Path(path)
-    if p.exists() and not p.is_dir():
-        raise ArgumentError(f"{flag}: expected a folder, found the file {path!r}; choose another path", argument=flag)
-    existing = p
-    while not existing.exists():
-        existing = existing.parent
-    if not existing.is_dir() or not os.access(existing, os.W_OK):
-        raise ArgumentError(f"{flag}: cannot write into {path!r} (no permission or not a directory: {existing}); choose another path", argument=flag)
-    return p
+    return check_output_dir(path, flag, inputs=inputs)
 
 
 def _help_text() -> tuple[str, str]:
@@ -940,6 +918,32 @@ def _plugin_frame(exc: BaseException) -> str | None:
     return found
 
 
+def _resource_line(exc: BaseException) -> str:
+    """One line for an error that a size or encoding check should have caught first."""
+    what = {
+        MemoryError: "not enough memory for this request",
+        RecursionError: "the input is nested too deeply",
+        OverflowError: "a number is too large for the computation",
+    }
+    head = next((w for t, w in what.items() if isinstance(exc, t)), "the input is not valid UTF-8 text")
+    return f"{head} ({type(exc).__name__}: {_one_line(exc)[:200]}); use smaller sizes or check the input (--debug shows where)"
+
+
+def _report_warnings(caught: Sequence[Any]) -> None:
+    """numpy's RuntimeWarnings of a command, as one ``teamkf: warning:`` line each kind (non-finite results are flagged in the output)."""
+    kinds: dict[str, int] = {}
+    for w in caught:
+        if issubclass(w.category, RuntimeWarning):
+            msg = " ".join(str(w.message).split())
+            kinds[msg] = kinds.get(msg, 0) + 1
+        else:
+            import warnings
+
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+    for msg, k in kinds.items():
+        _warn(f"numerical {msg}{f' ({k} times)' if k > 1 else ''}; results that are not finite are reported as diverged / null")
+
+
 def _load_plugins(argv: Sequence[str]) -> None:
     """Import the --plugin modules first, so that their families appear in --help and in scenario files."""
     specs = [argv[k + 1] for k, a in enumerate(argv[:-1]) if a == "--plugin"] + [a.split("=", 1)[1] for a in argv if a.startswith("--plugin=")]
@@ -970,12 +974,22 @@ def main(argv: Sequence[str] | None = None) -> int:
         from ._progress import set_quiet
 
         set_quiet(True)
+    import warnings
+
     try:
-        return int(args.func(args))
+        with warnings.catch_warnings(record=True) as caught:  # numpy's RuntimeWarnings: one summary line, never raw
+            warnings.simplefilter("always", RuntimeWarning)
+            rc = int(args.func(args))
+        _report_warnings(caught)
+        return rc
     except (TeamkfError, OSError) as exc:
         if getattr(args, "debug", False):
             traceback.print_exc()
         return _error(_one_line(exc))
+    except (MemoryError, RecursionError, OverflowError, UnicodeError) as exc:  # a size no check foresaw: still one line
+        if getattr(args, "debug", False):
+            traceback.print_exc()
+        return _error(_resource_line(exc))
     except Exception as exc:
         where = _plugin_frame(exc)
         if where is None:  # not from a user's plug-in: a teamkf bug, shown in full

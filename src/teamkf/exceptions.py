@@ -21,6 +21,7 @@ __all__ = [
     "ConvergenceError",
     "ScenarioError",
     "OptionalDependencyError",
+    "ResourceError",
 ]
 
 
@@ -126,3 +127,11 @@ class ScenarioError(TeamkfError, ValueError):
 
 class OptionalDependencyError(TeamkfError, ImportError):
     """An optional dependency is missing; the message gives the install command."""
+
+
+class ResourceError(ArgumentError):
+    """A request would need more memory or time than the machine has; refused before anything is allocated.
+
+    The message names the argument that sets the size, gives the estimate and what to change
+    (:mod:`teamkf._budget`). An :class:`ArgumentError`, so ``except ValueError`` keeps working.
+    """

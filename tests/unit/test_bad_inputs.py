@@ -1,4 +1,4 @@
-"""The bad-input campaign (issues 9 and 10), as one table-driven test.
+"""The bad-input campaign (issues 9, 10 and 25), as one table-driven test.
 
 Every row is a bad input given as a new user would: through the ``teamkf``
 command (in-process ``teamkf.cli.main([...])``, a few through a subprocess) or
@@ -9,7 +9,10 @@ the public Python API. Each must give
 * CLI: exit status 2 and exactly one stderr line
   ``teamkf: error: <key or argument>: ...`` (no traceback without ``--debug``),
   naming the key or argument and what was expected;
-* no output file left behind.
+* no output file left behind, and nothing in the working folder written or
+  overwritten (every command-line row compares a snapshot of the folder);
+* a request too large for the machine: a :class:`~teamkf.exceptions.ResourceError`
+  at once, before anything is allocated (rows named ``*-huge*``).
 
 The family rows are generated from ``teamkf.families()``: a family registered
 later is covered without editing this file. The row count is in every test id
@@ -32,7 +35,7 @@ import pytest
 
 import teamkf
 from teamkf.cli import main
-from teamkf.exceptions import TeamkfError
+from teamkf.exceptions import ResourceError, TeamkfError
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -48,6 +51,25 @@ BASE: dict[str, Any] = {
     "cost": {"kind": "average", "lambda": 1.0},
     "estimators": ["mtmse"],
 }
+GOOD_TOML = """name = "good"
+horizon = 4
+estimators = ["mtmse"]
+[system]
+A = [[0.9, 0.1], [0.0, 0.8]]
+Q = 1.0
+Sigma_x = 1.0
+[[agents]]
+C = [[1.0, 0.0]]
+R = 0.5
+[[agents]]
+C = [[0.0, 1.0]]
+R = 0.5
+[graph]
+kind = "line"
+[cost]
+kind = "average"
+lambda = 1.0
+"""
 POP: dict[str, Any] = {"name": "pop", "horizon": 20, "population": {"n_agents": 10, "a": 2.5, "f": 2.0}}
 
 DROP = object()
@@ -177,9 +199,33 @@ SCENARIO_ROWS: list[tuple[str, Any, str]] = [
     ("information-not-table", M(BASE, "information", 3), "information"),
     ("information-unknown-key", M(BASE, "information", {"common_lag": 2, "locals": [[], []]}), "information"),
     ("information-local-ragged", M(BASE, "information", {"common_lag": 2, "local": [[[0, 0]], []]}), "information.local"),
+    # issue 25: one schema (types, ranges, shapes of every key; numbers the code can represent)
+    ("description-list", M(BASE, "description", ["a", "b"]), "description"),
+    ("description-nul", M(BASE, "description", "a\x00b"), "description"),
+    ("name-control-character", M(BASE, "name", "team\x07one"), "name"),
+    ("x0_mean-strings", M(BASE, "system.x0_mean", ["a", "b"]), "system.x0_mean"),
+    ("x0_mean-boolean", M(BASE, "system.x0_mean", False), "system.x0_mean"),
+    ("x0_mean-wrong-length", M(BASE, "system.x0_mean", [0.0, 1.0, 2.0]), "system.x0_mean"),
+    ("b-string", M(BASE, "system.b", "zero"), "system.b"),
+    ("B-boolean", M(BASE, "system.B", True), "system.B"),
+    ("B-wrong-rows", M(BASE, "system.B", [[1.0], [0.0], [2.0]]), "system.B"),
+    ("u-without-B", M(BASE, "system.u", [0.5, 0.5]), "system.u"),
+    ("D-table", M(BASE, "agents.0.D", {"rows": 1}), "agents[0].D"),
+    ("d-wrong-length", M(BASE, "agents.1.d", [0.1, 0.2]), "agents[1].d"),
+    ("C-one-step-sequence", M(BASE, "agents.1.C", [[[0.0, 1.0]]]), "agents[1].C"),
+    ("R-one-step-sequence", M(BASE, "agents.0.R", [[[0.5]]]), "agents[0].R"),
+    ("A-four-levels", M(BASE, "system.A", [[[[0.9, 0.1], [0.0, 0.8]]]] * 2), "system.A"),
+    ("graph-delay-huge-integer", M(BASE, "graph.delay", 2**80), "graph.delay"),
+    ("edges-agent-id-written-as-float", M(BASE, "graph", {"edges": [[0, 1.0, 1], [1, 0, 1]]}), "graph.edges"),
+    ("edges-delay-huge-float", M(BASE, "graph", {"edges": [[0, 1, 1e200], [1, 0, 1]]}), "graph.edges"),
+    ("cost-lambda-huge-integer", M(BASE, "cost.lambda", 10**400), "cost.lambda"),
+    ("horizon-huge-integer", M(BASE, "horizon", 10**40), "horizon"),
+    ("steady-common-lag-huge", M(M(BASE, "horizon", DROP), "information", {"common_lag": 300_000, "local": [[], []]}), "information.common_lag"),
+    ("icf-iterations-huge", M(M(BASE, "estimators", ["icf"]), "icf", {"iterations": 10**8, "variant": "ideal"}), "icf.iterations"),
+    ("hcmci-iterations-huge", M(M(BASE, "estimators", ["hcmci"]), "hcmci", {"iterations": 5 * 10**6}), "hcmci.iterations"),
 ]
 
-TEXT_ROWS: list[tuple[str, str, str, str]] = [  # (name, file suffix, text, key)
+TEXT_ROWS: list[tuple[str, str, Any, str]] = [  # (name, file suffix, text or bytes, key)
     ("toml-malformed", ".toml", "name = \nhorizon = 5", "bad.toml"),
     ("toml-unclosed-table", ".toml", "[system\nA = 1", "bad.toml"),
     ("json-malformed", ".json", '{"name": "x", ', "bad.json"),
@@ -189,6 +235,17 @@ TEXT_ROWS: list[tuple[str, str, str, str]] = [  # (name, file suffix, text, key)
     ("file-binary", ".toml", "\x00\x01\x02garbage", "bad.toml"),
     ("file-unknown-extension", ".yaml", "name: x", "bad.yaml"),
     ("toml-nan-literal", ".toml", "", "system.A"),  # filled below from BASE with A = [[nan, 0], [0, 0.9]]
+    # issue 25: parsers' limits, duplicates and encodings give one line naming the file
+    ("json-duplicate-key", ".json", '{"name": "a", "horizon": 4, "name": "b"}', "bad.json"),
+    ("json-duplicate-nested-key", ".json", '{"name": "a", "graph": {"kind": "line", "delay": 1, "delay": 2}}', "bad.json"),
+    ("json-deep-nesting", ".json", '{"name": "x", "system": ' + "[" * 200_000 + "]" * 200_000 + "}", "bad.json"),
+    ("json-nesting-deeper-than-any-key", ".json", '{"name": "x", "description": ' + "[" * 500 + "]" * 500 + "}", "description"),
+    ("toml-deep-nesting", ".toml", "horizon = " + "[" * 100_000 + "]" * 100_000 + "\n", "bad.toml"),
+    ("json-integer-of-6000-digits", ".json", '{"name": "x", "horizon": ' + "7" * 6000 + "}", "bad.json"),
+    ("toml-integer-of-5000-digits", ".toml", "horizon = " + "3" * 5000 + "\n", "bad.toml"),
+    ("json-utf16", ".json", b"\xff\xfe" + '{"name": "x"}'.encode("utf-16-le"), "bad.json"),
+    ("toml-utf16-no-bom", ".toml", 'name = "x"\n'.encode("utf-16-le"), "bad.toml"),
+    ("toml-latin1", ".toml", 'name = "caf\xe9"\n'.encode("latin-1"), "bad.toml"),
 ]
 
 POP_ROWS: list[tuple[str, Any, str]] = [
@@ -209,6 +266,7 @@ POP_ROWS: list[tuple[str, Any, str]] = [
     ("pop-cdma-with-c", M(M(POP, "population.c", 1.0), "population.cdma", {"alpha": 1.0, "beta": 1.0, "h_prime": 1.0}), "population.cdma"),
     ("pop-unstable-exact", M(M(M(POP, "population.a", 1.5), "population.f", 0.0), "horizon", 500), "horizon"),
     ("pop-huge-exact-horizon", M(POP, "horizon", 10**7), "horizon"),
+    ("pop-memory-huge", M(POP, "population.memory", 3 * 10**9), "population.memory"),
 ]
 
 
@@ -279,6 +337,45 @@ CLI_ROWS: list[tuple[str, list[str], str, str | None]] = [
     ("sweep-scheduler-closed-port", ["sweep", "{W}", "--scheduler", CLOSED, "--out", "{T}/sw1.parquet"], "--scheduler", "{T}/sw1.parquet"),
     ("sweep-scheduler-garbage", ["sweep", "{W}", "--scheduler", "tcp://", "--out", "{T}/sw2.parquet"], "--scheduler", "{T}/sw2.parquet"),
     ("sweep-out-is-file", ["sweep", "{W}", "--scheduler", "serial", "--out", "{T}/afile"], "afile", None),
+    # issue 25: nothing lost (an output is never an input; no folder created; the extension matches the format)
+    ("design-out-is-the-scenario", ["design", "{S}", "--out", "{S}"], "--out", None),
+    ("design-out-link-to-the-scenario", ["design", "{S}", "--out", "{T}/link.npz"], "--out", None),
+    ("design-out-relative-spelling-of-scenario", ["design", "{S}", "--out", "{T}/./adir.png/../good.json"], "--out", None),
+    ("design-out-txt", ["design", "{S}", "--out", "{T}/gains.txt"], "--out", "{T}/gains.txt"),
+    ("design-out-no-extension", ["design", "{S}", "--out", "{T}/gains"], "--out", "{T}/gains"),
+    ("design-out-csv-onto-data", ["design", "{S}", "--out", "{T}/meas.csv"], "--out", None),
+    ("design-out-missing-folder", ["design", "{S}", "--out", "{T}/typo/sub/g.npz"], "typo", "{T}/typo"),
+    ("plot-missing-folder", ["evaluate", "{S}", "--plot", "{T}/typo2/p.png"], "typo2", "{T}/typo2"),
+    ("plot-is-the-scenario", ["evaluate", "{T}/scen.png", "--plot", "{T}/scen.png"], "--plot", None),
+    ("filter-out-is-measurements", ["filter", "{S}", "--measurements", "{T}/meas.csv", "--out", "{T}/meas.csv"], "--out", None),
+    ("filter-out-is-truth", ["filter", "{S}", "--measurements", "{T}/meas.csv", "--truth", "{T}/truth.csv", "--out", "{T}/truth.csv"], "--out", None),
+    (
+        "filter-cost-file-is-truth",
+        ["filter", "{S}", "--measurements", "{T}/meas.csv", "--truth", "{T}/est-cost.csv", "--out", "{T}/est.csv"],
+        "--out",
+        "{T}/est.csv",
+    ),
+    ("filter-out-missing-folder", ["filter", "{S}", "--measurements", "{T}/meas.csv", "--out", "{T}/typo3/e.csv"], "typo3", "{T}/typo3"),
+    ("filter-out-npz", ["filter", "{S}", "--measurements", "{T}/meas.csv", "--out", "{T}/e.npz"], "--out", "{T}/e.npz"),
+    ("sweep-out-missing-folder", ["sweep", "{W}", "--scheduler", "serial", "--out", "{T}/typo4/r.parquet"], "typo4", "{T}/typo4"),
+    ("sweep-out-is-the-sweep-file", ["sweep", "{W}", "--scheduler", "serial", "--out", "{W}"], "sweep.json", None),
+    ("reproduce-out-missing-parent", ["reproduce", "fig1", "--quick", "--out", "{T}/typo5/res"], "typo5", "{T}/typo5"),
+    ("demo-out-missing-parent", ["demo", "--quick", "--out", "{T}/typo6/res"], "typo6", "{T}/typo6"),
+    # issue 25: recorded data (encodings, booleans, ignored columns) and its resume folder
+    ("filter-measurements-utf16", ["filter", "{S}", "--measurements", "{T}/meas16.csv", "--out", "{T}/e1.csv"], "meas16.csv", "{T}/e1.csv"),
+    ("filter-measurements-booleans", ["filter", "{S}", "--measurements", "{T}/mbool.csv", "--out", "{T}/e2.csv"], "mbool.csv", "{T}/e2.csv"),
+    ("filter-measurements-extra-column", ["filter", "{S}", "--measurements", "{T}/mextra.csv", "--out", "{T}/e3.csv"], "mextra.csv", "{T}/e3.csv"),
+    (
+        "filter-truth-binary",
+        ["filter", "{S}", "--measurements", "{T}/meas.csv", "--truth", "{T}/tbin.csv", "--out", "{T}/e4.csv"],
+        "tbin.csv",
+        "{T}/e4.csv",
+    ),
+    ("sweep-resume-foreign-file", ["sweep", "{W}", "--scheduler", "serial", "--out", "{T}/res.parquet", "--resume"], "notes.txt", None),
+    ("sweep-duplicate-json-key", ["sweep", "{T}/dupsweep.json", "--scheduler", "serial", "--out", "{T}/d.parquet"], "dupsweep.json", "{T}/d.parquet"),
+    # issue 25: sized before started (one line, at once)
+    ("mc-huge-runs", ["evaluate", "{S}", "--monte-carlo", str(10**15)], "--monte-carlo", None),
+    ("scheduler-garbage-without-monte-carlo", ["evaluate", "{S}", "--scheduler", "nowhere:::"], "--scheduler", None),
 ]
 
 SWEEP_BASE: dict[str, Any] = {"name": "sw", "scenario": "platoon-4", "grid": {"cost.lambda": [1.0, 10.0]}}
@@ -303,6 +400,11 @@ SWEEP_ROWS: list[tuple[str, Any, str]] = [
     ("sweep-population-runs", {"scenario": "interference", "runs": 10, "grid": {"population.a": [2.0]}}, "runs"),
     ("sweep-population-estimators", {"scenario": "interference", "estimators": ["mtmse"], "grid": {"population.a": [2.0]}}, "estimators"),
     ("sweep-population-bad-grid", {"scenario": "interference", "grid": {"population.n_agents": [0]}}, "population.n_agents"),
+    ("sweep-grid-huge", M(SWEEP_BASE, "grid", {"cost.lambda": [1.0 + k for k in range(1000)], "graph.delay": list(range(1, 1001))}), "grid"),
+    ("sweep-runs-huge", M(SWEEP_BASE, "runs", 10**13), "runs"),
+    ("sweep-runs-beyond-int64", M(SWEEP_BASE, "runs", 2**70), "runs"),
+    ("sweep-name-control-character", M(SWEEP_BASE, "name", "a\nb"), "name"),
+    ("sweep-grid-delay-huge", M(SWEEP_BASE, "grid", {"graph.delay": [10**12]}), "graph.delay"),
 ]
 
 
@@ -374,6 +476,35 @@ def _api_rows() -> list[tuple[str, Callable[[], Any], str]]:
         ("register-family-duplicate", lambda: teamkf.register_family(name="mtmse", design=len, title="x"), "name"),
         ("register-family-bad-uses", lambda: teamkf.register_family(name="baduses", design=len, title="x", uses="graf"), "uses"),
         ("register-family-bad-horizons", lambda: teamkf.register_family(name="badhz", design=len, title="x", horizons={"forever"}), "horizons"),
+        # issue 25: every public function checks the kinds of its arguments (a TeamkfError naming it, never AttributeError/TypeError)
+        ("design-system-none", lambda: teamkf.design_mtmse(None, cost, graph, 4), "system"),
+        ("design-cost-string", lambda: teamkf.design_centralized(good, "mse", horizon=4), "cost"),
+        ("design-graph-list", lambda: teamkf.design_kcf(good, cost, [[0, 1, 1]], 4), "graph"),
+        ("mc-designs-string", lambda: teamkf.monte_carlo("mtmse", 4, 10, rng=1), "designs"),
+        ("mc-design-not-a-design", lambda: teamkf.monte_carlo({"a": 3.0}, 4, 10, rng=1), "designs['a']"),
+        ("sample-system-none", lambda: teamkf.sample(None, 4, 2, rng=1), "system"),
+        ("run-online-agents-string", lambda: teamkf.run_online("agents", [np.zeros((1, 4, 1))] * 2), "agents"),
+        ("information-from-graph-none", lambda: teamkf.InformationStructure.from_graph(None), "graph"),
+        ("load-scenario-number", lambda: teamkf.load_scenario(42), "path"),
+        ("evaluate-point-not-a-scenario", lambda: teamkf.evaluate_point({"name": "x"}), "scenario"),
+        (
+            "system-0x0",
+            lambda: LinearGaussianSystem(A=np.zeros((0, 0)), Q=np.zeros((0, 0)), Sigma_x=np.zeros((0, 0)), C=[np.zeros((1, 0))], R=[1.0]),
+            "A",
+        ),
+        ("system-C-no-rows", lambda: system(C=[np.zeros((0, 2)), [[0.0, 1.0]]]), "C[0]"),
+        ("system-A-strings", lambda: system(A=[["0.9", "0"], ["0", "0.8"]]), "A"),
+        ("system-Q-booleans", lambda: system(Q=np.eye(2, dtype=bool)), "Q"),
+        ("cost-ring-two-agents", lambda: TeamCost.ring(2, 1.0), "n_agents"),
+        ("api-cost-lambda-huge-integer", lambda: TeamCost.platoon(2, lam=10**400), "lambda"),
+        ("register-family-section-name", lambda: teamkf.register_family(name="network", design=len, title="x"), "name"),
+        ("option-check-not-callable", lambda: teamkf.Option(name="gain", default=1.0, check="float"), "check"),
+        ("graph-complete-huge", lambda: CommGraph.complete(10**6), "n"),
+        ("graph-ring-huge", lambda: CommGraph.ring(3 * 10**6), "n"),
+        ("graph-delay-huge", lambda: CommGraph.ring(3, delay=10**20), "delay"),
+        ("sample-huge", lambda: teamkf.sample(good, 10**6, 10**7, rng=1), "n_runs"),
+        ("pop-fm-memory-huge", lambda: finite_memory_filter(PopulationModel(n_agents=10, a=2.5, f=2.0), 10, 10**9), "memory"),
+        ("mc-huge-work", lambda: teamkf.monte_carlo({"c": teamkf.design_centralized(good, cost, horizon=4)}, 4, 10**15, rng=1), "n_runs"),
     ]
     # per family: the design function, its designs' filter and Monte Carlo
     structure = teamkf.InformationStructure.from_graph(graph) if hasattr(teamkf.InformationStructure, "from_graph") else graph
@@ -437,12 +568,49 @@ def workdir(tmp_path: Path) -> Path:
     ro.chmod(0o500)
     good = M(BASE, "name", "good")
     (tmp_path / "good.json").write_text(json.dumps(good))
+    (tmp_path / "scen.png").write_text(GOOD_TOML)  # a scenario (TOML) under a plot's name
     (tmp_path / "sweep.json").write_text(json.dumps(SWEEP_BASE))
+    (tmp_path / "link.npz").symlink_to(tmp_path / "good.json")
+    rows = "".join(f"{t},{i},{0.1 * (t + i):.1f}\n" for t in range(4) for i in range(2))
+    (tmp_path / "meas.csv").write_text("step,agent,y0\n" + rows)
+    (tmp_path / "meas16.csv").write_bytes(("step,agent,y0\n" + rows).encode("utf-16"))
+    (tmp_path / "mbool.csv").write_text(
+        "step,agent,y0\n" + "".join(f"{t},{i},{'true' if (t + i) % 2 else 'false'}\n" for t in range(4) for i in range(2))
+    )
+    (tmp_path / "mextra.csv").write_text("step,agent,y0,battery\n" + "".join(f"{t},{i},0.5,0.9\n" for t in range(4) for i in range(2)))
+    (tmp_path / "truth.csv").write_text("step,x0,x1\n" + "".join(f"{t},0.0,0.0\n" for t in range(4)))
+    (tmp_path / "est-cost.csv").write_text("step,x0,x1\n" + "".join(f"{t},0.0,0.0\n" for t in range(4)))
+    (tmp_path / "tbin.csv").write_bytes(bytes(range(256)) * 8)
+    res = tmp_path / "res.parquet"
+    res.mkdir()
+    (res / "_sweep.json").write_text(json.dumps({"fingerprint": {}}))
+    (res / "notes.txt").write_text("my notes")
+    (tmp_path / "dupsweep.json").write_text('{"scenario": "platoon-4", "grid": {"cost.lambda": [1.0]}, "runs": 0, "runs": 5}')
     yield tmp_path
     ro.chmod(0o700)
 
 
-def _check_cli(capsys: Any, argv: list[str], key: str, leftover: Path | None = None) -> None:
+def _snapshot(folder: Path | None) -> dict[str, Any]:
+    """Every entry under ``folder``: its kind and content (links by target), to prove that nothing was written or overwritten."""
+    if folder is None:
+        return {}
+    out: dict[str, Any] = {}
+    for p in sorted(folder.rglob("*")):
+        rel = str(p.relative_to(folder))
+        if p.is_symlink():
+            out[rel] = ("link", os.readlink(p))
+        elif p.is_dir():
+            out[rel] = ("dir",)
+        else:
+            try:
+                out[rel] = ("file", p.read_bytes())
+            except OSError:
+                out[rel] = ("unreadable",)
+    return out
+
+
+def _check_cli(capsys: Any, argv: list[str], key: str, leftover: Path | None = None, folder: Path | None = None) -> None:
+    before = _snapshot(folder)
     rc = main(argv)
     out, err = capsys.readouterr()
     lines = [ln for ln in err.splitlines() if ln.strip()]
@@ -455,6 +623,8 @@ def _check_cli(capsys: Any, argv: list[str], key: str, leftover: Path | None = N
     words = ("expected", "did you mean", "missing", "unknown", "cannot", "needs", "no such", "not ", "invalid", "give ", "use ", "choose", "drop ")
     words += ("once", "set ", "remove")
     assert any(w in detail for w in words), f"the message does not say what was expected: {detail}"
+    after = _snapshot(folder)
+    assert after == before, f"the command wrote into {folder}: {sorted(set(after.items()) ^ set(before.items()), key=str)[:3]}"
     if leftover is not None:
         assert not leftover.exists(), f"{leftover} left behind"
         assert not any(p.name.startswith(f".{leftover.name}.") for p in leftover.parent.glob(".*")) if leftover.parent.exists() else True
@@ -496,20 +666,20 @@ def test_bad_scenario(row: tuple[str, Any, str], workdir: Path, capsys: Any) -> 
 
 
 @pytest.mark.parametrize("row", TEXT_ROWS, ids=_ids(TEXT_ROWS, "file", N_SCEN + N_POP + 1))
-def test_bad_file(row: tuple[str, str, str, str], workdir: Path, capsys: Any) -> None:
+def test_bad_file(row: tuple[str, str, Any, str], workdir: Path, capsys: Any) -> None:
     name, suffix, text, key = row
     if name == "toml-nan-literal":
         text = 'name = "x"\nhorizon = 4\nestimators = ["mtmse"]\n[system]\nA = [[nan, 0.0], [0.0, 0.9]]\nQ = 1.0\nSigma_x = 1.0\n'
         text += '[[agents]]\nC = [[1.0, 0.0]]\nR = 0.5\n[[agents]]\nC = [[0.0, 1.0]]\nR = 0.5\n[graph]\nkind = "line"\n[cost]\nkind = "mse"\n'
     path = workdir / f"bad{suffix}"
-    path.write_text(text)
+    path.write_bytes(text) if isinstance(text, bytes) else path.write_text(text, encoding="utf-8")
     _check_cli(capsys, ["evaluate", str(path)], key)
 
 
 @pytest.mark.parametrize("row", CLI_ROWS, ids=_ids(CLI_ROWS, "cli", N_SCEN + N_POP + N_TEXT + 1))
 def test_bad_command_line(row: tuple[str, list[str], str, str | None], workdir: Path, capsys: Any) -> None:
     name, argv, key, leftover = row
-    _check_cli(capsys, [_sub(a, workdir) for a in argv], _sub(key, workdir), Path(_sub(leftover, workdir)) if leftover else None)
+    _check_cli(capsys, [_sub(a, workdir) for a in argv], _sub(key, workdir), Path(_sub(leftover, workdir)) if leftover else None, workdir)
 
 
 @pytest.mark.parametrize("row", SWEEP_ROWS, ids=_ids(SWEEP_ROWS, "sweep", N_SCEN + N_POP + N_TEXT + N_CLI + 1))
@@ -518,7 +688,7 @@ def test_bad_sweep(row: tuple[str, Any, str], workdir: Path, capsys: Any) -> Non
     path = workdir / f"{name}.json"
     path.write_text(json.dumps(data))
     out = workdir / f"{name}.parquet"
-    _check_cli(capsys, ["sweep", str(path), "--scheduler", "serial", "--out", str(out), "--no-progress"], key, out)
+    _check_cli(capsys, ["sweep", str(path), "--scheduler", "serial", "--out", str(out), "--no-progress"], key, out, workdir)
 
 
 @pytest.mark.parametrize("row", API_ROWS, ids=_ids(API_ROWS, "api", N_SCEN + N_POP + N_TEXT + N_CLI + N_SWEEP + 1))
@@ -531,6 +701,12 @@ def test_bad_python_input(row: tuple[str, Callable[[], Any], str]) -> None:
         for fam in ("nodesign", "baduses", "badhz"):
             teamkf.unregister_family(fam)
     assert key in str(info.value), f"{name}: the message does not name {key!r}: {info.value}"
+    if name in RESOURCE_ROWS:  # too large for the machine: refused before anything is allocated
+        assert isinstance(info.value, ResourceError), (name, type(info.value))
+
+
+#: the API rows that must end in a ResourceError (sized before started)
+RESOURCE_ROWS = {"graph-complete-huge", "graph-ring-huge", "sample-huge", "pop-fm-memory-huge", "mc-huge-work"}
 
 
 SUBPROCESS_ROWS = [

@@ -140,6 +140,9 @@ def test_evaluate_plot_without_matplotlib(tmp_path, capsys):
 @pytest.mark.skipif(not HAS_MPL, reason="needs matplotlib")
 def test_evaluate_plot(tmp_path, capsys):
     out = tmp_path / "sub" / "stage.png"
+    assert main(["evaluate", "platoon-4", "--plot", str(out)]) == 2  # a missing folder is never created (issue 25)
+    assert "the folder" in capsys.readouterr().err and not out.parent.exists()
+    out.parent.mkdir()
     assert main(["evaluate", "platoon-4", "--plot", str(out)]) == 0
     assert out.exists() and out.stat().st_size > 1000
     assert "plot written to" in capsys.readouterr().out
@@ -262,7 +265,10 @@ def test_design_out_finite_horizon(tmp_path, capsys):
 
 
 def test_design_out_steady_state_and_json(tmp_path, capsys):
-    out = tmp_path / "steady"  # no .npz extension: written as given
+    bare = tmp_path / "steady"  # no .npz extension: refused, nothing written (issue 25)
+    assert main(["design", "platoon-4-steady", "--json", "--out", str(bare)]) == 2
+    assert "--out: expected a file name ending in .npz" in capsys.readouterr().err and not bare.exists()
+    out = tmp_path / "steady.npz"
     assert main(["design", "platoon-4-steady", "--json", "--out", str(out)]) == 0
     data = json.loads(capsys.readouterr().out)
     assert data["horizon"] is None and data["scenario"] == "platoon-4-steady"

@@ -237,9 +237,17 @@ class DiffusionAlgorithm(Algorithm):
         return [{"xhat": self.combine(i, k, psis[(i, k)], psis)} for i in range(n)]
 
 
+#: the most consensus iterations per step (ICF, HCMCI); consensus has converged to round-off long before
+MAX_ITERATIONS = 10_000
+
+
 def check_iterations(v: Any, key: str) -> int:
-    """The ``iterations`` option: consensus iterations per step of the ideal variant (an integer >= 1)."""
-    return V.integer(v, key, minimum=1, what="a number of consensus iterations")
+    """The ``iterations`` option: consensus iterations per step of the ideal variant (an integer in 1..MAX_ITERATIONS).
+
+    Consensus converges geometrically, so more than :data:`MAX_ITERATIONS` iterations a step
+    change nothing but the run time (10^9 of them would run for days): refused up front.
+    """
+    return V.integer(v, key, minimum=1, maximum=MAX_ITERATIONS, what="a number of consensus iterations")
 
 
 def finite_horizon(horizon: Any, family: str, system: LinearGaussianSystem, cost: TeamCost) -> int:

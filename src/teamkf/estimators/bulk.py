@@ -792,10 +792,23 @@ def finite_memory_filter(model: PopulationModel, horizon: int, memory: int | Non
         raise ShapeError(f"model: expected a PopulationModel, found {type(model).__name__}")
     T = V.positive_int(horizon, "horizon")
     n = V.positive_int(model.memory if memory is None else memory, "memory")
+    from .. import _budget
     from .._resources import progress as _progress
 
-    a, bf = model.a, model.b * model.f
     subs = _subsystems(model)
+    _budget.check_memory(
+        8.0 * ((len(subs) + 1) * (n + 1.0) ** 2 + (T + 1.0) * (n + 4)),
+        f"the finite-memory bulk filter with memory n = {n:,} over T = {T:,} steps ({len(subs)} (n+1) x (n+1) covariances, T x n gains)",
+        argument="memory",
+        fix="use a smaller memory (the gains of old measurements vanish geometrically; n = 20 is usually exact to round-off)",
+    )
+    _budget.check_work(
+        10.0 * len(subs) * T * (n + 1.0) ** 2,  # a rank-one covariance update of (n+1) x (n+1) per step and subsystem
+        f"the finite-memory bulk filter with memory n = {n:,} over T = {T:,} steps",
+        argument="memory",
+        fix="use a smaller memory or a shorter horizon",
+    )
+    a, bf = model.a, model.b * model.f
     Ps = []
     for _, _, _, p0j in subs:
         P = np.zeros((n + 1, n + 1))

@@ -67,6 +67,23 @@ class Option:
     check: Callable[[Any, str], Any]
     doc: str = ""
 
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name.isidentifier():
+            raise ArgumentError(f"name: expected an option name (an identifier such as 'epsilon'), found {self.name!r}", argument="name")
+        if not callable(self.check):
+            raise ArgumentError(
+                f"check: expected a function (value, key) -> value that validates option {self.name!r}, found {type(self.check).__name__}",
+                argument="check",
+            )
+        if not isinstance(self.doc, str):
+            raise ArgumentError(f"doc: expected a string, found {type(self.doc).__name__}", argument="doc")
+
+
+#: names a family cannot take: the sections of a scenario file ([system], [graph], ...), whose tables a family's options would shadow
+RESERVED_NAMES = (
+    "name", "horizon", "description", "system", "agents", "graph", "cost", "information", "estimators", "control", "network", "population",
+)  # fmt: skip
+
 
 @dataclass(frozen=True, kw_only=True)
 class Family:
@@ -125,6 +142,12 @@ class Family:
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name.isidentifier() or self.name != self.name.lower():
             raise ArgumentError(f"name: expected a lower-case identifier such as 'my_filter', found {self.name!r}", argument="name")
+        if self.name in RESERVED_NAMES:
+            raise ArgumentError(
+                f"name: expected a family name that is not a scenario section, found {self.name!r} "
+                f"(reserved: {', '.join(RESERVED_NAMES)}); a [{self.name}] table would be ambiguous: choose another name",
+                argument="name",
+            )
         if not callable(self.design):
             raise ArgumentError(f"design: expected a design function, found {type(self.design).__name__}", argument="design")
         V.choice(self.uses, "uses", ("structure", "graph", "none"))

@@ -186,6 +186,16 @@ def window_covariances(system: LinearGaussianSystem, k: int, anchor: int, P_anch
     """
     w = k - anchor + 1
     dy = system.dy_total
+    need = 3 * 8.0 * (w * dy) ** 2  # Sigma_W, and about twice it in the solve
+    if need > 2**26:  # checked only when large: reading the free memory costs a system call
+        from .._budget import check_memory
+
+        check_memory(
+            need,
+            f"a window of {w:,} steps x {dy} measurements (its {w * dy:,} x {w * dy:,} innovation covariance; w is the common lag)",
+            argument="common_lag",
+            fix="use a smaller information.common_lag (the window grows with it), or fewer agents",
+        )
     Sigma_W = np.zeros((w * dy, w * dy))
     Theta_W = np.zeros((system.dx, w * dy))
     Pi = np.array(P_anchor, dtype=float)

@@ -101,13 +101,18 @@ class ExperimentResult:
         return {"name": self.name, "title": self.title, "columns": self.columns, "rows": self.rows, "notes": self.notes, "figures": self.figures}
 
     def write_csv(self, out_dir: Path) -> Path:
-        out_dir.mkdir(parents=True, exist_ok=True)
+        from ..study.outputs import write_atomic
+
+        out_dir.mkdir(exist_ok=True)  # the folder itself, never missing parents (checked by the caller)
         path = out_dir / f"{self.name}.csv"
-        with open(path, "w", newline="") as fh:
+
+        def write(fh: Any) -> None:
             w = csv.DictWriter(fh, fieldnames=self.columns, extrasaction="ignore")
             w.writeheader()
             for r in self.rows:
                 w.writerow(r)
+
+        write_atomic(path, write, text=True)
         return path
 
 
@@ -201,8 +206,9 @@ def run(name: str, out_dir: str | Path | None = None, *, quick: bool = False, sc
             obj.close()
     if out is not None:
         res.write_csv(out)
-        with open(out / f"{name}.json", "w") as fh:
-            json.dump(res.to_json(), fh, indent=1, default=float)
+        from ..study.outputs import write_atomic
+
+        write_atomic(out / f"{name}.json", lambda fh: json.dump(res.to_json(), fh, indent=1, default=float), text=True)
     return res
 
 
@@ -218,9 +224,11 @@ def save_figure(fig: Any, out_dir: Path | None, name: str, figures: Sequence[str
     """Save a matplotlib figure as ``out_dir/name.png`` and record the path."""
     if out_dir is None:
         return
-    out_dir.mkdir(parents=True, exist_ok=True)
+    from ..study.outputs import write_atomic
+
+    out_dir.mkdir(exist_ok=True)  # the folder itself, never missing parents (checked by the caller)
     path = out_dir / f"{name}.png"
-    fig.savefig(path, dpi=120, bbox_inches="tight")
+    write_atomic(path, lambda fh: fig.savefig(fh, dpi=120, bbox_inches="tight", format="png"))
     import matplotlib.pyplot as plt
 
     plt.close(fig)

@@ -144,12 +144,32 @@ class TeamCost:
         n = V.positive_int(n_agents, "n_agents")
         d = V.positive_int(d, "d")
         lam = _nonneg(lam, "lambda")
+        if coupling == "ring" and n < 3:
+            raise ArgumentError(
+                f"n_agents: expected at least 3 agents for a ring (a closed formation), found {n}; use TeamCost.platoon for 2 agents, mse for 1",
+                argument="n_agents",
+            )
+        from .._budget import check_memory
+
+        check_memory(
+            4 * 8.0 * (n * d) ** 2,  # W, I + lam W, S = (I + lam W) (x) I_d and L: dense (n d) x (n d)
+            f"the {coupling} team cost of {n:,} agents (dense {n * d:,} x {n * d:,} weights)",
+            argument="n_agents",
+            fix="use fewer agents, or a population model for very large teams",
+        )
         if coupling == "average":
             W = np.ones((n, n)) / n**2
         else:
             D = _difference_matrix(n, closed=coupling == "ring")
             W = D.T @ D
-        return cls(S=np.kron(np.eye(n) + lam * W, np.eye(d)), L=np.eye(n * d), n_agents=n)
+        S = np.asarray(np.kron(np.eye(n) + lam * W, np.eye(d)), dtype=np.float64)
+        # S = (I + lam W) (x) I_d with W = D'D or 11'/n^2 positive semi-definite and lam >= 0: symmetric, eigenvalues >= 1
+        # by construction, so the eigen-decomposition of __post_init__ (O((n d)^3): minutes for 10^4 agents) is skipped, as for mse
+        self = object.__new__(cls)
+        object.__setattr__(self, "S", V.frozen(S[None]))
+        object.__setattr__(self, "L", V.frozen(np.eye(n * d)[None]))
+        object.__setattr__(self, "n_agents", n)
+        return self
 
     @classmethod
     def average_tracking(cls, n_agents: int, lam: float, d: int = 1) -> "TeamCost":

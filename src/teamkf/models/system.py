@@ -103,6 +103,8 @@ class LinearGaussianSystem:
     def __post_init__(self) -> None:
         A = _stack(self.A, "A", (None, None))
         dx = A.shape[1]
+        if dx == 0:
+            raise ShapeError("A: expected a d_x x d_x matrix with d_x >= 1, found 0x0; a system needs at least one state", argument="A")
         if A.shape[2] != dx:
             raise ShapeError(f"A: expected a square d_x x d_x matrix, found {V.shape_str(A.shape[1:])}")
         Q = _stack(self.Q, "Q", (dx, dx), cov=True)
@@ -113,6 +115,11 @@ class LinearGaussianSystem:
         if not isinstance(C_in, (list, tuple, np.ndarray)) or len(C_in) == 0:
             raise ShapeError(f"C: expected a non-empty list with one measurement matrix per agent, found {type(C_in).__name__}")
         C = tuple(_stack(c, f"C[{i}]", (None, dx)) for i, c in enumerate(C_in))
+        for i, c in enumerate(C):
+            if c.shape[1] == 0:
+                raise ShapeError(
+                    f"C[{i}]: expected at least one measurement row (d_y^{i} >= 1), found 0x{dx}; drop the agent or give it a row", argument=f"C[{i}]"
+                )
         n = len(C)
         R_in = self.R
         if np.isscalar(R_in) or (isinstance(R_in, np.ndarray) and R_in.ndim == 0):

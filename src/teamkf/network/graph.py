@@ -75,7 +75,20 @@ def _count(x: Any, name: str, minimum: int = 1) -> int:
     n = _as_int(x, name, f"an integer >= {minimum}", f"pass a whole number of agents, e.g. {name}=3")
     if n < minimum:
         raise GraphError(f"{name}: expected an integer >= {minimum}, found {n}; a team has at least one agent")
+    _check_size(n, name)
     return n
+
+
+def _check_size(n: int, name: str, per_pair: float = 8.0) -> None:
+    """Refuse, before anything is allocated, a graph whose all-pairs delay matrix (``n^2`` numbers) does not fit in memory."""
+    from .._budget import check_memory
+
+    check_memory(
+        per_pair * float(n) * float(n),
+        f"a graph of {n:,} agents ({per_pair:.0f} bytes for each of the n^2 agent pairs: geodesic delays, edges)",
+        argument=name,
+        fix="use fewer agents (the team designs grow like n^2 or faster), or a population model for very large teams",
+    )
 
 
 def _delay(x: Any, name: str) -> int:
@@ -83,7 +96,18 @@ def _delay(x: Any, name: str) -> int:
     d = _as_int(x, name, "an integer delay >= 1", fix)
     if d < 1:
         raise GraphError(f"{name}: expected an integer delay >= 1, found {d}; {fix}", argument=name)
+    if d > MAX_DELAY:
+        found = f"{d:.3g}" if d < 10**300 else f"an integer of {len(str(d)) if d < 10**4000 else 'over 4000'} digits"
+        raise GraphError(
+            f"{name}: expected an integer delay between 1 and {MAX_DELAY:.0e} steps, found {found}; "
+            "a delay longer than any horizon means the message never arrives: remove the edge instead",
+            argument=name,
+        )
     return d
+
+
+#: the longest delay a graph holds (sums of delays along paths stay exact in 64-bit integers and floats)
+MAX_DELAY = 10**9
 
 
 def _agent(x: Any, name: str, n: int) -> int:
@@ -324,8 +348,12 @@ class CommGraph:
         return dist
 
     def is_strongly_connected(self) -> bool:
-        """Whether every agent has a directed path to every other agent."""
-        return bool(np.all(np.isfinite(self._distances)))
+        """Whether every agent has a directed path to every other agent (strong components: O(n + edges), no all-pairs matrix)."""
+        if "_distances" in self.__dict__:
+            return bool(np.all(np.isfinite(self._distances)))
+        from scipy.sparse.csgraph import connected_components
+
+        return self.n_agents == 1 or int(connected_components(self.adjacency(), directed=True, connection="strong")[0]) == 1
 
     def unreachable_pairs(self) -> list[tuple[int, int]]:
         """All ordered pairs ``(i, j)`` with no directed path ``i -> j``."""
@@ -346,7 +374,7 @@ class CommGraph:
             Naming the first (row-major) pair ``(i, j)`` with no directed path
             ``i -> j`` and suggesting an edge that fixes it.
         """
-        bad = self.unreachable_pairs()
+        bad = [] if self.is_strongly_connected() else self.unreachable_pairs()
         if bad:
             i, j = bad[0]
             more = f" ({len(bad)} unreachable ordered pairs in all)" if len(bad) > 1 else ""
@@ -411,6 +439,7 @@ class CommGraph:
     def complete(cls, n: int, delay: int = 1) -> CommGraph:
         """Every ordered pair ``i != j`` linked with the same delay (``l_ij = delay``)."""
         n, d = _count(n, "n"), _delay(delay, "delay")
+        _check_size(n, "n", per_pair=8.0 + 120.0)  # the delay matrix, and n - 1 edges per agent (arrays and tuples)
         ii, jj = np.nonzero(~np.eye(n, dtype=bool))
         return cls(n, np.column_stack([ii, jj, np.full(ii.size, d)]))  # type: ignore[arg-type]
 

@@ -118,6 +118,9 @@ class InformationStructure:
         measurements from the common part to the local windows without
         changing what any agent holds.
         """
+        from .graph import CommGraph
+
+        V.instance(graph, "graph", CommGraph, "a CommGraph", "build one with CommGraph.line/ring/complete or CommGraph(n, edges)")
         graph.require_strongly_connected()
         ell = np.asarray(graph.geodesic_delays())  # ell[j, i]: from j to i
         tau = int(ell.max()) if ell.size else 0

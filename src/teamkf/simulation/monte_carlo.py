@@ -410,6 +410,26 @@ def _check_memory(designs: Mapping[str, Any], system: Any, T: int, R_: int, batc
     )
 
 
+def _check_work(designs: Mapping[str, Any], system: Any, T: int, R_: int) -> None:
+    """Refuse up front (with the estimate) a Monte Carlo whose run time exceeds the limit (:func:`teamkf._budget.check_work`).
+
+    Per run and step: sampling (:math:`d_x^2 + d_x d_y`), each design's online step
+    (:math:`d_z (d_x + d_y)` with :math:`d_z` its team estimate size) and a fixed overhead of
+    50 operations, at :data:`teamkf._budget.BATCHED_OPS` operations per second.
+    """
+    from .. import _budget
+
+    dx, dy = system.dx, sum(system.dy)
+    per = 50.0 + dx * dx + dx * dy + sum(float(getattr(d.cost, "dz", dx) or dx) * system.n_agents * (dx + dy) for d in designs.values())
+    _budget.check_work(
+        float(R_) * T * per,
+        f"a Monte Carlo of {R_:,} runs x {T} steps x {len(designs)} estimators",
+        argument="n_runs",
+        fix="use fewer runs (the 95 % interval only shrinks like 1/sqrt(runs)) or a shorter horizon",
+        rate=_budget.BATCHED_OPS,
+    )
+
+
 def monte_carlo(
     designs: Mapping[str, Any],
     n_steps: int,
@@ -468,8 +488,14 @@ def monte_carlo(
             f"n_runs: expected at most 2^63 runs (run indices are 64-bit Philox counter words), found {R_}; split the study over seeds"
         )
     B = V.positive_int(batch, "batch")
+    V.instance(designs, "designs", Mapping, "a mapping name -> design (e.g. {'mtmse': design_mtmse(...)})")
     if not designs:
         raise ArgumentError("designs: expected at least one design", argument="designs")
+    for name, d in designs.items():
+        if not (hasattr(d, "system") and hasattr(d, "agents")):
+            raise ArgumentError(
+                f"designs[{name!r}]: expected a design (from a design_* function), found {V.describe(d)}", argument=f"designs[{name!r}]"
+            )
     V.choice(path, "path", ("errors", "runtime"))
     first_name, first = next(iter(designs.items()))
     system = first.system
@@ -489,6 +515,7 @@ def monte_carlo(
         if not links.trivial:
             raise ArgumentError('links: unreliable links act on the online agents; use path="runtime"', argument="links")
         links = None  # reliable links on the error recursions: nothing to count
+    _check_work(designs, system, T, R_)
     n_blocks = -(-R_ // B)
     if chunk is None:  # at most 16 blocks a task, and some 32 tasks when there are enough blocks (balance)
         per_chunk = max(1, min(DEFAULT_BLOCKS_PER_CHUNK, -(-n_blocks // 32)))

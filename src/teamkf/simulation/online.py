@@ -29,6 +29,11 @@ def run_online(agents: Sequence[OnlineAgent], y: Sequence[Any]) -> FloatArray:
     -------
     z : (n_runs, n_steps, n_agents * d_z) estimates, agent-major in the last axis
     """
+    from .. import _validation as V
+
+    V.instance(agents, "agents", (list, tuple), "a list of online agents (design.agents())")
+    if not agents or not all(hasattr(a, "step") for a in agents):
+        raise ShapeError("agents: expected a non-empty list of online agents (from design.agents()), found other objects", argument="agents")
     ys = _batched(agents, y)
     return deliver_structured(agents, ys)
 

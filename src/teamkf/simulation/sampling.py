@@ -153,6 +153,7 @@ def sample_paths(
     first_run : index of the first run drawn (with ``rng`` or a RunStreams): drawing runs a..b of a seed
         gives the numbers of those runs in any larger draw
     """
+    V.instance(system, "system", LinearGaussianSystem, "a LinearGaussianSystem")
     T = V.positive_int(n_steps, "n_steps")
     R_ = V.positive_int(n_runs, "n_runs")
     first = V.positive_int(first_run, "first_run", minimum=0)
@@ -160,6 +161,14 @@ def sample_paths(
     dx, dys = system.dx, system.dy
     dy = sum(dys)
     m = dx + (T - 1) * dx + T * dy
+    from .._budget import check_memory
+
+    check_memory(
+        8.0 * 3 * float(R_) * m,  # the normals, x and y (float64)
+        f"sampling {R_:,} runs x {T} steps (d_x = {dx}, d_y = {dy})",
+        argument="n_runs",
+        fix="draw fewer runs or steps at a time (first_run= draws any later block of the same streams)",
+    )
     if streams is None or isinstance(streams, RunStreams):
         rs = streams if streams is not None else RunStreams(rng)
         Z = rs.normals(first, first + R_, m)

@@ -74,7 +74,12 @@ class PopulationScenario(ScenarioBase):
 
     def evaluate(self) -> dict[str, Any]:
         """:func:`evaluate_population` of the model over the horizon, with the scenario's name."""
-        out = {"scenario": self.name, **evaluate_population(self.model, self.horizon)}
+        try:
+            out = {"scenario": self.name, **evaluate_population(self.model, self.horizon)}
+        except TeamkfError as exc:  # the filter's argument names -> the scenario's keys
+            if exc.argument in ("memory", "n_agents"):
+                raise exc.rekeyed(f"population.{exc.argument}") from exc
+            raise
         return out
 
 

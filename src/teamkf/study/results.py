@@ -261,11 +261,15 @@ def load_results(path: str | Path) -> SweepResult:
     info: dict[str, Any] = {}
     manifest = p / MANIFEST_NAME
     if p.is_dir() and manifest.exists():
-        info = json.loads(manifest.read_text(encoding="utf-8"))
-    if p.is_dir() and not any(c.name.endswith(".parquet") and not c.name.startswith((".", "_")) for c in p.iterdir()):
-        rows: list[dict[str, Any]] = []
-    else:
-        rows = pq.read_table(str(p)).to_pylist()
+        try:
+            info = json.loads(manifest.read_text(encoding="utf-8"))
+        except (ValueError, UnicodeDecodeError):
+            raise SweepError(f"{manifest}: unreadable sweep description (not JSON); the folder was not written by teamkf sweep") from None
+    parts = sorted(str(c) for c in p.iterdir() if c.name.endswith(".parquet") and not c.name.startswith((".", "_"))) if p.is_dir() else [str(p)]
+    try:  # the parts only: another file in the folder would make a dataset reader fail
+        rows: list[dict[str, Any]] = pq.read_table(parts).to_pylist() if len(parts) > 1 else (pq.read_table(parts[0]).to_pylist() if parts else [])
+    except Exception as exc:  # pyarrow's own error types (ArrowInvalid, ...)
+        raise SweepError(f"{p}: not readable as sweep results ({type(exc).__name__}: {' '.join(str(exc).split())[:200]})") from None
     if "grid_keys" in info:
         keys = tuple(info["grid_keys"])
     else:

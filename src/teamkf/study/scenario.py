@@ -156,6 +156,8 @@ class Scenario(ScenarioBase):
         except TeamkfError as exc:
             if exc.argument in ("horizon", "graph"):
                 raise _fail(exc.argument, f"{estimator}: {exc.detail}") from exc
+            if exc.argument == "common_lag":  # the design's name for the scenario key
+                raise exc.rekeyed("information.common_lag" if "information" in self.raw else "graph") from exc
             raise
         if not isinstance(out, Design):
             fn = getattr(fam.design, "__qualname__", repr(fam.design))
@@ -218,32 +220,94 @@ def load_scenario(path: str | Path) -> Scenario:
         On a syntax error (with the file name, line and column) or an invalid
         scenario (the message starts with the key path).
     """
+    V.instance(path, "path", (str, Path), "the path of a scenario file (a string or a Path)")
     p = Path(path)
+    if not p.is_file():
+        if not p.exists():
+            raise FileNotFoundError(2, "no such scenario file", str(p))
+        raise ScenarioError(f"{p}: is not a file; expected a scenario file (.toml or .json)", argument=str(p))
     data = read_data_file(p)
     if "name" not in data:
         data = {"name": p.stem, **data}
     return scenario_from_dict(data, source=str(p))
 
 
+def _no_duplicates(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """``object_pairs_hook`` of the JSON reader: a key written twice in one object is an error (TOML's rule), not last-wins."""
+    out: dict[str, Any] = {}
+    for k, v in pairs:
+        if k in out:
+            raise _DuplicateKey(k)
+        out[k] = v
+    return out
+
+
+class _DuplicateKey(Exception):
+    pass
+
+
 def read_data_file(p: Path) -> dict[str, Any]:
-    """The table in a TOML file (or a JSON file, by its suffix); one clear ScenarioError otherwise."""
+    """The table in a TOML file (or a JSON file, by its suffix); one clear ScenarioError otherwise.
+
+    Refused with one line naming the file: bytes that are not UTF-8 (a UTF-16 or binary file),
+    a syntax error (line and column), a key written twice in one table (JSON too, where
+    Python's reader would keep the last), nesting deeper than the parser's recursion limit,
+    integers beyond Python's 4300-digit conversion limit, and a top level that is not a table.
+    """
     try:
-        text = p.read_text(encoding="utf-8")
+        raw = p.read_bytes()
+    except IsADirectoryError:
+        raise ScenarioError(f"{p}: is a directory; expected a scenario file (.toml or .json)") from None
+    if raw.startswith((b"\xff\xfe", b"\xfe\xff")) or b"\x00" in raw[:4096]:
+        raise ScenarioError(f"{p}: expected a UTF-8 text file (TOML or JSON), found UTF-16 or binary data (NUL bytes); save it as UTF-8")
+    try:
+        text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise ScenarioError(f"{p}: expected a UTF-8 text file (TOML or JSON), found undecodable bytes at position {exc.start}") from None
-    if p.suffix.lower() == ".json":
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise ScenarioError(f"{p}: invalid JSON: {exc.msg} (at line {exc.lineno}, column {exc.colno})") from None
-    else:
-        try:
+    kind = "JSON" if p.suffix.lower() == ".json" else "TOML"
+    try:
+        if kind == "JSON":
+            data = json.loads(text, object_pairs_hook=_no_duplicates)
+        else:
             data = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as exc:
-            raise ScenarioError(f"{p}: invalid TOML: {exc}") from None
+    except json.JSONDecodeError as exc:
+        raise ScenarioError(f"{p}: invalid JSON: {exc.msg} (at line {exc.lineno}, column {exc.colno})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{p}: invalid TOML: {exc}") from None
+    except _DuplicateKey as exc:
+        raise ScenarioError(f"{p}: invalid JSON: the key {exc.args[0]!r} is written twice in one object; keep one") from None
+    except RecursionError:
+        raise ScenarioError(f"{p}: invalid {kind}: nested deeper than the parser can read (lists or tables inside each other); flatten it") from None
+    except ValueError as exc:  # an integer beyond Python's int-string conversion limit (4300 digits)
+        raise ScenarioError(
+            f"{p}: invalid {kind}: a number cannot be read ({' '.join(str(exc).split())}); write it as a float or fewer digits"
+        ) from None
     if not isinstance(data, dict):
         raise ScenarioError(f"{p}: expected a table (JSON object) at the top level, found {type(data).__name__}")
+    check_depth(data, str(p))
     return data
+
+
+#: the deepest nesting of lists and tables a scenario or sweep holds (a matrix of a time-varying system is 3 deep)
+MAX_DEPTH = 32
+
+
+def check_depth(data: Any, source: str = "scenario") -> None:
+    """Refuse data nested deeper than :data:`MAX_DEPTH` (iteratively: no recursion), naming the key where it happens."""
+    stack: list[tuple[Any, int, str]] = [(data, 0, "")]
+    while stack:
+        node, depth, where = stack.pop()
+        if depth > MAX_DEPTH:
+            top = re.split(r"[.\[]", where, maxsplit=1)[0] or source
+            raise ScenarioError(
+                f"{top}: expected at most {MAX_DEPTH} levels of nested lists and tables, found more (in {source}); "
+                "no scenario key is nested that deep: check the brackets",
+                argument=top,
+            )
+        if isinstance(node, Mapping):
+            stack.extend((v, depth + 1, f"{where}.{k}" if where else str(k)) for k, v in node.items())
+        elif isinstance(node, list):
+            stack.extend((v, depth + 1, f"{where}[{i}]") for i, v in enumerate(node) if isinstance(v, (list, Mapping)))
 
 
 def scenario_from_dict(d: Mapping[str, Any], source: str = "<dict>", *, families: Mapping[str, Any] | None = None) -> Scenario:
@@ -255,6 +319,7 @@ def scenario_from_dict(d: Mapping[str, Any], source: str = "<dict>", *, families
     """
     if not isinstance(d, Mapping):
         raise ScenarioError(f"scenario: expected a table of keys, found {type(d).__name__}")
+    check_depth(d)
     raw = copy.deepcopy(dict(d))
     if "population" in raw:  # an interference-coupled population (the bulk-filter paper)
         from .population import population_from_dict
@@ -270,6 +335,11 @@ def scenario_from_dict(d: Mapping[str, Any], source: str = "<dict>", *, families
     name = raw.get("name", Path(source).stem if source != "<dict>" else "scenario")
     if not isinstance(name, str) or not name.strip():
         raise _fail("name", f"expected a non-empty string, found {name!r}")
+    _printable(name, "name")
+    if "description" in raw:
+        if not isinstance(raw["description"], str):
+            raise _fail("description", f"expected free text (a string), found {_describe(raw['description'])}; quote it")
+        _printable(raw["description"], "description", newlines=True)
     horizon = _horizon(raw.get("horizon"))
     system = _system(raw["system"], raw["agents"])
     n = system.n_agents
@@ -290,7 +360,37 @@ def scenario_from_dict(d: Mapping[str, Any], source: str = "<dict>", *, families
     if "network" in raw:  # unreliable links (teamkf.simulation.links), checked against the graph
         _links(raw["network"], graph)
     used = {name: fams[name] for name in (*estimators, *options)}  # carried along, so Dask workers need no registry
-    return Scenario(name, horizon, system, cost, graph, information, estimators, raw, source, options, used)
+    sc = Scenario(name, horizon, system, cost, graph, information, estimators, raw, source, options, used)
+    _check_known_inputs(sc)
+    return sc
+
+
+def _printable(text: str, key: str, *, newlines: bool = False) -> None:
+    """Refuse NUL and other control characters in a name (they truncate file names and terminal output)."""
+    bad = [c for c in text if (ord(c) < 32 and not (newlines and c in "\n\t\r")) or ord(c) == 127]
+    if bad:
+        raise _fail(key, f"expected printable text, found the control character {bad[0]!r} in {text!r}; remove it")
+
+
+def _check_known_inputs(sc: Scenario) -> None:
+    """``[system] x0_mean, B, u, b`` and ``[[agents]] D, d``: numbers of the right shapes, checked when the scenario is read.
+
+    (They act only in ``teamkf filter``; a wrong one must not pass silently through ``evaluate``.)
+    """
+    s = sc.raw.get("system", {})
+    agents = sc.raw.get("agents", [])
+    for k in _SYSTEM_OPTIONAL:
+        if k in s:
+            _numeric(s[k], f"system.{k}", scalar_ok=k not in ("B",))
+    for i, a in enumerate(agents):
+        for k in _AGENT_OPTIONAL:
+            if k in a:
+                _numeric(a[k], f"agents[{i}].{k}", scalar_ok=k != "D")
+    if "u" in s and "B" not in s and not any("D" in a for a in agents):
+        raise _fail("system.u", "inputs u need system.B (or agents[i].D) to act on; add B or drop u")
+    from .measurements import known_inputs
+
+    known_inputs(sc)
 
 
 def _links(tab: Any, graph: CommGraph) -> Any:
@@ -411,7 +511,15 @@ def _numeric(x: Any, key: str, *, scalar_ok: bool = True) -> Any:
                 )
         return (len(v), *shapes[0])
 
-    walk(x, "")
+    shape = walk(x, "")
+    if len(shape) > 3:
+        raise _fail(key, f"expected a matrix or a time sequence of matrices (at most 3 levels of lists), found {len(shape)} levels")
+    if len(shape) == 3 and shape[0] == 1:
+        raise _fail(
+            key,
+            f"expected a matrix, or a time sequence of one matrix per step, found a sequence of a single {V.shape_str(shape[1:])} matrix; "
+            "write the matrix itself (remove the outer brackets)",
+        )
     if not scalar_ok and not isinstance(x, list):
         raise _fail(key, f"expected a matrix (nested lists of rows), found {_describe(x)}")
     return x
@@ -520,6 +628,11 @@ def _graph(g_tab: Any, n: int) -> CommGraph:
             edges = g["edges"]
             if not isinstance(edges, list):
                 raise _fail("graph.edges", f"expected a list of [from, to, delay] triples, found {_describe(edges)}")
+            for k, e in enumerate(edges):  # agent ids are labels: whole numbers as written, never 1.0
+                if isinstance(e, list) and len(e) == 3 and any(isinstance(v, float) for v in e[:2]):
+                    raise _fail(
+                        "graph.edges", f"edges[{k}]: expected integer agent ids (0, 1, ...), found {e[:2]!r}; write them without a decimal point"
+                    )
             graph = CommGraph(n, edges)  # type: ignore[arg-type]
         elif "kind" in g:
             kind = g["kind"]

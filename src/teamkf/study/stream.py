@@ -36,6 +36,7 @@ from .measurements.format import (
     MeasurementFileError,
     cell_location,
     check_columns,
+    check_text_file,
     coerce_numeric,
     file_error,
     file_suffix,
@@ -55,10 +56,13 @@ def _raw_chunks(p: Path, suffix: str, chunk_rows: int) -> Iterator[Any]:
     import pandas as pd
 
     if suffix == ".csv":
+        check_text_file(p)
         try:
             reader = pd.read_csv(p, skipinitialspace=True, chunksize=chunk_rows)
             for df in reader:
                 yield df
+        except UnicodeDecodeError as exc:
+            raise file_error(p, "", f"expected a UTF-8 text file (CSV), found undecodable bytes at position {exc.start}; save it as UTF-8") from None
         except pd.errors.EmptyDataError:
             raise file_error(p, "", "the file is empty; expected a header row 'step,agent,y0,...'") from None
         except pd.errors.ParserError as exc:

@@ -134,6 +134,7 @@ import numpy as np
 
 from .. import _validation as V
 from .._blas import single_thread_blas
+from .._budget import check_sweep
 from .._progress import bar as _progress_bar
 from .._version import __version__
 from ..exceptions import ScenarioError, TeamkfError
@@ -365,6 +366,8 @@ def sweep_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", source:
     name = data.get("name", "sweep")
     if not isinstance(name, str) or not name.strip():
         raise _fail("name", f"expected a non-empty string, found {_describe(name)}")
+    if any(ord(c) < 32 or ord(c) == 127 for c in name):
+        raise _fail("name", f"expected printable text, found a control character in {name!r}; remove it")
     description = data.get("description", "")
     if not isinstance(description, str):
         raise _fail("description", f"expected a string, found {_describe(description)}")
@@ -394,6 +397,9 @@ def sweep_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", source:
                 raise _fail(f"estimators[{idx}]", f"{e!r} has no analytic cost; set runs >= 2 to evaluate it by Monte Carlo")
 
     grid, kinds = _grid(data["grid"])
+    sys_ = getattr(base, "system", None)  # sized before any point is built (teamkf._budget)
+    dx, dy, n_agents = (sys_.dx, sys_.dy_total, sys_.n_agents) if sys_ is not None else (1, 1, 1)
+    check_sweep([len(v) for v in grid.values()], runs if sys_ is not None else 0, base.horizon or 1, dx, dy, n_agents, len(estimators))
     spec = SweepSpec(scenario, runs, seed, estimators, grid, base, name=name, description=description, source=source, kinds=kinds)
     cost_keys = _check_points(spec)
     object.__setattr__(spec, "cost_keys", cost_keys)
@@ -405,6 +411,8 @@ def _int(x: Any, key: str, minimum: int) -> int:
         raise _fail(key, f"expected an integer >= {minimum}, found {_describe(x)}")
     if x < minimum:
         raise _fail(key, f"expected an integer >= {minimum}, found {x}")
+    if x > _MAX_SEED:
+        raise _fail(key, f"expected an integer between {minimum} and 2**63 - 1, found {x:.3g}")
     return int(x)
 
 
@@ -727,6 +735,9 @@ def _module_evaluate() -> PointFunction:
 def _check_out(spec: SweepSpec, out: Path, resume: bool) -> set[str]:
     """The ids of the points already in ``out``; refuses to mix results. Writes nothing."""
     if not out.exists():
+        parent = out.parent if str(out.parent) else Path(".")
+        if not parent.is_dir():
+            raise SweepError(f"{out}: the folder {str(parent)!r} does not exist; create it first (teamkf does not create folders) or fix --out")
         return set()
     if not out.is_dir():
         raise SweepError(f"{out}: exists and is a file; sweep results are a folder of Parquet parts, choose another --out")
@@ -738,6 +749,17 @@ def _check_out(spec: SweepSpec, out: Path, resume: bool) -> set[str]:
         raise SweepError(f"{out}: exists and is not a teamkf sweep results folder (no {MANIFEST_NAME}); choose another --out")
     if not resume:
         raise SweepError(f"{out}: results already exist; pass --resume (resume=True) to continue this sweep, or choose another --out")
+    foreign = [
+        e.name
+        for e in entries
+        if e.name != MANIFEST_NAME and not e.name.startswith(".") and not (e.name.startswith("part-") and e.name.endswith(".parquet"))
+    ]
+    if foreign:
+        raise SweepError(
+            f"{out}: expected only Parquet parts and {MANIFEST_NAME}, found {foreign[0]!r}"
+            f"{f' and {len(foreign) - 1} more entries' if len(foreign) > 1 else ''} (no sweep writes it; Parquet readers would fail on it); "
+            "move it out of the results folder, then --resume"
+        )
     try:
         info = json.loads(manifest.read_text(encoding="utf-8"))
         theirs = info["fingerprint"]
@@ -785,7 +807,7 @@ class _Writer:
 
     def create(self) -> None:
         """Create the folder and its ``_sweep.json`` (kept as is when resuming)."""
-        self.out.mkdir(parents=True, exist_ok=True)
+        self.out.mkdir(exist_ok=True)  # the results folder itself; a missing parent was refused by _check_out
         for stale in self.out.glob(".part-*.tmp-*"):
             stale.unlink(missing_ok=True)
         manifest = self.out / MANIFEST_NAME

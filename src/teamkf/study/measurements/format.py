@@ -227,12 +227,28 @@ def _pandas() -> Any:
     return V.require("pandas", "dask")
 
 
+def check_text_file(path: Path) -> None:
+    """Refuse a CSV file that is UTF-16 or binary (NUL bytes in its first 4 kB), in one line."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(4096)
+    except OSError:
+        return
+    if head.startswith((b"\xff\xfe", b"\xfe\xff")) or b"\x00" in head:
+        raise file_error(path, "", "expected a UTF-8 text file (CSV), found UTF-16 or binary data (NUL bytes); save it as UTF-8 CSV")
+
+
 def _read_table(path: Path, suffix: str) -> Any:
     """A DataFrame from CSV/Parquet, every column numeric; strings are reported with row and column."""
     pd = _pandas()
     if suffix == ".csv":
+        check_text_file(path)
         try:
             df = pd.read_csv(path, skipinitialspace=True)
+        except UnicodeDecodeError as exc:
+            raise file_error(
+                path, "", f"expected a UTF-8 text file (CSV), found undecodable bytes at position {exc.start}; save it as UTF-8"
+            ) from None
         except pd.errors.EmptyDataError:
             raise file_error(path, "", "the file is empty; expected a header row 'step,agent,y0,...'") from None
         except pd.errors.ParserError as exc:
@@ -252,6 +268,12 @@ def coerce_numeric(df: Any, path: Path, csv: bool, row0: int = 0) -> Any:
         if not isinstance(col, str):
             raise file_error(path, f"column {col!r}", "expected string column names")
         s = df[col]
+        if s.dtype.kind == "b" or (s.dtype.kind == "O" and s.map(lambda v: isinstance(v, (bool, np.bool_))).any()):
+            raise file_error(path, f"column {col!r}", "expected numbers, found true/false values; write measurements as numbers (1.0, 0.0)")
+        if s.dtype.kind in "mM":
+            raise file_error(
+                path, f"column {col!r}", f"expected numbers, found {'dates/times' if s.dtype.kind == 'M' else 'durations'}; give steps as integers"
+            )
         if s.dtype.kind not in "fiub":
             num = pd.to_numeric(s, errors="coerce")
             bad = np.flatnonzero(num.isna().to_numpy() & s.notna().to_numpy())
@@ -259,6 +281,14 @@ def coerce_numeric(df: Any, path: Path, csv: bool, row0: int = 0) -> Any:
                 r = int(bad[0])
                 raise file_error(path, cell_location(r + row0, col, csv), f"expected a number, found {s.iloc[r]!r}")
             df[col] = num.astype(float)
+        vals = df[col].to_numpy()
+        if vals.dtype.kind == "f" and np.isinf(vals).any():
+            r = int(np.flatnonzero(np.isinf(vals))[0])
+            raise file_error(
+                path,
+                cell_location(r + row0, col, csv),
+                f"expected a finite number (empty or NaN = missing), found {float(vals[r])!r} (beyond 1.8e308?)",
+            )
     return df
 
 
@@ -276,7 +306,8 @@ def int_column(df: Any, col: str, path: Path, csv: bool, row0: int = 0) -> np.nd
     bad = np.flatnonzero(~np.isfinite(a) | (a != np.round(a)))
     if bad.size:
         r = int(bad[0])
-        raise file_error(path, cell_location(r + row0, col, csv), f"expected a whole number, found {df[col].iloc[r]!r}")
+        v = df[col].iloc[r]
+        raise file_error(path, cell_location(r + row0, col, csv), f"expected a whole number, found {v.item() if hasattr(v, 'item') else v!r}")
     return a.astype(np.int64)
 
 

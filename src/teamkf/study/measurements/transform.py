@@ -208,7 +208,12 @@ class Innovations:
 
     @property
     def loglik(self) -> float:
-        return float(np.sum(self.loglik_steps))
+        """The sum over steps; ``-inf`` once a step's term overflows (a measurement the model makes impossible: p(y) = 0 in floats)."""
+        ll = self.loglik_steps
+        bad = ~np.isfinite(ll)
+        if bad.any() and np.isneginf(ll[int(np.flatnonzero(bad)[0])]):
+            return float("-inf")  # later steps inherit the overflowed state (NaN); the likelihood is already 0
+        return float(np.sum(ll))
 
 
 def innovations(system: LinearGaussianSystem, log: MeasurementLog, inputs: KnownInputs | None = None) -> Innovations:
@@ -223,6 +228,14 @@ def innovations(system: LinearGaussianSystem, log: MeasurementLog, inputs: Known
     x, P = np.zeros(dx), np.array(system.Sigma_x, dtype=float)
     e = [np.full(y.shape, np.nan) for y in log.y]
     ll = np.zeros(T)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # an overflow is reported as a non-finite log-likelihood
+        _innovation_steps(system, yc, pres, x, P, e, ll)
+    return Innovations(e, ll)
+
+
+def _innovation_steps(system: LinearGaussianSystem, yc: list[Any], pres: Any, x: FloatArray, P: FloatArray, e: list[Any], ll: FloatArray) -> None:
+    """The centralized filter's recursion of :func:`innovations` (fills ``e`` and ``ll`` in place)."""
+    n, dx, T = system.n_agents, system.dx, ll.size
     for t in range(T):
         C = np.vstack([system.C_at(i, t)[pres[i][t]] for i in range(n)])
         blocks = [system.R_at(i, t)[np.ix_(pres[i][t], pres[i][t])] for i in range(n)]
@@ -234,7 +247,8 @@ def innovations(system: LinearGaussianSystem, log: MeasurementLog, inputs: Known
             r = y - C @ x
             cf = sla.cho_factor(S, lower=True, check_finite=False)
             K = sla.cho_solve(cf, C @ P, check_finite=False).T
-            ll[t] = -0.5 * (y.size * np.log(2 * np.pi) + 2 * np.sum(np.log(np.diag(cf[0]))) + r @ sla.cho_solve(cf, r, check_finite=False))
+            q = float(r @ sla.cho_solve(cf, r, check_finite=False))
+            ll[t] = -np.inf if not np.isfinite(q) else -0.5 * (y.size * np.log(2 * np.pi) + 2 * np.sum(np.log(np.diag(cf[0]))) + q)
             pos = 0
             for i in range(n):
                 k = int(pres[i][t].sum())
@@ -246,7 +260,6 @@ def innovations(system: LinearGaussianSystem, log: MeasurementLog, inputs: Known
         A = system.A_at(t)
         x = A @ x
         P = A @ P @ A.T + system.Q_at(t)
-    return Innovations(e, ll)
 
 
 def masked_system(system: LinearGaussianSystem, present: Sequence[np.ndarray]) -> LinearGaussianSystem:

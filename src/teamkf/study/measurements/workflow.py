@@ -94,6 +94,11 @@ class FilterResult:
             out["total_cost"] = {k: json_float(v) for k, v in (self.total_costs or {}).items()}
         if self.innovations is not None:
             out["loglik"] = json_float(self.innovations.loglik)
+        bad = {f"total_cost.{k}": str(v) for k, v in (self.total_costs or {}).items() if not np.isfinite(v)}
+        if self.innovations is not None and not np.isfinite(self.innovations.loglik):
+            bad["loglik"] = str(self.innovations.loglik)
+        if bad:  # strict JSON has no NaN or Infinity: the nulls above say which, and why
+            out["non_finite"] = bad
         return out
 
 

@@ -1,0 +1,225 @@
+"""Sized before started: memory and work of a request, estimated before anything is allocated.
+
+Every public entry whose cost grows with its arguments (runs, steps, state size,
+agents, grid points, horizon, memory, iterations) calls :func:`check_memory`
+and :func:`check_work` with its estimate first. An impossible request then ends at
+once in one :class:`~teamkf.exceptions.ResourceError` that names the argument,
+gives the estimate and says what to change, instead of a ``MemoryError`` minutes
+later or a silent hang.
+
+Memory
+    is compared with what the machine has available now (Linux ``MemAvailable``
+    from ``/proc/meminfo``, else ``os.sysconf``; psutil is not needed): at most
+    :data:`MEMORY_FRACTION` of it.
+Work
+    is counted in floating-point operations plus Python-level loop iterations,
+    converted to seconds with deliberately optimistic rates (:data:`FLOPS`,
+    :data:`LOOPS`). A request whose optimistic time exceeds :func:`work_limit_s`
+    (2 hours, or ``TEAMKF_MAX_HOURS``) is refused; a slower but possible one
+    runs, with a progress bar and an ETA on a terminal.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+from .exceptions import ResourceError
+
+__all__ = [
+    "BATCHED_OPS",
+    "FLOPS",
+    "LOOPS",
+    "MEMORY_FRACTION",
+    "available_memory",
+    "check_memory",
+    "check_size",
+    "check_sweep",
+    "check_work",
+    "format_bytes",
+    "format_seconds",
+    "work_limit_s",
+]
+
+#: a computation may use at most this fraction of the memory available when it starts
+MEMORY_FRACTION = 0.9
+#: floating-point operations per second assumed by :func:`check_work` (optimistic: a refusal is never premature)
+FLOPS = 1e11
+#: Python-level loop iterations per second assumed by :func:`check_work` (optimistic)
+LOOPS = 1e7
+#: elementary operations per second of batched small-matrix work (a Monte Carlo over runs): a few times what one core does
+BATCHED_OPS = 2e7
+#: default limit of :func:`check_work`, in hours (``TEAMKF_MAX_HOURS`` overrides it)
+DEFAULT_MAX_HOURS = 2.0
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to a new allocation now (Linux ``MemAvailable``; else free physical pages), None if unknown."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):  # pragma: no cover - non-POSIX
+        return None
+
+
+def format_bytes(n: float) -> str:
+    """``1.5 GiB``-style size (up to EiB; beyond, in powers of ten)."""
+    if not math.isfinite(n):
+        return "an unbounded amount"
+    for unit in ("bytes", "KiB", "MiB", "GiB", "TiB", "PiB", "EiB"):
+        if abs(n) < 1024 or unit == "EiB":
+            if unit == "EiB" and abs(n) >= 1024:
+                return f"{n * 1024.0**6:.2e} bytes"
+            return f"{n:.0f} {unit}" if unit == "bytes" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n:.1f} EiB"  # pragma: no cover
+
+
+def format_seconds(s: float) -> str:
+    """``3.2 hours``-style duration (seconds to years; beyond, in e-notation years)."""
+    if not math.isfinite(s):
+        return "forever"
+    for limit, div, unit in ((120, 1, "s"), (7200, 60, "minutes"), (172800, 3600, "hours"), (3.156e7 * 2, 86400, "days")):
+        if s < limit:
+            return f"{s / div:.0f} {unit}" if unit == "s" else f"{s / div:.1f} {unit}"
+    years = s / 3.156e7
+    return f"{years:.1f} years" if years < 1e4 else f"{years:.1e} years"
+
+
+def work_limit_s() -> float:
+    """The longest optimistic run time accepted, in seconds (``TEAMKF_MAX_HOURS``, default 2 h)."""
+    text = os.environ.get("TEAMKF_MAX_HOURS", "")
+    try:
+        hours = float(text) if text.strip() else DEFAULT_MAX_HOURS
+    except ValueError:
+        hours = DEFAULT_MAX_HOURS
+    return (hours if math.isfinite(hours) and hours > 0 else DEFAULT_MAX_HOURS) * 3600.0
+
+
+def check_memory(estimate: float, what: str, *, argument: str, fix: str, available: int | None = None) -> None:
+    """Refuse a computation whose predicted peak memory exceeds what the machine has.
+
+    Parameters
+    ----------
+    estimate : float
+        Predicted peak memory in bytes (a float: products of large sizes do not overflow).
+    what : str
+        The computation, for the message (``"the MTMSE design over T = 100000 steps"``).
+    argument : str
+        The argument that sets the size (``"horizon"``, ``"n_runs"``); named in the error.
+    fix : str
+        How to make it fit.
+    available : int, optional
+        Bytes available (default :func:`available_memory`; tests pass a number).
+
+    Raises
+    ------
+    teamkf.exceptions.ResourceError
+        When ``estimate > MEMORY_FRACTION * available``.
+    """
+    avail = available_memory() if available is None else available
+    if avail is None or estimate <= MEMORY_FRACTION * avail:
+        return
+    raise ResourceError(
+        f"{argument}: {what} needs about {format_bytes(estimate)} of memory, but this machine has {format_bytes(avail)} available; {fix}",
+        argument=argument,
+    )
+
+
+def check_work(flops: float, what: str, *, argument: str, fix: str, loops: float = 0.0, rate: float = FLOPS, limit_s: float | None = None) -> float:
+    """Refuse a computation whose optimistic run time exceeds the limit; returns that time in seconds.
+
+    The time is :math:`t = \\text{flops} / F + \\text{loops} / L` with the optimistic rates
+    :data:`FLOPS` and :data:`LOOPS`, so a refused request would take longer than the limit
+    on any machine teamkf runs on.
+
+    Parameters
+    ----------
+    flops : float
+        Floating-point operations.
+    what : str
+        The computation, for the message.
+    argument : str
+        The argument that sets the size; named in the error.
+    fix : str
+        How to make it smaller.
+    loops : float
+        Python-level loop iterations (each costs at least :math:`1/L` seconds).
+    rate : float
+        Operations per second for ``flops`` (default :data:`FLOPS`; batched small-matrix
+        work such as a Monte Carlo passes :data:`BATCHED_OPS`).
+    limit_s : float, optional
+        The limit (default :func:`work_limit_s`).
+
+    Raises
+    ------
+    teamkf.exceptions.ResourceError
+    """
+    t = float(flops) / rate + float(loops) / LOOPS
+    limit = work_limit_s() if limit_s is None else limit_s
+    if t > limit:
+        raise ResourceError(
+            f"{argument}: {what} needs at least {format_seconds(t)} of computing (about {float(flops) + float(loops):.2g} operations), "
+            f"over the limit of {format_seconds(limit)}; {fix} (or raise the limit with TEAMKF_MAX_HOURS)",
+            argument=argument,
+        )
+    return t
+
+
+def check_size(n: float, argument: str, *, maximum: float, what: str, fix: str) -> None:
+    """Refuse a count (agents, grid points, runs) above a representable or sensible ``maximum``.
+
+    Raises
+    ------
+    teamkf.exceptions.ResourceError
+    """
+    if n > maximum:
+        raise ResourceError(f"{argument}: {what} {n:,.0f} exceeds the largest this computation can hold ({maximum:,.0f}); {fix}", argument=argument)
+
+
+#: loop iterations a sweep's grid point costs besides its Monte Carlo (reading its scenario, designing, writing its Parquet part): ~10 ms
+POINT_LOOPS = 1e5
+
+
+def check_sweep(sizes: list[int], runs: int, T: int, dx: int, dy: int, n_agents: int, n_estimators: int) -> None:
+    """Refuse, before any grid point is built, a sweep whose grid or runs would take longer than the limit.
+
+    Parameters
+    ----------
+    sizes : list of int
+        The number of values of each grid key (the grid has their product of points).
+    runs, T : int
+        Monte Carlo runs per point (0: analytic only) and steps.
+    dx, dy, n_agents, n_estimators : int
+        The base scenario's sizes.
+
+    Raises
+    ------
+    teamkf.exceptions.ResourceError
+        Naming ``grid`` (too many points) or ``runs``.
+    """
+    n_points = math.prod(sizes)
+    shape = " x ".join(map(str, sizes))
+    check_work(
+        0.0,
+        f"a grid of {shape} = {n_points:,} points",
+        argument="grid",
+        fix="use fewer values per key (or split the sweep into several files)",
+        loops=n_points * POINT_LOOPS,
+    )
+    if runs:
+        per = 50.0 + dx * dx + dx * dy + n_estimators * n_agents * dx * (dx + dy)
+        check_work(
+            float(n_points) * runs * T * per,
+            f"{n_points:,} grid points x {runs:,} Monte Carlo runs x {T} steps x {n_estimators} estimators",
+            argument="runs",
+            fix="use fewer runs (the 95 % interval only shrinks like 1/sqrt(runs)) or fewer grid points",
+            loops=n_points * POINT_LOOPS,
+            rate=BATCHED_OPS,
+        )
