@@ -1,6 +1,6 @@
 """The baselines leaderboard: every family and variant ranked by its exact team cost relative to MTMSE.
 
-Networks (issue 11): the UAV formation n = 4 and 10 (complete graph, delay 2,
+Networks: the UAV formation n = 4 and 10 (complete graph, delay 2,
 cost (5) with lambda = n^2), the 4-vehicle platoon (line, delay 1, cost (6),
 lambda = 10), a CIKF-style random field (20 sites, 20 agents, unit delays,
 team MSE cost), a ring of 12 scalar sensors observing a 6-dimensional process
