@@ -160,6 +160,23 @@ class SweepResult:
                 df[c] = df[c].astype("float64")  # None (analytic values) -> NaN
         return df
 
+    def __repr__(self) -> str:
+        """One screen at any size: the grid, the estimators and the first rows' costs (``.to_pandas()`` for all)."""
+        from .._repr import MAX_REPR_LINES, format_value
+
+        grid = ", ".join(f"{k} ∈ {{{', '.join(map(str, self.grid_values(k)[:6]))}{', ...' if len(self.grid_values(k)) > 6 else ''}}}" for k in self.grid_keys)
+        head = f"SweepResult({self.n_points} points × {len(self.estimators)} estimators ({', '.join(self.estimators)}); {grid or 'no grid'}"
+        lines = [head + (f"; from {self.path}" if self.path is not None else "") + ")"]
+        y = self.cost_key
+        shown = self.rows[: MAX_REPR_LINES - 2]
+        for r in shown:
+            at = ", ".join(f"{k}={r.get(k)}" for k in self.grid_keys)
+            ci = f" [{format_value(r['ci95_low'])}, {format_value(r['ci95_high'])}]" if r.get("ci95_low") is not None else ""
+            lines.append(f"  {at:<24} {r['estimator']:<14} {y} = {format_value(r.get(y))}{ci}")
+        if len(self.rows) > len(shown):
+            lines.append(f"  ... {len(self.rows) - len(shown)} more rows (.to_pandas() has them all)")
+        return "\n".join(lines)
+
     def _repr_html_(self) -> str:
         from .._repr import html_table
 

@@ -164,6 +164,36 @@ class Scenario:
     options: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     families: Mapping[str, Any] = field(repr=False, default_factory=dict)
 
+    def __repr__(self) -> str:
+        """One short paragraph: name, size, horizon, graph, estimators and source (never the matrices)."""
+        from .._repr import short_repr
+
+        fields = [
+            ("name", self.name),
+            ("agents", self.n_agents),
+            ("d_x", self.system.dx),
+            ("horizon", self.horizon),
+            ("graph", self.graph),
+            ("estimators", self.estimators),
+            ("source", self.source),
+        ]
+        return short_repr(self, fields)
+
+    def _repr_html_(self) -> str:
+        from .._repr import html_table
+
+        rows = [
+            {"field": "name", "value": self.name},
+            {"field": "agents", "value": self.n_agents},
+            {"field": "state dimension d_x", "value": self.system.dx},
+            {"field": "horizon T", "value": "∞ (steady state)" if self.horizon is None else self.horizon},
+            {"field": "graph", "value": repr(self.graph)},
+            {"field": "common lag", "value": self.information.common_lag},
+            {"field": "estimators", "value": ", ".join(self.estimators)},
+            {"field": "source", "value": self.source},
+        ]
+        return html_table(["field", "value"], rows, caption=f"teamkf scenario: {self.name}")
+
     @property
     def n_agents(self) -> int:
         return self.system.n_agents
