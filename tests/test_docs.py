@@ -215,10 +215,18 @@ def test_site_checker_finds_what_it_looks_for(tmp_path):
         "</article></body></html>"
     )
     (tmp_path / "wide.svg").write_text('<svg xmlns="http://www.w3.org/2000/svg" width="2000" height="10"></svg>')
-    (tmp_path / "good.html").write_text('<html><body><article><p>fine</p><div style="overflow-x:auto"><pre style="width:3000px">x</pre></div></article></body></html>')
+    (tmp_path / "good.html").write_text(
+        '<html><body><article><p>fine</p><div style="overflow-x:auto"><pre style="width:3000px">x</pre></div></article></body></html>'
+    )
     report = _site_browser.check_site(tmp_path)
     assert report.pages == ["good.html", "index.html"]
     assert "good.html" not in report.problems, report.problems
     found = "\n".join(report.problems["index.html"])
-    for what in ("MathJax did not load", "request leaves the site: http://example.invalid/x.js", "cut off: <img>", "a work session", "an issue number"):
+    for what in (
+        "MathJax did not load",
+        "request leaves the site: http://example.invalid/x.js",
+        "cut off: <img>",
+        "a work session",
+        "an issue number",
+    ):
         assert what in found, f"the checker missed {what!r}:\n{found}"

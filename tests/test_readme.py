@@ -21,7 +21,12 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 README = ROOT / "README.md"
 #: the documents a reader follows from the README; each path they cite must exist
-READER_DOCS = [README, ROOT / "examples" / "scenarios" / "README.md", *sorted((ROOT / "docs").glob("*.md")), *sorted((ROOT / "docs" / "guide").glob("*.md"))]
+READER_DOCS = [
+    README,
+    ROOT / "examples" / "scenarios" / "README.md",
+    *sorted((ROOT / "docs").glob("*.md")),
+    *sorted((ROOT / "docs" / "guide").glob("*.md")),
+]
 CITED = re.compile(r"(?<![\w/.-])((?:examples|docs|src|tests|benchmarks)/[\w./*-]*[\w*])")
 #: what a build writes (cited as where to look), not files of the repository
 BUILT = ("docs/_build/",)
@@ -80,7 +85,9 @@ def test_scenario_quickstart_is_the_four_vehicle_platoon(reader_folder):
     packaged = _run("teamkf evaluate platoon-4 --json", reader_folder)
     assert packaged.returncode == 0, packaged.stderr
     costs = {name: e["total_cost"] for name, e in out["estimators"].items()}
-    assert costs == {name: e["total_cost"] for name, e in json.loads(packaged.stdout)["estimators"].items()}, "the README's file is the packaged platoon-4"
+    assert costs == {name: e["total_cost"] for name, e in json.loads(packaged.stdout)["estimators"].items()}, (
+        "the README's file is the packaged platoon-4"
+    )
 
 
 @pytest.mark.slow

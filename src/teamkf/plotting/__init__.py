@@ -5,7 +5,6 @@ from __future__ import annotations
 from typing import Any, Sequence
 
 from .._validation import require
-
 from .colors import family_color, family_style
 
 __all__ = ["stage_cost_axes", "mc_band_axes", "family_color", "family_style", "legend_outside"]

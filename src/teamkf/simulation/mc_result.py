@@ -153,7 +153,9 @@ class MonteCarloResults(Mapping[str, Any]):
         width = max((len(r["estimator"]) for r in rows), default=0)
         shown = rows if len(rows) <= MAX_REPR_LINES - 1 else rows[: MAX_REPR_LINES - 2]
         for r in shown:
-            value = "diverged" if r["diverged"] else f"{format_value(r['total_mean'])} [{format_value(r['ci95_low'])}, {format_value(r['ci95_high'])}]"
+            value = (
+                "diverged" if r["diverged"] else f"{format_value(r['total_mean'])} [{format_value(r['ci95_low'])}, {format_value(r['ci95_high'])}]"
+            )
             lines.append(f"  {r['estimator']:<{width}}  {value}")
         if len(shown) < len(rows):
             lines.append(f"  ... {len(rows) - len(shown)} more (.to_frame() has them all)")
@@ -171,7 +173,9 @@ class MonteCarloResults(Mapping[str, Any]):
             }
             for r in self.to_rows()
         ]
-        return html_table(["estimator", "J_T (mean)", "95 % low", "95 % high", "runs", "steps"], rows, caption=f"teamkf Monte Carlo: {self._describe()}")
+        return html_table(
+            ["estimator", "J_T (mean)", "95 % low", "95 % high", "runs", "steps"], rows, caption=f"teamkf Monte Carlo: {self._describe()}"
+        )
 
     def plot(self, ax: Any = None, *, log: bool = False) -> Any:
         """The mean stage cost of every design against the step, with its 95 % band.

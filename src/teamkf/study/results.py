@@ -164,7 +164,9 @@ class SweepResult:
         """One screen at any size: the grid, the estimators and the first rows' costs (``.to_pandas()`` for all)."""
         from .._repr import MAX_REPR_LINES, format_value
 
-        grid = ", ".join(f"{k} ∈ {{{', '.join(map(str, self.grid_values(k)[:6]))}{', ...' if len(self.grid_values(k)) > 6 else ''}}}" for k in self.grid_keys)
+        grid = ", ".join(
+            f"{k} ∈ {{{', '.join(map(str, self.grid_values(k)[:6]))}{', ...' if len(self.grid_values(k)) > 6 else ''}}}" for k in self.grid_keys
+        )
         head = f"SweepResult({self.n_points} points × {len(self.estimators)} estimators ({', '.join(self.estimators)}); {grid or 'no grid'}"
         lines = [head + (f"; from {self.path}" if self.path is not None else "") + ")"]
         y = self.cost_key
