@@ -1,9 +1,10 @@
-"""The README as a new user reads it: its files exist, and its ``teamkf`` commands run as written.
+"""The README and the getting-started page as a new user reads them: files exist, commands and code run as written.
 
-``test_readme_python_blocks_run`` (tests/test_examples_and_doctests.py) runs the Python blocks; here
-the shell blocks: every ``teamkf ...`` line is run in a fresh folder that holds the README's
+``test_readme_python_blocks_run`` (tests/test_examples_and_doctests.py) runs the README's Python blocks;
+here the shell blocks: every ``teamkf ...`` line is run in a fresh folder that holds the README's
 ``platoon.toml`` and the repository's ``examples/``, as a reader who saved the file and pasted the
-line would run it.
+line would run it. The getting-started page (docs/guide/getting-started.md) is run the same way,
+its Python blocks in order in one namespace, as a reader pasting them into one interpreter.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 README = ROOT / "README.md"
+GETTING_STARTED = ROOT / "docs" / "guide" / "getting-started.md"
 #: the documents a reader follows from the README; each path they cite must exist
 READER_DOCS = [
     README,
@@ -32,14 +34,14 @@ CITED = re.compile(r"(?<![\w/.-])((?:examples|docs|src|tests|benchmarks)/[\w./*-
 BUILT = ("docs/_build/",)
 
 
-def _blocks(lang: str) -> list[str]:
-    return re.findall(rf"```{lang}\n(.*?)```", README.read_text(encoding="utf-8"), re.S)
+def _blocks(lang: str, doc: Path = README) -> list[str]:
+    return re.findall(rf"```{lang}\n(.*?)```", doc.read_text(encoding="utf-8"), re.S)
 
 
-def _commands() -> list[str]:
-    """The ``teamkf`` command lines of the README's shell blocks (continuations joined, comments dropped)."""
+def _commands(doc: Path = README) -> list[str]:
+    """The ``teamkf`` command lines of a page's shell blocks (continuations joined, comments dropped)."""
     out = []
-    for block in _blocks("sh"):
+    for block in _blocks("sh", doc):
         for line in block.replace("\\\n", " ").splitlines():
             line = line.split("  #")[0].strip()
             if line.startswith("teamkf "):
@@ -96,3 +98,32 @@ def test_readme_command_runs(line, reader_folder):
     proc = _run(line, reader_folder)
     assert proc.returncode == 0, f"{line!r} failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}"
     assert proc.stdout.strip(), f"{line!r} printed nothing"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("line", _commands(GETTING_STARTED))
+def test_getting_started_command_runs(line, reader_folder):
+    proc = _run(line, reader_folder)
+    assert proc.returncode == 0, f"{line!r} failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}"
+    assert proc.stdout.strip(), f"{line!r} printed nothing"
+
+
+def test_getting_started_code_runs(reader_folder, monkeypatch, capsys):
+    """Every Python block of the getting-started page, in order, in one namespace."""
+    import matplotlib
+
+    import teamkf
+
+    matplotlib.use("Agg")
+    blocks = _blocks("python", GETTING_STARTED)
+    assert len(blocks) >= 4, "install, first design, first plot, recorded data, plug-in"
+    monkeypatch.chdir(reader_folder)
+    namespace: dict = {}
+    try:
+        for block in blocks:
+            exec(compile(block, str(GETTING_STARTED), "exec"), namespace)
+    finally:
+        teamkf.unregister_family("mine")
+    out = capsys.readouterr().out
+    assert "J_T: centralized" in out and "mine" in out
+    assert (reader_folder / "first-plot.png").stat().st_size > 10_000
