@@ -9,7 +9,7 @@ packages through the ``teamkf.families`` entry points, and a user's
 from . import _builtin  # noqa: F401  (registers the built-in families, in order)
 from .base import Design
 
-# baselines (issue 11): linear filters with data-independent gains on the exact engine of .linear_team
+# baselines: linear filters with data-independent gains on the exact engine of .linear_team
 from .ci import design_ci
 from .cikf import CIKFDesign, design_cikf
 from .diffusion import design_diffusion

@@ -3,7 +3,7 @@
 Built-in families have fixed colours from the Okabe-Ito and Tableau palettes (distinguishable with
 the common colour-vision deficiencies, and in grey print by their line styles); any other name (a
 user's family) gets a colour of its own from a stable hash of its name, so it is the same in every
-plot and every session. Variants keep their family's colour and differ by line style: ``honest``
+plot and every Python process. Variants keep their family's colour and differ by line style: ``honest``
 solid, ``ideal`` dashed, ``stale`` dotted.
 
 Examples
@@ -92,7 +92,7 @@ def family_color(name: str) -> str:
     -------
     str
         A hex colour: the built-in family's own, or for any other name one picked by a stable
-        hash of the name (the same in every session).
+        hash of the name (the same in every Python process).
 
     Examples
     --------
