@@ -8,7 +8,7 @@ team MSE cost), a ring of 12 scalar sensors observing a 6-dimensional process
 (positions uniform in the unit square, edges between sensors closer than
 0.35, delay = ceil(distance / 0.1)) tracking a 4-dimensional constant-velocity
 target with scalar bearing-like measurements (team MSE cost). Our choices
-where the issue leaves the model open are stated here and in
+where the references leave the model open are stated here and in
 ``docs/baselines.md``.
 
 Every number is an exact analytic cost (no Monte Carlo): J_T = sum of the
