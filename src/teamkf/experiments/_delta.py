@@ -82,7 +82,13 @@ def plot_deltas(rows: list[dict[str, Any]], group: str, x_name: str, title: str,
         axes[0].plot(xs, [r["Delta mmse %"] for r in rs], marker=marker, label="per-agent MMSE" + suffix, **family_style("mmse"))
         half = [r.get("KCF ideal 95% CI half-width %", 0.0) for r in rs]
         axes[1].errorbar(
-            xs, [r["Delta KCF ideal %"] for r in rs], yerr=half, marker=marker, capsize=3, label="KCF ideal (Monte Carlo)" + suffix, **family_style("kcf ideal")
+            xs,
+            [r["Delta KCF ideal %"] for r in rs],
+            yerr=half,
+            marker=marker,
+            capsize=3,
+            label="KCF ideal (Monte Carlo)" + suffix,
+            **family_style("kcf ideal"),
         )
         stale = [r["Delta KCF stale %"] for r in rs]
         shown = [min(max(v, 1e-2), DIVERGED_PCT) for v in stale]
