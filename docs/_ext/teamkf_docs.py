@@ -139,6 +139,8 @@ def write_api_pages(api_dir: Path) -> list[str]:
     rest = [n for n in callables if n not in grouped]
     if rest:
         lines += [_heading("Everything else", "-"), ".. autosummary::", "   :toctree: generated", "   :nosignatures:", "", *[f"   {n}" for n in rest], ""]
+    if data:
+        lines += [_heading("Version and constants", "-")]
     for n in data:
         lines += [f".. data:: {n}", "", f"   ``{getattr(teamkf, n)!r}``", ""]
     _write(api_dir / "public.rst", "\n".join(lines))
