@@ -373,13 +373,13 @@ def _chunks(n_blocks: int, per_chunk: int) -> list[tuple[int, int]]:
 
 def _progress(total: int, enabled: bool | None) -> Any:
     """A tqdm bar over runs (silent when stderr is not a terminal or tqdm is missing)."""
-    if enabled is False:
+    from .._progress import progress_enabled
+
+    if not progress_enabled(enabled):  # TEAMKF_PROGRESS=0, --quiet, not a terminal, or no tqdm
         return None
-    try:
-        from tqdm.auto import tqdm
-    except ImportError:  # pragma: no cover
-        return None
-    return tqdm(total=total, unit="run", unit_scale=True, desc="Monte Carlo", disable=None if enabled is None else not enabled, file=sys.stderr)
+    from tqdm.std import tqdm  # not tqdm.auto: in a notebook without ipywidgets it warns "IProgress not found" at import
+
+    return tqdm(total=total, unit="run", unit_scale=True, desc="Monte Carlo", file=sys.stderr)
 
 
 def _serial(spec: _Spec, chunks: list[tuple[int, int]], bar: Any) -> Iterator[dict[str, Any]]:
