@@ -18,6 +18,7 @@ sys.path.insert(0, str(ROOT / "src"))  # the source tree being documented, befor
 sys.path.insert(0, str(HERE / "_ext"))
 os.environ.setdefault("MPLBACKEND", "Agg")
 os.environ.setdefault("TEAMKF_PROGRESS", "0")  # no progress bars in the build log
+os.environ.setdefault("TEAMKF_RUNS", "30")  # examples/robust_jitter.py: 30 Monte Carlo runs on the site (100 when run by hand)
 
 import teamkf_docs  # noqa: E402
 
