@@ -30,17 +30,31 @@ __all__ = ["html_table", "format_value", "DesignReprMixin", "design_rows", "desi
 #: tables longer than this show their first and last rows only
 MAX_ROWS = 30
 
+#: a cost (or relative cost) this large is an estimator that diverged (an error growing like 1.55^t over
+#: T = 100 steps reaches 1e38); tables mark it so rather than print it as a number to compare
+DIVERGED = 1e30
+
 
 def format_value(v: Any) -> str:
-    """A short text for one table cell: 6 significant digits for floats, '' for None, '∞' for inf."""
+    """A short text for one table cell: 6 significant digits for floats, '' for None, marked when diverged.
+
+    Examples
+    --------
+    >>> format_value(1234.56789), format_value(float("nan")), format_value(7.2e37), format_value(None)
+    ('1234.57', 'diverged', '7.2e+37 (diverged)', '')
+    """
     if v is None:
         return ""
     if isinstance(v, (bool, np.bool_)):
         return str(bool(v))
     if isinstance(v, (float, np.floating)):
         f = float(v)
+        if math.isnan(f):
+            return "diverged"
         if math.isinf(f):
-            return "∞" if f > 0 else "−∞"
+            return "∞ (diverged)" if f > 0 else "−∞ (diverged)"
+        if abs(f) >= DIVERGED:
+            return f"{f:.2g} (diverged)"
         return f"{f:.6g}"
     if isinstance(v, np.ndarray):
         return f"array{v.shape}"

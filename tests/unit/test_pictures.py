@@ -132,7 +132,12 @@ def test_html_table_escapes_and_marks_published_columns():
     assert html.count('class="teamkf-published"') == 2  # header and cell
     long = html_table(["i"], [{"i": k} for k in range(100)], max_rows=10)
     assert "90 rows not shown" in long and _cells(long)[:6] == ["i", "0", "1", "2", "3", "4"] and _cells(long)[-1] == "99"
-    assert format_value(float("inf")) == "∞" and format_value(None) == "" and format_value(0.1234567891) == "0.123457"
+    assert (
+        format_value(float("inf")) == "∞ (diverged)"
+        and format_value(float("nan")) == "diverged"
+        and format_value(None) == ""
+        and format_value(0.1234567891) == "0.123457"
+    )
 
 
 @pytest.fixture(scope="module")
