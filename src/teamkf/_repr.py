@@ -187,9 +187,9 @@ def design_repr(design: Any) -> str:
     TeamDesign(estimator='mtmse', agents=4, horizon=100, total_cost=4272.77)
     """
     fields: list[tuple[str, Any]] = [("estimator", getattr(design, "label", None) or getattr(design, "estimator", type(design).__name__))]
-    system = getattr(design, "system", None)
-    if getattr(system, "n_agents", None) is not None:
-        fields.append(("agents", int(system.n_agents)))
+    n_agents = getattr(getattr(design, "system", None), "n_agents", None)
+    if n_agents is not None:
+        fields.append(("agents", int(n_agents)))
     fields.append(("horizon", getattr(design, "horizon", None)))
     stage = getattr(design, "stage_costs", None)
     avg = getattr(design, "average_cost", None)

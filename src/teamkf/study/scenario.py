@@ -182,7 +182,7 @@ class Scenario:
     def _repr_html_(self) -> str:
         from .._repr import html_table
 
-        rows = [
+        rows: list[dict[str, Any]] = [
             {"field": "name", "value": self.name},
             {"field": "agents", "value": self.n_agents},
             {"field": "state dimension d_x", "value": self.system.dx},
