@@ -143,7 +143,7 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
                 ax.set_xlabel("packet-drop probability p")
                 ax.set_ylabel("J_T (Monte Carlo, 95 % CI)")
                 ax.set_title(f"{sname}, jitter <= {J}")
-        fig.tight_layout(rect=(0, 0, 0.84, 1))
+        fig.tight_layout(rect=(0, 0, 0.8, 1))
         fig.legend(
             [handles[k] for k in names], [f"{k + 1}. {n}" for k, n in enumerate(names)], loc="center right", fontsize=9, frameon=False, title="ranked"
         )
