@@ -2,8 +2,10 @@
 
 The build test runs ``sphinx-build -E -W --keep-going`` (the command of ``make docs``) into
 ``docs/_build/html``; sphinx-gallery re-runs only the scripts that changed, so after ``make docs``
-it takes about half a minute. It is
-skipped, with the reason, when the ``docs`` extra (sphinx and its extensions) is not installed.
+it takes about a minute. ``make test`` builds the site only here (once). The browser test then opens
+every page reached from index.html in Debian's chromium (tests/_site_browser.py), a few minutes.
+They are skipped, with the reason, when the ``docs`` extra (sphinx and its extensions, playwright)
+or chromium is not installed.
 """
 
 from __future__ import annotations
