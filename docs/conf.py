@@ -1,8 +1,9 @@
 """Sphinx configuration for the teamkf documentation site.
 
-Build with ``make docs`` (warnings are errors). The build needs no network:
-intersphinx is not used (no inventories are shipped), MathJax is loaded by the
-reader's browser, and the gallery runs every reproduction at reduced size.
+Build with ``make docs`` (warnings are errors). Neither the build nor the site needs a
+network: intersphinx is not used (no inventories are shipped), MathJax is copied into
+the site from the ``sphinx-mathjax-offline`` package (nothing is fetched when a page is
+read), and the gallery runs every reproduction at reduced size.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ sys.path.insert(0, str(ROOT / "src"))  # the source tree being documented, befor
 sys.path.insert(0, str(HERE / "_ext"))
 os.environ.setdefault("MPLBACKEND", "Agg")
 os.environ.setdefault("TEAMKF_PROGRESS", "0")  # no progress bars in the build log
+os.environ.setdefault("TEAMKF_RUNS", "30")  # examples/robust_jitter.py: 30 Monte Carlo runs on the site (100 when run by hand)
 
 import teamkf_docs  # noqa: E402
 
@@ -38,6 +40,7 @@ extensions = [
     "myst_parser",
     "sphinx_gallery.gen_gallery",
     "sphinx_copybutton",
+    "sphinx-mathjax-offline",  # copies MathJax 3 into _static/mathjax: the pages typeset maths offline
     "teamkf_docs",
 ]
 
@@ -82,6 +85,9 @@ suppress_warnings = [
 ]
 
 # --- math ----------------------------------------------------------------------------------------------
+# MathJax comes from the site itself (sphinx-mathjax-offline copies it to _static/mathjax); the path
+# is relative to _static. CommonHTML output with MathJax's own web fonts, also served by the site.
+mathjax_path = "mathjax/tex-chtml.js"
 myst_enable_extensions = ["dollarmath", "amsmath", "colon_fence", "deflist"]
 myst_heading_anchors = 3
 

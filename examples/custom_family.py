@@ -4,7 +4,7 @@ Each agent runs a Kalman filter on its own measurements, sends its filtered esti
 out-neighbours, and reports z_i(k) = L_i · mean(x̂_i(k|k), A^(k-s) x̂_j(s|s) for every received j):
 what arrived τ_ji steps late is delay-compensated by the model before it is averaged.
 
-    teamkf --plugin examples/custom_family.py evaluate examples/scenarios/uav-4.toml   (with "avg_kf" in estimators)
+    teamkf --plugin examples/custom_family.py evaluate examples/scenarios/platoon-4-custom.toml
     python examples/custom_family.py
 """
 

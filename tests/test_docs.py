@@ -2,8 +2,10 @@
 
 The build test runs ``sphinx-build -E -W --keep-going`` (the command of ``make docs``) into
 ``docs/_build/html``; sphinx-gallery re-runs only the scripts that changed, so after ``make docs``
-it takes about half a minute. It is
-skipped, with the reason, when the ``docs`` extra (sphinx and its extensions) is not installed.
+it takes about a minute. ``make test`` builds the site only here (once). The browser test then opens
+every page reached from index.html in Debian's chromium (tests/_site_browser.py), a few minutes.
+They are skipped, with the reason, when the ``docs`` extra (sphinx and its extensions, playwright)
+or chromium is not installed.
 """
 
 from __future__ import annotations
@@ -178,3 +180,55 @@ def test_every_public_name_is_in_the_api_reference(site):
     for n in names:
         if callable(getattr(teamkf, n)):
             assert (site / "api" / "generated" / f"teamkf.{n}.html").is_file(), f"no API page for teamkf.{n}"
+
+
+# --- the site as a reader sees it: headless Chromium, 1280 x 800, no network --------------------------
+@pytest.fixture(scope="module")
+def browser_report(site):
+    from tests import _site_browser
+
+    pytest.importorskip("playwright", reason="the browser test needs playwright: pip install 'teamkf[docs]'")
+    if not _site_browser.CHROMIUM.is_file():
+        pytest.skip(f"the browser test needs Debian's chromium at {_site_browser.CHROMIUM}: apt-get install chromium")
+    return _site_browser.check_site(site)
+
+
+@pytest.mark.slow
+def test_site_in_a_browser_offline(browser_report):
+    """Every page reached from index.html: no request leaves the site, maths typeset, nothing cut off, no process words."""
+    report = browser_report
+    assert len(report.pages) > 100, f"only {len(report.pages)} pages reached from index.html"
+    assert report.typeset > 100, f"only {report.typeset} formulas typeset on the whole site"
+    problems = report.lines()
+    assert not problems, f"{len(problems)} problems on {len(report.problems)} of {len(report.pages)} pages:\n" + "\n".join(problems[:80])
+
+
+def test_site_checker_finds_what_it_looks_for(tmp_path):
+    """The checker itself: a page with a remote script, raw TeX, a too-wide image and a process word is caught."""
+    from tests import _site_browser
+
+    pytest.importorskip("playwright", reason="the browser test needs playwright: pip install 'teamkf[docs]'")
+    if not _site_browser.CHROMIUM.is_file():
+        pytest.skip(f"the browser test needs Debian's chromium at {_site_browser.CHROMIUM}: apt-get install chromium")
+    (tmp_path / "index.html").write_text(
+        '<html><body><article><a href="good.html">good</a>'
+        '<span class="math">\\(n = 4\\)</span><p>as decided in session 3 (issue 13)</p>'
+        '<img src="wide.svg" width="2000" height="10"><script src="http://example.invalid/x.js"></script>'
+        "</article></body></html>"
+    )
+    (tmp_path / "wide.svg").write_text('<svg xmlns="http://www.w3.org/2000/svg" width="2000" height="10"></svg>')
+    (tmp_path / "good.html").write_text(
+        '<html><body><article><p>fine</p><div style="overflow-x:auto"><pre style="width:3000px">x</pre></div></article></body></html>'
+    )
+    report = _site_browser.check_site(tmp_path)
+    assert report.pages == ["good.html", "index.html"]
+    assert "good.html" not in report.problems, report.problems
+    found = "\n".join(report.problems["index.html"])
+    for what in (
+        "MathJax did not load",
+        "request leaves the site: http://example.invalid/x.js",
+        "cut off: <img>",
+        "a work session",
+        "an issue number",
+    ):
+        assert what in found, f"the checker missed {what!r}:\n{found}"

@@ -40,6 +40,65 @@ def _heading(text: str, ch: str = "=") -> str:
     return f"{text}\n{ch * len(text)}\n"
 
 
+#: The API index by what users do: (heading, one line, names of teamkf.__all__ or "sub.name" of a
+#: subpackage). A public name in no group is listed under "Everything else", so none is ever missing.
+API_GROUPS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
+    (
+        "Describe the team",
+        "The process, the agents' measurements, the team cost, who talks to whom with which delay.",
+        ("LinearGaussianSystem", "TeamCost", "CommGraph", "InformationStructure"),
+    ),
+    (
+        "Design an estimator",
+        "One function per family, each returning a design with its gains and (where there is one) its exact cost.",
+        (
+            "design_mtmse",
+            "design_mmse",
+            "design_centralized",
+            "design_kcf",
+            "design_cikf",
+            "design_local",
+            "design_diffusion",
+            "design_ci",
+            "design_icf",
+            "design_hcmci",
+            "static_team_estimate",
+            "kalman_covariances",
+        ),
+    ),
+    (
+        "The designs",
+        "What the design functions return: one contract (:class:`Design`) for every family.",
+        ("Design", "TeamDesign", "CentralizedDesign", "LinearTeamDesign", "KCFDesign", "CIKFDesign", "StaticTeamEstimate"),
+    ),
+    (
+        "Simulate and run the agents",
+        "Sample paths, and online agents that use only what the structure or the graph delivers.",
+        ("sample", "run_online", "run_graph"),
+    ),
+    (
+        "Evaluate",
+        "Monte Carlo costs with confidence intervals on the same sampled paths, and scenario rows.",
+        ("monte_carlo", "MonteCarloResult", "evaluate_point"),
+    ),
+    (
+        "Scenario files and data",
+        "Scenario files (TOML or JSON) as objects; recorded measurement logs are in :mod:`teamkf.study`.",
+        ("Scenario", "load_scenario", "scenario_from_dict"),
+    ),
+    (
+        "Extend: your own family",
+        "The registry every command, scenario file and Monte Carlo reads; add a family with one call.",
+        ("families", "get_family", "register_family", "unregister_family", "Family", "Option"),
+    ),
+    (
+        "Errors",
+        "Every error teamkf raises on purpose; each names the argument, what was expected and found, and the fix.",
+        ("TeamkfError", "ArgumentError", "ShapeError", "DivergenceError", "UnsupportedOperationError"),
+    ),
+)
+
+
 def write_api_pages(api_dir: Path) -> list[str]:
     """Write the generated API pages under ``api_dir``; return the subpackage page names."""
     import teamkf
@@ -57,13 +116,31 @@ def write_api_pages(api_dir: Path) -> list[str]:
         "",
         ".. currentmodule:: teamkf",
         "",
+    ]
+    grouped: set[str] = set()
+    for heading, blurb, names in API_GROUPS:
+        names = tuple(n for n in names if n in callables)  # a name that left teamkf.__all__ is dropped
+        grouped.update(names)
+        if names:
+            lines += [_heading(heading, "-"), blurb, "", ".. autosummary::", "   :toctree: generated", "   :nosignatures:", ""]
+            lines += [*[f"   {n}" for n in names], ""]
+    plotting = importlib.import_module("teamkf.plotting")
+    lines += [
+        _heading("Plot", "-"),
+        "Figures of designs, sweeps, graphs and information structures (matplotlib, the ``[plot]`` extra); "
+        "most objects also have a ``.plot()`` method. See :mod:`teamkf.plotting`.",
+        "",
         ".. autosummary::",
-        "   :toctree: generated",
         "   :nosignatures:",
         "",
-        *[f"   {n}" for n in callables],
+        *[f"   ~plotting.{n}" for n in _public_names(plotting) if _is_documentable(getattr(plotting, n))],
         "",
     ]
+    rest = [n for n in callables if n not in grouped]
+    if rest:
+        lines += [_heading("Everything else", "-"), ".. autosummary::", "   :toctree: generated", "   :nosignatures:", "", *[f"   {n}" for n in rest], ""]
+    if data:
+        lines += [_heading("Version and constants", "-")]
     for n in data:
         lines += [f".. data:: {n}", "", f"   ``{getattr(teamkf, n)!r}``", ""]
     _write(api_dir / "public.rst", "\n".join(lines))

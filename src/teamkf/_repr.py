@@ -25,22 +25,36 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["html_table", "format_value", "DesignReprMixin", "design_rows", "MAX_ROWS"]
+__all__ = ["html_table", "format_value", "DesignReprMixin", "design_rows", "design_repr", "short_repr", "short_value", "MAX_ROWS", "MAX_REPR_LINES"]
 
 #: tables longer than this show their first and last rows only
 MAX_ROWS = 30
 
+#: a cost (or relative cost) this large is an estimator that diverged (an error growing like 1.55^t over
+#: T = 100 steps reaches 1e38); tables mark it so rather than print it as a number to compare
+DIVERGED = 1e30
+
 
 def format_value(v: Any) -> str:
-    """A short text for one table cell: 6 significant digits for floats, '' for None, '∞' for inf."""
+    """A short text for one table cell: 6 significant digits for floats, '' for None, marked when diverged.
+
+    Examples
+    --------
+    >>> format_value(1234.56789), format_value(float("nan")), format_value(7.2e37), format_value(None)
+    ('1234.57', 'diverged', '7.2e+37 (diverged)', '')
+    """
     if v is None:
         return ""
     if isinstance(v, (bool, np.bool_)):
         return str(bool(v))
     if isinstance(v, (float, np.floating)):
         f = float(v)
+        if math.isnan(f):
+            return "diverged"
         if math.isinf(f):
-            return "∞" if f > 0 else "−∞"
+            return "∞ (diverged)" if f > 0 else "−∞ (diverged)"
+        if abs(f) >= DIVERGED:
+            return f"{f:.2g} (diverged)"
         return f"{f:.6g}"
     if isinstance(v, np.ndarray):
         return f"array{v.shape}"
@@ -125,8 +139,85 @@ def design_rows(design: Any) -> list[dict[str, Any]]:
     return rows
 
 
+#: the most lines a short repr prints (one screen)
+MAX_REPR_LINES = 20
+
+
+def short_value(v: Any, width: int = 60) -> str:
+    """A value for a one-line repr: arrays by shape, long sequences by length, long texts cut."""
+    if isinstance(v, np.ndarray):
+        return f"array{v.shape}" if v.size > 8 else np.array2string(v, separator=", ", threshold=8).replace("\n", "")
+    if isinstance(v, (float, np.floating)):
+        return format_value(v)
+    if isinstance(v, (list, tuple)) and v and any(isinstance(x, (np.ndarray, list, tuple)) for x in v):
+        return f"<{len(v)} {type(v).__name__} items>"
+    text = repr(v)
+    if "\n" in text or len(text) > width:
+        name = type(v).__name__
+        n = getattr(v, "n_agents", None)
+        text = f"<{name}, {n} agents>" if isinstance(n, (int, np.integer)) else f"<{name}>"
+    return text
+
+
+def short_repr(obj: Any, fields: Sequence[tuple[str, Any]], *, width: int = 100) -> str:
+    """``Class(a=..., b=...)`` with every value short (:func:`short_value`), wrapped, at most :data:`MAX_REPR_LINES` lines."""
+    parts = [f"{k}={short_value(v)}" for k, v in fields]
+    lines: list[str] = []
+    line = f"{type(obj).__name__}("
+    for i, part in enumerate(parts):
+        piece = part + (", " if i < len(parts) - 1 else "")
+        if len(line) + len(piece) > width and line.strip():
+            lines.append(line.rstrip())
+            line = "    "
+        line += piece
+    lines.append(line + ")")
+    if len(lines) > MAX_REPR_LINES:
+        lines = [*lines[: MAX_REPR_LINES - 1], "    ...)"]
+    return "\n".join(lines)
+
+
+def design_repr(design: Any) -> str:
+    """A design in one short paragraph: family, class, agents, horizon and its analytic cost (never its arrays).
+
+    Examples
+    --------
+    >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph, design_mtmse
+    >>> d = design_mtmse(LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 100.0), CommGraph.line(4, delay=1), horizon=100)
+    >>> print(repr(d))
+    TeamDesign(estimator='mtmse', agents=4, horizon=100, total_cost=4272.77)
+    """
+    fields: list[tuple[str, Any]] = [("estimator", getattr(design, "label", None) or getattr(design, "estimator", type(design).__name__))]
+    n_agents = getattr(getattr(design, "system", None), "n_agents", None)
+    if n_agents is not None:
+        fields.append(("agents", int(n_agents)))
+    fields.append(("horizon", getattr(design, "horizon", None)))
+    stage = getattr(design, "stage_costs", None)
+    avg = getattr(design, "average_cost", None)
+    if stage is not None:
+        fields.append(("total_cost", float(np.sum(stage))))
+    elif avg is not None:
+        fields.append(("average_cost", float(avg)))
+    else:
+        fields.append(("cost", "Monte Carlo"))
+    return short_repr(design, fields)
+
+
 class DesignReprMixin:
-    """Gives a design a compact HTML table in notebooks (``_repr_html_``)."""
+    """Gives a design a short ``repr`` (one screen at any size) and a compact HTML table in notebooks.
+
+    A dataclass writes its own ``__repr__`` (every field, arrays in full: megabytes for a long horizon)
+    unless the class already has one; :meth:`__init_subclass__` gives every subclass this short one
+    before the dataclass decorator runs, so a user's design gets it too. A class that defines its own
+    ``__repr__`` keeps it.
+    """
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if "__repr__" not in cls.__dict__:
+            cls.__repr__ = design_repr  # type: ignore[method-assign,assignment]
+
+    def __repr__(self) -> str:
+        return design_repr(self)
 
     def _repr_html_(self) -> str:
         name = getattr(self, "estimator", type(self).__name__)

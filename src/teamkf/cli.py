@@ -351,13 +351,10 @@ def _divergence_step(design: Any, mc: Any) -> str:
 def _plot_stage_costs(designs: Mapping[str, Any], mc: Mapping[str, Any], sc: Any, out: Path) -> str:
     from .plotting import stage_cost_axes
 
+    # analytic curves, and every Monte Carlo mean with its 95 % band (markers where an analytic curve is drawn)
     analytic = [d for d in designs.values() if d.has_analytic_cost]
-    ax = stage_cost_axes(analytic, title=f"{sc.name}: stage costs")
-    for name, d in designs.items():
-        if not d.has_analytic_cost and name in mc:
-            mc[name].plot(ax=ax)
+    ax = stage_cost_axes(analytic, title=f"{sc.name}: stage costs", monte_carlo={name: mc[name] for name in designs if name in mc})
     fig = ax.figure
-    fig.tight_layout()
     _write_atomic(out, lambda fh: fig.savefig(fh, dpi=120, format=out.suffix.lstrip(".").lower().replace("jpg", "jpeg")))
     import matplotlib.pyplot as plt
 

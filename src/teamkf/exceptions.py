@@ -31,6 +31,13 @@ class TeamkfError(Exception):
     Every error names what was wrong as a structured field, so that callers
     (the scenario reader, the CLI) can re-label it without parsing messages.
 
+    Parameters
+    ----------
+    message : str
+        ``"<argument>: <what is wrong; what was expected, what was found; the fix>"``.
+    argument : str, optional
+        The offending argument's path; taken from the message's head when not given.
+
     Attributes
     ----------
     argument : str or None
@@ -38,6 +45,13 @@ class TeamkfError(Exception):
         ``"estimators[1]"``); None when the error is not about one argument.
     detail : str
         The message without the leading ``"argument: "``.
+
+    Examples
+    --------
+    >>> from teamkf import TeamkfError
+    >>> err = TeamkfError("horizon: expected a positive integer, found -1; give T >= 1")
+    >>> err.argument, err.detail
+    ('horizon', 'expected a positive integer, found -1; give T >= 1')
     """
 
     argument: str | None
@@ -70,24 +84,93 @@ class TeamkfError(Exception):
 
 
 class ShapeError(TeamkfError, ValueError):
-    """An array has the wrong shape or the dimensions of two arguments disagree."""
+    """An array has the wrong shape or the dimensions of two arguments disagree.
+
+    Parameters
+    ----------
+    message : str
+        ``"<argument>: <what is wrong; what was expected, what was found; the fix>"``.
+    argument : str, optional
+        The offending argument's path; taken from the message's head when not given.
+
+    Examples
+    --------
+    >>> from teamkf import LinearGaussianSystem, ShapeError
+    >>> try:
+    ...     LinearGaussianSystem(A=[[0.9, 0.0]], Q=1.0, C=[[[1.0]]], R=[1.0], Sigma_x=1.0)
+    ... except ShapeError as err:
+    ...     print(type(err).__name__, err.argument)
+    ShapeError A
+    """
 
 
 class ArgumentError(TeamkfError, ValueError):
-    """An argument has a wrong value: out of range, not one of the allowed choices, the wrong type."""
+    """An argument has a wrong value: out of range, not one of the allowed choices, the wrong type.
+
+    It is a ``ValueError`` too, so ``except ValueError`` catches it.
+
+    Parameters
+    ----------
+    message : str
+        ``"<argument>: <what is wrong; what was expected, what was found; the fix>"``.
+    argument : str, optional
+        The offending argument's path; taken from the message's head when not given.
+
+    Examples
+    --------
+    >>> import teamkf
+    >>> try:
+    ...     teamkf.get_family("kfc")
+    ... except ValueError as err:
+    ...     print(err.argument, "|", err.detail[:24])
+    estimator | unknown estimator 'kfc';
+    """
 
 
 class DivergenceError(TeamkfError, FloatingPointError):
-    """A computation left the floating-point range (an estimator or a closed loop diverges)."""
+    """A computation left the floating-point range (an estimator or a closed loop diverges).
+
+    It is a ``FloatingPointError`` too.
+
+    Parameters
+    ----------
+    message : str
+        ``"<argument>: <what is wrong; what was expected, what was found; the fix>"``.
+    argument : str, optional
+        The offending argument's path; taken from the message's head when not given.
+
+    Examples
+    --------
+    >>> from teamkf import DivergenceError
+    >>> err = DivergenceError("horizon: the cost passed 1e300 at step 412; use a shorter horizon")
+    >>> isinstance(err, FloatingPointError), err.argument
+    (True, 'horizon')
+    """
 
 
 class UnsupportedOperationError(TeamkfError, NotImplementedError):
     """A family (or a variant) does not provide an operation of the family contract.
 
-    Attributes
+    It is a ``NotImplementedError`` too.
+
+    Parameters
     ----------
     family : str
+        The family's name (and the error's ``argument``).
     operation : str
+        The operation it lacks (``"graph_agents"``, ``"an analytic cost"``, ...).
+    reason : str, optional
+        Why, and what to do instead.
+
+    Examples
+    --------
+    >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph, design_kcf, UnsupportedOperationError
+    >>> kcf = design_kcf(LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 10.0), CommGraph.line(4), 10, variant="stale")
+    >>> try:
+    ...     kcf.require_cost()
+    ... except UnsupportedOperationError as err:
+    ...     print(err.family, "|", err.operation)
+    kcf | an analytic team cost
     """
 
     def __init__(self, family: str, operation: str, reason: str = "") -> None:

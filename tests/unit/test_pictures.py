@@ -132,7 +132,12 @@ def test_html_table_escapes_and_marks_published_columns():
     assert html.count('class="teamkf-published"') == 2  # header and cell
     long = html_table(["i"], [{"i": k} for k in range(100)], max_rows=10)
     assert "90 rows not shown" in long and _cells(long)[:6] == ["i", "0", "1", "2", "3", "4"] and _cells(long)[-1] == "99"
-    assert format_value(float("inf")) == "∞" and format_value(None) == "" and format_value(0.1234567891) == "0.123457"
+    assert (
+        format_value(float("inf")) == "∞ (diverged)"
+        and format_value(float("nan")) == "diverged"
+        and format_value(None) == ""
+        and format_value(0.1234567891) == "0.123457"
+    )
 
 
 @pytest.fixture(scope="module")
@@ -221,3 +226,64 @@ def test_lqg_design_html():
     d = design_lqg(problem(1.0), 10)
     cells = _cells(d._repr_html_())
     assert "Theorem 4 (MTMSE)" in cells and format_value(d.cost) in cells and "10" in cells
+
+
+# --- one colour per family, Monte Carlo bands, readable structure plots -------------------------------
+def test_one_colour_per_family_everywhere():
+    from matplotlib.colors import to_hex
+
+    from teamkf.plotting import family_color, stage_cost_axes
+
+    system, cost, graph = LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 10.0), CommGraph.line(4, delay=1)
+    designs = [
+        design_mtmse(system, cost, graph, horizon=10),
+        design_mmse(system, cost, graph, horizon=10),
+        design_centralized(system, cost, horizon=10),
+    ]
+    ax = stage_cost_axes(designs)
+    assert {line.get_label(): to_hex(line.get_color()) for line in ax.lines} == {n: family_color(n).lower() for n in ("mtmse", "mmse", "centralized")}
+    rows = tuple(
+        {
+            "graph.delay": dl,
+            "point_id": str(dl),
+            "point_index": dl,
+            "estimator": e,
+            "method": "analytic",
+            "total_cost": float(dl + k),
+            "ci95_low": None,
+            "ci95_high": None,
+        }
+        for dl in (1, 2, 3)
+        for k, e in enumerate(("mmse", "mtmse"))  # another order than above: the colours follow the name, not the order
+    )
+    ax2 = SweepResult(rows, ("graph.delay",)).plot()
+    assert {line.get_label(): to_hex(line.get_color()) for line in ax2.lines} == {n: family_color(n).lower() for n in ("mmse", "mtmse")}
+    assert [t.get_text() for t in ax2.get_xticklabels()] == ["1", "2", "3"], "an integer axis gets integer ticks"
+    assert family_color("my_own_filter") == family_color("my_own_filter") and family_color("my_own_filter") not in {
+        family_color(n) for n in ("mtmse", "mmse", "kcf")
+    }
+
+
+def test_evaluate_plot_draws_the_monte_carlo_means(tmp_path):
+    from teamkf.cli import main
+
+    a, b = tmp_path / "a.png", tmp_path / "b.png"
+    assert main(["--quiet", "evaluate", "platoon-4", "--plot", str(a)]) == 0
+    assert main(["--quiet", "evaluate", "platoon-4", "--monte-carlo", "50", "--seed", "1", "--plot", str(b)]) == 0
+    assert a.read_bytes() != b.read_bytes(), "--monte-carlo must show in the plot"
+    mc = monte_carlo(
+        {"mtmse": design_mtmse(LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 100.0), CommGraph.line(4, delay=1), horizon=10)}, 10, 50, rng=1
+    )
+    from teamkf.plotting import stage_cost_axes
+
+    ax = stage_cost_axes([], monte_carlo=mc)
+    assert [line.get_label() for line in ax.lines] == ["mtmse (Monte Carlo, 50 runs)"] and len(ax.collections) == 1  # the 95 % band
+
+
+@pytest.mark.parametrize("n", [6, 20])
+def test_information_plot_fits_a_page(n):
+    axs = InformationStructure.own_window(n, common_lag=2).plot()
+    fig = np.ravel(axs)[0].figure
+    width, height = fig.get_size_inches()
+    assert width <= 16 and height <= 12, f"n = {n}: {width:.1f} x {height:.1f} in"
+    assert len([a for a in fig.axes if a.get_visible() and a.has_data()]) == n

@@ -43,7 +43,7 @@ __getattr__, __dir__ = attach(__name__, _LAZY)
 if TYPE_CHECKING:
     from .base import Design
 
-    # baselines (issue 11): linear filters with data-independent gains on the exact engine of .linear_team
+    # baselines: linear filters with data-independent gains on the exact engine of .linear_team
     from .ci import design_ci
     from .cikf import CIKFDesign, design_cikf
     from .diffusion import design_diffusion

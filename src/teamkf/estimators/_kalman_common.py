@@ -40,13 +40,30 @@ def kalman_step(P: FloatArray, C: FloatArray, R: FloatArray) -> tuple[FloatArray
 
 
 def kalman_covariances(system: LinearGaussianSystem, n_steps: int) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Forward Riccati recursion (eq. 22).
+    """Forward Riccati recursion (eq. 22) of the centralized Kalman filter.
+
+    P(k+1) = A (P(k) - K(k) C P(k)) Aᵀ + Q,  K(k) = P(k) Cᵀ (C P(k) Cᵀ + R)⁻¹,  P(0) = Σ_x.
+
+    Parameters
+    ----------
+    system : LinearGaussianSystem
+        The process x(k+1) = A x(k) + w(k) and the agents' measurements y_i(k) = C_i x(k) + v_i(k).
+    n_steps : int
+        Number of steps of the recursion.
 
     Returns
     -------
     P_pred : (n_steps, d_x, d_x)       P(k) = var(x(k) | y(0:k-1)), k = 0..n_steps-1
     K : (n_steps, d_x, d_y)            Kalman gains (eq. 21)
     P_filt : (n_steps, d_x, d_x)       P(k|k)
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from teamkf import LinearGaussianSystem, kalman_covariances
+    >>> P_pred, K, P_filt = kalman_covariances(LinearGaussianSystem.platoon(4), 30)
+    >>> bool(np.all(np.trace(P_filt, axis1=1, axis2=2) <= np.trace(P_pred, axis1=1, axis2=2)))
+    True
     """
     T = V.positive_int(n_steps, "n_steps")
     system.require_horizon(T)

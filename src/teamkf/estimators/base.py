@@ -111,14 +111,21 @@ def json_float(x: Any) -> float | None:
 class Design(DesignReprMixin, abc.ABC):
     """Base class of every estimator design (see the module docstring for the contract).
 
-    Attributes
+    A design is what a family's design function returns: its offline gains
+    and, where the family has one, its exact team cost
+    J_T = Σ_{k<T} E[c(x(k), ẑ(k))]. Designs are immutable; build them with a
+    design function (:func:`~teamkf.design_mtmse`, ...), not with this class.
+
+    Parameters
     ----------
     estimator : str
         The registry name of the family ("mtmse", "kcf", ...).
     horizon : int or None
         Number of steps T, or None for the infinite-horizon (steady-state) design.
     system : LinearGaussianSystem
+        The process x(k+1) = A x(k) + w(k) and the agents' measurements y_i(k) = C_i x(k) + v_i(k).
     cost : TeamCost
+        The team cost c(x, ẑ) = (L x - ẑ)ᵀ S (L x - ẑ) the design minimizes (or is evaluated on).
     stage_costs : (T,) array or None
         E[c(x(k), ẑ(k))] for k = 0..T-1; None when the family has no analytic cost
         (or for a steady-state design).
@@ -130,6 +137,21 @@ class Design(DesignReprMixin, abc.ABC):
     graph : CommGraph or None
         The graph the agents talk over (:meth:`graph_agents` on the runtime, lossy links); None when the
         information structure delivers the measurements.
+
+    See Also
+    --------
+    families : every registered family and the design it returns.
+    monte_carlo : simulated costs, with confidence intervals, of any design.
+
+    Examples
+    --------
+    >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph, design_mtmse
+    >>> system, cost = LinearGaussianSystem.platoon(4), TeamCost.platoon(4, lam=100.0)
+    >>> design = design_mtmse(system, cost, CommGraph.line(4, delay=1), horizon=20)
+    >>> design.estimator, design.horizon, design.stage_costs.shape
+    ('mtmse', 20, (20,))
+    >>> bool(design.total_cost == design.stage_costs.sum())
+    True
     """
 
     estimator: str

@@ -38,13 +38,32 @@ Form = Literal["filter", "predictor"]
 
 @dataclass(frozen=True, eq=False, kw_only=True)
 class CentralizedDesign(Design):
-    """Centralized Kalman filter (or predictor) design.
+    """Centralized Kalman filter (or predictor) design: the lower bound on every team's cost.
 
-    Attributes
+    One fusion centre holds every y_j(k) at step k, so x̂(k|k) = E[x(k) | y(0:k)] and
+    ẑ = L x̂(k|k) (filter) or ẑ = L x̂(k|k-1) (predictor). Built by :func:`~teamkf.design_centralized`.
+
+    Parameters
     ----------
-    P_pred, K, P_filt : arrays
-        Covariance and gain schedules (one matrix each for the steady state).
+    estimator, horizon, system, cost, stage_costs, average_cost, info
+        As in :class:`~teamkf.Design`: the family name, T (None for the steady state), the
+        model, the team cost, the exact E[c(x(k), ẑ(k))] per step and the plain-data facts.
     form : "filter" or "predictor"
+        Whether ẑ(k) uses y(k) (filter) or only y(0:k-1) (predictor).
+    P_pred, K, P_filt : arrays
+        The predictor covariances P(k), Kalman gains K(k) and filter covariances P(k|k) of
+        eqs. 21-22, shape (T, ., .), or one matrix each for the steady state.
+
+    See Also
+    --------
+    design_centralized
+
+    Examples
+    --------
+    >>> from teamkf import LinearGaussianSystem, TeamCost, design_centralized
+    >>> kf = design_centralized(LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 100.0), horizon=10)
+    >>> kf.P_pred.shape, kf.K.shape, kf.form
+    ((10, 4, 4), (10, 4, 16), 'filter')
     """
 
     form: Form = "filter"
@@ -116,16 +135,24 @@ def design_centralized(
     Parameters
     ----------
     system : LinearGaussianSystem
+        The process x(k+1) = A x(k) + w(k) and the agents' measurements y_i(k) = C_i x(k) + v_i(k).
     cost : TeamCost
+        The team cost c(x, ẑ) = (L x - ẑ)ᵀ S (L x - ẑ) (``None``: the sum of the agents' MSEs).
     graph_or_structure : ignored
         The centralized bound holds every measurement at once, whatever the
         graph; the argument keeps the family signature
         ``design_X(system, cost, graph_or_structure, horizon)``.
     horizon : int or None
         Number of steps T; None for the steady state (algebraic Riccati equation).
-    form : "filter" (z = L x^(k|k)) or "predictor" (z = L x^(k|k-1)).
+    form : "filter" or "predictor"
+        ẑ = L x̂(k|k) (filter) or ẑ = L x̂(k|k-1) (predictor).
     check : bool
         Check detectability and stabilizability for the steady state.
+
+    Returns
+    -------
+    CentralizedDesign
+        The gains and covariances, with the exact stage costs (finite horizon) or average cost.
 
     Examples
     --------

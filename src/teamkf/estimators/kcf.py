@@ -138,15 +138,22 @@ def _update(xbar: FloatArray, s: FloatArray, S: FloatArray, M: FloatArray, gamma
 
 @dataclass(frozen=True, eq=False, kw_only=True)
 class KCFDesign(Design):
-    """A Kalman-consensus filter over a horizon of T steps (see the module docstring for the equations).
+    """The "stale" Kalman-consensus filter over a horizon of T steps (see the module docstring for the equations).
 
-    Attributes
+    ``design_kcf(..., variant="stale")`` returns it: delayed data fused as if current. Its
+    team cost has no closed form and is evaluated by Monte Carlo; the "honest" and "ideal"
+    variants return a :class:`~teamkf.LinearTeamDesign` with the exact cost instead.
+
+    Parameters
     ----------
-    system, cost, graph
-    variant : "honest" or "ideal"
-        "honest": neighbours' messages arrive with the edge delay (realizable,
-        :meth:`graph_agents`); "ideal": neighbours' current messages within the
-        step (the original idealization, :meth:`simulate` only).
+    estimator, horizon, system, cost, stage_costs, average_cost, info
+        As in :class:`~teamkf.Design`: the family name, T (None for the steady state), the
+        model, the team cost, the exact E[c(x(k), ẑ(k))] per step and the plain-data facts.
+    graph : CommGraph
+        The communication graph: agent i hears agent j over edge (j, i) after its integer delay τ_ji.
+    variant : "stale"
+        Neighbours' messages arrive with the edge delay and are fused as current
+        (realizable, :meth:`graph_agents`).
     epsilon : float
         Consensus step ε of γ_i = ε / (1 + ||M_i||_F).
     P : (n, T, d_x, d_x)
@@ -160,9 +167,20 @@ class KCFDesign(Design):
     sources : tuple over agents of tuples over steps of ((j, s_j), ...)
         The in-neighbours whose message agent i uses at step k and the step it
         was sent (own measurement not listed).
+    G, U : tuples of arrays
+        Per agent, the information-form measurement terms G_i = C_iᵀ R_i⁻¹ and U_i = C_iᵀ R_i⁻¹ C_i.
 
-    ``stage_costs`` and ``average_cost`` are None: the KCF's team cost has no
-    closed form; evaluate it with :meth:`costs` over sampled paths.
+    Notes
+    -----
+    ``stage_costs`` and ``average_cost`` are None: this variant's team cost has no
+    closed form; evaluate it with :meth:`costs` over sampled paths (or :func:`~teamkf.monte_carlo`).
+
+    Examples
+    --------
+    >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph, design_kcf
+    >>> d = design_kcf(LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 10.0), CommGraph.line(4), 10, variant="stale")
+    >>> type(d).__name__, d.stage_costs is None, d.gamma.shape
+    ('KCFDesign', True, (4, 10))
     """
 
     graph: CommGraph
@@ -677,7 +695,12 @@ def design_kcf(
 
     Parameters
     ----------
-    system, cost, graph
+    system : LinearGaussianSystem
+        The process x(k+1) = A x(k) + w(k) and the agents' measurements y_i(k) = C_i x(k) + v_i(k).
+    cost : TeamCost
+        The team cost c(x, ẑ) = (L x - ẑ)ᵀ S (L x - ẑ) (``None``: the sum of the agents' MSEs).
+    graph : CommGraph
+        The communication graph: agent i hears agent j over edge (j, i) after its integer delay τ_ji.
     horizon : int
         Number of steps T (finite horizon only).
     epsilon : float > 0
@@ -689,6 +712,12 @@ def design_kcf(
         current data within the step, exact analytic cost; "stale": the
         previous honest variant (delayed data fused as current), a
         :class:`KCFDesign` with Monte Carlo cost only.
+
+    Returns
+    -------
+    LinearTeamDesign or KCFDesign
+        "honest" and "ideal": a :class:`~teamkf.LinearTeamDesign` with the exact team cost;
+        "stale": a :class:`~teamkf.KCFDesign`, evaluated by Monte Carlo.
 
     Examples
     --------

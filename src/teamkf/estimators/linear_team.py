@@ -328,12 +328,35 @@ def _noise_terms(alg: Algorithm, k: int, prev: Sequence[Slot], new: Sequence[Slo
 class LinearTeamDesign(Design):
     """A design whose every step is a linear map with data-independent gains (see the module docstring).
 
-    Attributes
+    The baselines (``local``, ``diffusion``, ``ci``, ``icf``, ``hcmci``) and KCF's "honest" and
+    "ideal" variants return one. Their estimates are linear in the primitive noises with gains that
+    do not depend on the data, so the team cost is exact: the error covariance is propagated
+    step by step.
+
+    Parameters
     ----------
+    estimator, horizon, system, cost, stage_costs, average_cost, info
+        As in :class:`~teamkf.Design`: the family name, T (None for the steady state), the
+        model, the team cost, the exact E[c(x(k), ẑ(k))] per step and the plain-data facts.
     graph : CommGraph or None
+        The communication graph the agents exchange over (None for silent agents).
     variant : str
-    steps : tuple of :class:`LinearStep`
-    algorithm : the :class:`Algorithm` that produced them (its per-agent step runs the graph agents)
+        "honest" (realizable over the graph's delays) or "ideal" (a bound).
+    steps : tuple of LinearStep
+        The per-step linear maps of every agent's state and estimate.
+    algorithm : Algorithm
+        The algorithm that produced them; its per-agent step runs the graph agents.
+
+    See Also
+    --------
+    design_local, design_diffusion, design_ci, design_icf, design_hcmci, design_kcf
+
+    Examples
+    --------
+    >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph, design_diffusion
+    >>> d = design_diffusion(LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 10.0), CommGraph.line(4), 10)
+    >>> type(d).__name__, d.variant, len(d.steps)
+    ('LinearTeamDesign', 'honest', 10)
     """
 
     graph: Any = None

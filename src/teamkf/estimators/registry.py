@@ -50,9 +50,10 @@ Horizon = Literal["finite", "infinite"]
 class Option:
     """One option of a family's scenario table (``[kcf] epsilon = 0.1``) and keyword of its design function.
 
-    Attributes
+    Parameters
     ----------
     name : str
+        The key in the scenario table and the keyword of the design function.
     default : object
         The value used when the scenario does not give one.
     check : callable (value, key) -> value
@@ -60,6 +61,21 @@ class Option:
         naming ``key`` (the key path in the scenario, e.g. ``"kcf.epsilon"``).
     doc : str
         One line for the documentation and error messages.
+
+    See Also
+    --------
+    Family : the record that lists a family's options.
+
+    Examples
+    --------
+    >>> from teamkf import Option
+    >>> def positive(value, key):
+    ...     if value <= 0:
+    ...         raise ValueError(f"{key}: expected a positive number, found {value}")
+    ...     return float(value)
+    >>> step = Option(name="step", default=0.5, check=positive, doc="the step size")
+    >>> step.check(2, "avg.step")
+    2.0
     """
 
     name: str
@@ -89,7 +105,7 @@ RESERVED_NAMES = (
 class Family:
     """The registry record of an estimator family.
 
-    Attributes
+    Parameters
     ----------
     name : str
         Registry name used in scenario files (``estimators = [...]``) and on the CLI.
@@ -120,6 +136,18 @@ class Family:
         ``teamkf filter`` streams through a file of any length.
     example : str
         A short Python example (README, docs, ``teamkf --help``).
+
+    See Also
+    --------
+    register_family : add a family to the registry.
+    families : every registered family.
+
+    Examples
+    --------
+    >>> import teamkf
+    >>> fam = teamkf.get_family("kcf")
+    >>> fam.uses, fam.analytic_cost, fam.option_names
+    ('graph', True, ('epsilon', 'variant'))
     """
 
     name: str
@@ -266,12 +294,43 @@ _ENTRY_POINTS_LOADED = False
 def register_family(family: Family | None = None, /, *, replace: bool = False, **fields: Any) -> Family:
     """Add an estimator family to the registry; returns its record.
 
-    Call it with a :class:`Family`, or with the fields of one::
+    Call it with a :class:`Family`, or with the fields of one. The family then
+    works in scenario files, every ``teamkf`` command, Monte Carlo, sweeps and
+    the runtime, as a built-in one does.
 
-        teamkf.register_family(name="avg", design=design_avg, title="...", uses="graph",
-                               horizons={"finite"})
+    Parameters
+    ----------
+    family : Family, optional
+        The record to register; leave it out and give its fields as keywords instead.
+    replace : bool, default False
+        Replace a family of the same name (a built-in one too); otherwise that is an error.
+    **fields
+        The fields of a :class:`Family` (``name``, ``design``, ``title``, ``uses``, ...),
+        when ``family`` is not given.
 
-    ``replace=True`` replaces a family of the same name (a built-in one too).
+    Returns
+    -------
+    Family
+        The registered record.
+
+    Raises
+    ------
+    ArgumentError
+        When the name is taken (and ``replace`` is False), or both a record and fields are given.
+
+    See Also
+    --------
+    unregister_family, families, get_family
+
+    Examples
+    --------
+    >>> import teamkf
+    >>> def design_avg(system, cost, graph, horizon=None):
+    ...     return teamkf.design_local(system, cost, graph, horizon)
+    >>> fam = teamkf.register_family(name="avg", design=design_avg, title="my filter", uses="graph")
+    >>> "avg" in teamkf.families()
+    True
+    >>> teamkf.unregister_family("avg")
     """
     if family is None:
         family = Family(**fields)
@@ -287,7 +346,24 @@ def register_family(family: Family | None = None, /, *, replace: bool = False, *
 
 
 def unregister_family(name: str) -> None:
-    """Remove a family from the registry (tests, interactive work)."""
+    """Remove a family from the registry (tests, interactive work).
+
+    Parameters
+    ----------
+    name : str
+        The family's registry name; a name that is not registered is ignored.
+
+    See Also
+    --------
+    register_family
+
+    Examples
+    --------
+    >>> import teamkf
+    >>> teamkf.unregister_family("no-such-family")
+    >>> "mtmse" in teamkf.families()
+    True
+    """
     _REGISTRY.pop(name, None)
 
 
@@ -330,14 +406,59 @@ def register_alias(alias: str, name: str) -> None:
 
 
 def families() -> dict[str, Family]:
-    """Every registered family, name -> record (built-ins first, then entry points and plugins, then user registrations)."""
+    """Every registered family, name -> record.
+
+    Built-in families come first, then those of installed packages (the
+    ``teamkf.families`` entry points) and of ``TEAMKF_PLUGINS``, then the
+    user's :func:`register_family` calls.
+
+    Returns
+    -------
+    dict of str to Family
+        A new dictionary: changing it leaves the registry as it is.
+
+    Examples
+    --------
+    >>> import teamkf
+    >>> list(teamkf.families())[:5]
+    ['centralized', 'mtmse', 'mmse', 'kcf', 'cikf']
+    """
     _load_builtins()
     _load_entry_points()
     return dict(_REGISTRY)
 
 
 def get_family(name: Any, key: str = "estimator") -> Family:
-    """The family called ``name``; an :class:`~teamkf.exceptions.ArgumentError` naming ``key`` with a did-you-mean hint otherwise."""
+    """The registry record of the family called ``name``.
+
+    Parameters
+    ----------
+    name : str
+        The registry name (``"mtmse"``, ``"kcf"``, ...).
+    key : str, default "estimator"
+        The argument or scenario key that gave the name, for the error message.
+
+    Returns
+    -------
+    Family
+        The record.
+
+    Raises
+    ------
+    ArgumentError
+        When no family has that name; the message names ``key``, the families
+        available and the closest name.
+
+    Examples
+    --------
+    >>> import teamkf
+    >>> teamkf.get_family("mtmse").title.startswith("minimum team MSE")
+    True
+    >>> teamkf.get_family("mtmes")
+    Traceback (most recent call last):
+    ...
+    teamkf.exceptions.ArgumentError: estimator: unknown estimator 'mtmes'; did you mean 'mtmse'? available: ...
+    """
     fams = families()
     if isinstance(name, str) and name in fams:
         return fams[name]

@@ -75,14 +75,39 @@ Kind = Literal["mtmse", "mmse"]
 class StaticTeamEstimate:
     """The MTMSE estimate z_i = L_i x^_0 + F_i (y_i - y^_i) of Theorem 1.
 
-    Attributes
+    Built by :func:`~teamkf.static_team_estimate`.
+
+    Parameters
     ----------
-    F : list of (d_z, d_i) arrays        gains on the local innovations (eq. 10)
-    common_gain : (d_x, d_0) array       x^_0 = common_gain @ y_0 (Lemma 1.3)
-    local_prediction : list of (d_i, d_0) arrays   y^_i = local_prediction[i] @ y_0 (Lemma 1.4)
-    cost : float                         J* (eq. 11)
-    mmse_cost : float                    team cost of z_i = L_i E[x | y_0, y_i]
-    P0 : (d_x, d_x) array                var(x - x^_0)
+    F : list of (d_z, d_i) arrays
+        Gains on the local innovations (eq. 10).
+    common_gain : (d_x, d_0) array
+        x^_0 = common_gain @ y_0 (Lemma 1.3).
+    local_prediction : list of (d_i, d_0) arrays
+        y^_i = local_prediction[i] @ y_0 (Lemma 1.4).
+    cost : float
+        J*, the team-optimal cost (eq. 11).
+    mmse_cost : float
+        The team cost of z_i = L_i E[x | y_0, y_i] (the per-agent MMSE baseline).
+    P0 : (d_x, d_x) array
+        var(x - x^_0).
+    Theta_hat : list of arrays
+        cov(x - x^_0, y_i - y^_i), per agent.
+    Sigma_hat : array or None
+        The joint covariance of the local innovations (y_i - y^_i).
+
+    See Also
+    --------
+    static_team_estimate
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from teamkf import TeamCost, static_team_estimate
+    >>> Sig = np.array([[1.0, 1, 1], [1, 2, 1], [1, 1, 2]])
+    >>> est = static_team_estimate(Sig, (1, 0, 1, 1), TeamCost.common_target(2, 1, 4.0))
+    >>> est.cost <= est.mmse_cost, [F.shape for F in est.F]
+    (True, [(1, 1), (1, 1)])
     """
 
     F: list[FloatArray]
@@ -116,6 +141,13 @@ def static_team_estimate(joint_cov: Any, dims: Sequence[int], cost: TeamCost, *,
         (d_x, d_0, d_1, ..., d_n); d_0 = 0 means no common measurement.
     cost : TeamCost
         S and L (constant).
+    method : "auto", "dense" or "cg"
+        How Γ F = η is solved (see :mod:`teamkf.estimators.gamma`).
+
+    Returns
+    -------
+    StaticTeamEstimate
+        The gains F_i, the common estimate's gain and the costs J* and J_MMSE.
 
     Examples
     --------
@@ -312,17 +344,38 @@ class TeamDesign(Design):
 
     z_i(k) = L_i x^com(k) + F_i(k) (I_i^loc(k) - C_i^loc x^(anchor))   (eq. 32)
 
-    Attributes
+    Built by :func:`~teamkf.design_mtmse` (Theorems 2-3) and :func:`~teamkf.design_mmse` (eq. 46).
+
+    Parameters
     ----------
+    estimator, horizon, system, cost, stage_costs, average_cost, info
+        As in :class:`~teamkf.Design`: the family name, T (None for the steady state), the
+        model, the team cost, the exact E[c(x(k), ẑ(k))] per step and the plain-data facts.
     structure : InformationStructure
+        Who holds which measurement when: I_i(k), from a graph (eq. 14) or reduced.
     gains : tuple over steps of tuples over agents of (d_z, d_i(k)) arrays
         F_i(k) for k = 0..T-1 (finite horizon). For the steady state use
         :meth:`gain_at`: the exact gains of the first c steps (anchor x(0),
         P(0) = Sigma_x) are computed on first use, F-bar afterwards.
     steady_gains : tuple of (d_z, d_i) arrays or None
         F-bar_i of Theorem 3, used for k >= c.
-    K : KF gain schedule (T, d_x, d_y), or K-bar (d_x, d_y)
-    P_pred : predictor covariances P(k), or P-bar
+    K : array
+        The common Kalman gain schedule (T, d_x, d_y), or K-bar (d_x, d_y) in the steady state.
+    P_pred : array
+        The common predictor covariances P(k), or P-bar.
+    warmup : callable or None
+        For the steady state: k -> the exact gains of step k < c (computed on first use).
+
+    See Also
+    --------
+    design_mtmse, design_mmse
+
+    Examples
+    --------
+    >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph, design_mtmse
+    >>> d = design_mtmse(LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 100.0), CommGraph.line(4, delay=1), horizon=5)
+    >>> len(d.gains), len(d.gains[0]), d.gains[0][0].shape[0]
+    (5, 4, 1)
     """
 
     structure: InformationStructure
@@ -624,7 +677,9 @@ def design_mtmse(
     Parameters
     ----------
     system : LinearGaussianSystem
+        The process x(k+1) = A x(k) + w(k) and the agents' measurements y_i(k) = C_i x(k) + v_i(k).
     cost : TeamCost
+        The team cost c(x, ẑ) = (L x - ẑ)ᵀ S (L x - ẑ) (``None``: the sum of the agents' MSEs).
     structure : InformationStructure or CommGraph
         A graph means its full information structure (eq. 14).
     horizon : int or None
@@ -633,9 +688,18 @@ def design_mtmse(
         (A4)-(A5), checked when ``check``).
     method : "auto", "dense" or "cg"
         How Gamma F = eta is solved (see :mod:`teamkf.estimators.gamma`).
+    dense_max_bytes : int
+        The largest dense Γ (in bytes) that ``method="auto"`` solves directly; larger ones use CG.
+    check : bool
+        Check the structure on the graph and, for the steady state, assumptions (A4)-(A5).
     progress : bool or None
         A progress bar on stderr once a finite-horizon design has run 2 s
         (None: only when stderr is a terminal; False: never).
+
+    Returns
+    -------
+    TeamDesign
+        The gains F_i(k) (or F-bar_i) with the exact stage costs (or average cost).
 
     Raises
     ------
@@ -661,7 +725,35 @@ def design_mmse(
 ) -> TeamDesign:
     """Per-agent MMSE baseline z_i = L_i E[x(k) | I_i(k)] (eq. 46) with its team cost (eq. 47).
 
-    ``progress`` and the memory check as in :func:`design_mtmse`.
+    Each agent estimates optimally for itself, blind to the team coupling of the
+    cost; the gap to :func:`design_mtmse` is what team-optimality buys.
+
+    Parameters
+    ----------
+    system : LinearGaussianSystem
+        The process x(k+1) = A x(k) + w(k) and the agents' measurements y_i(k) = C_i x(k) + v_i(k).
+    cost : TeamCost
+        The team cost c(x, ẑ) = (L x - ẑ)ᵀ S (L x - ẑ) (``None``: the sum of the agents' MSEs).
+    structure : InformationStructure or CommGraph
+        A graph means its full information structure (eq. 14).
+    horizon : int or None
+        T steps, or None for the steady state.
+    check : bool
+        As in :func:`design_mtmse`.
+    progress : bool or None
+        As in :func:`design_mtmse` (the memory check too).
+
+    Returns
+    -------
+    TeamDesign
+        The gains and the exact team cost (eq. 47).
+
+    Examples
+    --------
+    >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph, design_mmse
+    >>> d = design_mmse(LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 100.0), CommGraph.line(4, delay=1), horizon=20)
+    >>> d.estimator, d.stage_costs.shape
+    ('mmse', (20,))
     """
     return _design("mmse", system, cost, structure, horizon, "auto", DENSE_MAX_BYTES, check, progress)
 

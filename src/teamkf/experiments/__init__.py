@@ -48,10 +48,10 @@ class ExperimentResult:
     data: dict[str, Any] = field(default_factory=dict)
 
     def format_table(self) -> str:
+        from .._repr import format_value
+
         def fmt(v: Any) -> str:
-            if isinstance(v, float):
-                return f"{v:.6g}"
-            return "" if v is None else str(v)
+            return format_value(v) if isinstance(v, float) else ("" if v is None else str(v))
 
         cells = [[fmt(r.get(c)) for c in self.columns] for r in self.rows]
         widths = [max([len(c)] + [len(row[j]) for row in cells]) for j, c in enumerate(self.columns)]

@@ -129,31 +129,35 @@ def _run(out_dir: Path | None, quick: bool) -> ExperimentResult:
         from ..plotting import _pyplot
 
         plt = _pyplot()
+        from ..plotting import family_color
+
+        ckf, cikf = family_color("centralized"), family_color("cikf")  # the same colours as every other figure
         ii = np.arange(I_MAX + 1)
         ks = ii + 1
-        fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
+        fig, axes = plt.subplots(1, 2, figsize=(11, 4.6), sharey=True, layout="constrained")
         ax = axes[0]
-        ax.plot(ii, _db(th_ckf[ks]), "k-", label="CKF")
-        ax.plot(ii, _db(th_cikf[ks]), "b-", label="CIKF")
-        ax.set_title("(a) theory: tr Σ_{i+1|i} (agent average)")
+        ax.plot(ii, _db(th_ckf[ks]), "-", color=ckf, label="CKF (centralized)")
+        ax.plot(ii, _db(th_cikf[ks]), "-", color=cikf, label="CIKF")
+        ax.set_title(r"(a) theory: $\mathrm{tr}\,\Sigma_{i+1|i}$ (agent average)")
         ax.set_xlabel("i")
         ax.set_ylabel("MSE (dB)")
-        ax.legend()
+        ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2, frameon=False, fontsize="small")
         ax = axes[1]
-        ax.plot(ii, _db(th_ckf[ks]), "k-", lw=0.8, label="CKF theory")
-        ax.plot(ii, _db(th_cikf[ks]), "b-", lw=0.8, label="CIKF theory")
-        ax.plot(ii, _db(m_ckf[ks]), "ko", ms=3, label=f"CKF MC ({runs} runs)")
+        ax.plot(ii, _db(th_ckf[ks]), "-", color=ckf, lw=0.8, label="CKF theory")
+        ax.plot(ii, _db(th_cikf[ks]), "-", color=cikf, lw=0.8, label="CIKF theory")
+        ax.plot(ii, _db(m_ckf[ks]), "o", color=ckf, ms=3, label=f"CKF Monte Carlo ({runs} runs)")
         ax.errorbar(
             ii,
             _db(m_cikf[ks]),
             yerr=[_db(m_cikf[ks] / (m_cikf[ks] - h_cikf[ks])), _db((m_cikf[ks] + h_cikf[ks]) / m_cikf[ks])],
-            fmt="bs",
+            fmt="s",
+            color=cikf,
             ms=3,
-            label=f"CIKF MC ({runs} runs)",
+            label=f"CIKF Monte Carlo ({runs} runs, 95 % interval)",
         )
         ax.set_title("(b) Monte Carlo")
         ax.set_xlabel("i")
-        ax.legend()
+        ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2, frameon=False, fontsize="small")
         save_figure(fig, out_dir, "cikf-fig4", figures)
     cols = [
         "i",

@@ -1,6 +1,6 @@
 """The baselines leaderboard: every family and variant ranked by its exact team cost relative to MTMSE.
 
-Networks (issue 11): the UAV formation n = 4 and 10 (complete graph, delay 2,
+Networks: the UAV formation n = 4 and 10 (complete graph, delay 2,
 cost (5) with lambda = n^2), the 4-vehicle platoon (line, delay 1, cost (6),
 lambda = 10), a CIKF-style random field (20 sites, 20 agents, unit delays,
 team MSE cost), a ring of 12 scalar sensors observing a 6-dimensional process
@@ -8,7 +8,7 @@ team MSE cost), a ring of 12 scalar sensors observing a 6-dimensional process
 (positions uniform in the unit square, edges between sensors closer than
 0.35, delay = ceil(distance / 0.1)) tracking a 4-dimensional constant-velocity
 target with scalar bearing-like measurements (team MSE cost). Our choices
-where the issue leaves the model open are stated here and in
+where the references leave the model open are stated here and in
 ``docs/baselines.md``.
 
 Every number is an exact analytic cost (no Monte Carlo): J_T = sum of the
@@ -196,23 +196,55 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
 
 
 def _plot(rows: list[dict[str, Any]], out_dir: Path, figures: list[str]) -> None:
-    from ..plotting import _pyplot
+    """A ranked dot plot: one row per family and variant, best (lowest geometric-mean J_T / J*_T) on top.
+
+    Each family keeps its colour (:func:`~teamkf.plotting.family_color`); the networks differ by
+    marker; a cost that is not finite is drawn at the right edge and marked "diverged".
+    """
+    from ..plotting import _pyplot, family_color, legend_outside
 
     plt = _pyplot()
     nets = list(dict.fromkeys(r["network"] for r in rows))
-    labels = [f"{r['estimator']} {r['variant']}".strip() for r in rows if r["network"] == nets[0]]
-    fig, ax = plt.subplots(figsize=(12, 5))
-    width = 0.8 / len(nets)
-    x = np.arange(len(labels))
+    names = list(dict.fromkeys(f"{r['estimator']} {r['variant']}".strip() for r in rows))
+
+    def ratio(r: dict[str, Any]) -> float:
+        v = r["J / J*"]
+        return float(v) if v is not None and np.isfinite(v) and v > 0 else np.inf
+
+    by_name = {n: {r["network"]: ratio(r) for r in rows if f"{r['estimator']} {r['variant']}".strip() == n} for n in names}
+
+    def score(n: str) -> float:  # geometric mean over the networks; a divergence ranks last
+        vals = list(by_name[n].values())
+        return np.inf if not vals or not np.all(np.isfinite(vals)) else float(np.mean(np.log10(vals)))
+
+    ranked = sorted(names, key=lambda n: (score(n), n))
+    finite = [np.log10(v) for d in by_name.values() for v in d.values() if np.isfinite(v)]
+    edge = (max(finite) if finite else 1.0) * 1.08 + 0.05
+    markers = ("o", "s", "^", "D", "v", "P", "X")
+    fig, ax = plt.subplots(figsize=(10, 0.34 * len(ranked) + 1.6), layout="constrained")
     for a, net in enumerate(nets):
-        vals = [r["J / J*"] for r in rows if r["network"] == net]
-        vals = [np.log10(v) if v and np.isfinite(v) and v > 0 else np.nan for v in vals]
-        ax.bar(x + a * width, vals, width, label=net)
-    ax.axhline(0.0, color="k", lw=0.8)
-    ax.set_xticks(x + 0.4 - width / 2)
-    ax.set_xticklabels(labels, rotation=45, ha="right")
-    ax.set_ylabel("log10(J_T / J*_T)  (0 = MTMSE)")
-    ax.set_title("Baselines leaderboard: exact team cost relative to MTMSE on the same graph")
-    ax.legend(fontsize=7)
-    fig.tight_layout()
+        xs, ys, cs = [], [], []
+        for k, n in enumerate(ranked):
+            v = by_name[n].get(net)
+            if v is None:
+                continue
+            xs.append(np.log10(v) if np.isfinite(v) else edge)
+            ys.append(k)
+            cs.append(family_color(n.split()[0]))
+        ax.scatter(xs, ys, c=cs, marker=markers[a % len(markers)], s=36, edgecolors="0.2", linewidths=0.5, zorder=3)
+        ax.scatter([], [], marker=markers[a % len(markers)], color="0.6", edgecolors="0.2", label=net)  # legend: the network's marker
+    for k, n in enumerate(ranked):
+        if any(not np.isfinite(v) for v in by_name[n].values()):
+            ax.annotate("diverged", (edge, k), textcoords="offset points", xytext=(8, -3), fontsize=8, color="0.3")
+    ax.set_yticks(range(len(ranked)))
+    ax.set_yticklabels([f"{k + 1}. {n}" for k, n in enumerate(ranked)])
+    for tick, n in zip(ax.get_yticklabels(), ranked):
+        tick.set_color(family_color(n.split()[0]))
+    ax.invert_yaxis()  # rank 1 on top
+    ax.axvline(0.0, color="k", lw=0.8)
+    ax.grid(True, axis="x", color="0.92")
+    ax.set_xlim(right=edge + 0.35 * max(edge, 1.0))
+    ax.set_xlabel("log10(J_T / J*_T)   (0 = MTMSE on the same graph; lower is better)")
+    ax.set_title("Baselines leaderboard, ranked by the geometric mean of J_T / J*_T over the networks")
+    legend_outside(ax, title="network", fontsize="small")
     save_figure(fig, out_dir, "leaderboard", figures)

@@ -145,14 +145,19 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
                     curves.setdefault((sname, J, name), []).append((p, r.total_mean, lo, hi))
     figures: list[str] = []
     if out_dir is not None and plotting_available():
-        from ..plotting import _pyplot
+        from ..plotting import _pyplot, family_style
 
         plt = _pyplot()
         fig, axes = plt.subplots(len(SCENARIOS), len(Js), figsize=(4.2 * len(Js), 3.6 * len(SCENARIOS)), squeeze=False)
-        # one colour and marker per estimator in every panel (the panels do not all have the same estimators)
-        names = sorted({name for (_, _, name) in curves})
-        cmap = plt.get_cmap("tab10")
-        style = {name: (cmap(q % 10), "os^vDP*Xhp"[q % 10], "-" if q < 10 else "--") for q, name in enumerate(names)}
+
+        # one colour per family (its variants by line style) and one marker per estimator, in every panel;
+        # the legend is ranked: the lowest geometric-mean cost over every panel and drop probability first
+        def mean_log(name: str) -> float:
+            vals = [q[1] for (_, _, n), pts in curves.items() if n == name for q in pts]
+            return float(np.mean(np.log10(vals))) if vals and all(np.isfinite(v) and v > 0 for v in vals) else np.inf
+
+        names = sorted({name for (_, _, name) in curves}, key=lambda n: (mean_log(n), n))
+        style = {name: (family_style(name)["color"], "os^vDP*Xhp"[q % 10], family_style(name)["linestyle"]) for q, name in enumerate(names)}
         handles: dict[str, Any] = {}
         for a, sname in enumerate(SCENARIOS):
             for b, J in enumerate(Js):
@@ -173,8 +178,10 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
                 ax.set_xlabel("packet-drop probability p")
                 ax.set_ylabel("J_T (Monte Carlo, 95 % CI)")
                 ax.set_title(f"{sname}, jitter <= {J}")
-        fig.tight_layout(rect=(0, 0, 0.86, 1))
-        fig.legend([handles[k] for k in names], names, loc="center right", fontsize=8, frameon=False)
+        fig.tight_layout(rect=(0, 0, 0.8, 1))
+        fig.legend(
+            [handles[k] for k in names], [f"{k + 1}. {n}" for k, n in enumerate(names)], loc="center right", fontsize=9, frameon=False, title="ranked"
+        )
         save_figure(fig, out_dir, "robustness", figures)
     skipped_txt = "; ".join(f"{k} ({v})" for k, v in notes_skipped.items())
     return ExperimentResult(

@@ -179,6 +179,7 @@ class CommGraph:
 
     Examples
     --------
+    >>> from teamkf import CommGraph
     >>> g = CommGraph.line(3)
     >>> g.geodesic_delays().tolist()
     [[0, 1, 2], [1, 0, 1], [2, 1, 0]]

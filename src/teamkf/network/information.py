@@ -47,6 +47,7 @@ class InformationStructure:
     Parameters
     ----------
     n_agents : int
+        The number of agents n.
     common_lag : int
         c >= 1: every agent holds y(0 : k - c) at step k.
     local : sequence (one per agent) of (j, newest, oldest) triples

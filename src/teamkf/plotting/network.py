@@ -79,8 +79,10 @@ def plot_graph(
     from ..exceptions import ArgumentError
 
     plt = _pyplot()
+    n = graph.n_agents
     if ax is None:
-        _, ax = plt.subplots(figsize=(5, 4.5))
+        side = 5.0 if n <= 8 else min(9.0, 4.0 + 0.25 * n)  # room for 20 agents and their labels
+        _, ax = plt.subplots(figsize=(side, side * 0.9))
     G = graph.to_networkx()
     if isinstance(layout, str):
         if layout not in _LAYOUTS:
@@ -98,12 +100,17 @@ def plot_graph(
         if len(node_labels) != graph.n_agents:
             raise ArgumentError(f"node_labels: expected {graph.n_agents} labels (one per agent), found {len(node_labels)}")
         labels = {i: str(node_labels[i]) for i in range(graph.n_agents)}
-    nx.draw_networkx_nodes(G, pos, ax=ax, node_color=node_color, edgecolors="0.3", node_size=600)
-    nx.draw_networkx_labels(G, pos, labels=labels, ax=ax, font_size=10)
-    nx.draw_networkx_edges(G, pos, ax=ax, arrows=True, arrowstyle="-|>", arrowsize=12, node_size=600, edge_color="0.35")
-    nx.draw_networkx_edge_labels(G, pos, edge_labels=edge_delay_labels(graph), ax=ax, font_size=8, rotate=False)
+    size = 600 if n <= 8 else max(220, 5000 // max(n, 1))  # nodes and labels shrink with the team, not below legibility
+    font = 10 if n <= 8 else 8
+    nx.draw_networkx_nodes(G, pos, ax=ax, node_color=node_color, edgecolors="0.3", node_size=size)
+    nx.draw_networkx_labels(G, pos, labels=labels, ax=ax, font_size=font)
+    nx.draw_networkx_edges(G, pos, ax=ax, arrows=True, arrowstyle="-|>", arrowsize=10 if n > 8 else 12, node_size=size, edge_color="0.45", width=0.8)
+    delays = {d for _, _, d in graph.edges}
+    uniform = len(delays) == 1 and graph.n_edges > 12  # one delay on many edges: said once in the title, not on every edge
+    if not uniform:
+        nx.draw_networkx_edge_labels(G, pos, edge_labels=edge_delay_labels(graph), ax=ax, font_size=7 if n > 8 else 8, rotate=False)
     if title is None:
-        title = f"{graph.n_agents} agents, {graph.n_edges} edges (labels: delays)"
+        title = f"{graph.n_agents} agents, {graph.n_edges} edges" + (f", every delay {next(iter(delays))}" if uniform else " (labels: delays)")
         if graph.n_agents and graph.is_strongly_connected():
             title += f", τ* = {graph.diameter}"
     ax.set_title(title)
@@ -161,9 +168,17 @@ def plot_information(
     plt = _pyplot()
     who = list(range(structure.n_agents)) if agents is None else [int(a) for a in agents]
     grids = [information_grid(structure, i, max_lag) for i in who]
+    n = structure.n_agents
     if ax is None:
-        fig, axes = plt.subplots(1, len(who), figsize=(max(3.0, 0.45 * structure.n_agents + 1.2) * len(who), 3.6), squeeze=False, sharey=True)
-        axs = list(axes[0])
+        # panels on a grid of at most 5 columns (a page's width), each as wide as its n sources need
+        ncols = len(who) if len(who) <= 4 else (3 if len(who) <= 6 else (4 if len(who) <= 12 else 5))
+        nrows = -(-len(who) // ncols)
+        panel_w = min(3.0, max(2.2, 0.12 * n + 1.0))
+        panel_h = min(3.0, 0.28 * grids[0].shape[0] + 1.3)
+        fig, axes = plt.subplots(nrows, ncols, figsize=(panel_w * ncols + 0.6, panel_h * nrows + 0.9), squeeze=False, sharey=True)
+        axs = list(axes.ravel()[: len(who)])
+        for extra in axes.ravel()[len(who) :]:
+            extra.set_axis_off()
     else:
         axs = list(np.ravel(ax)) if isinstance(ax, (list, tuple, np.ndarray)) else [ax]
         if len(axs) != len(who):
@@ -174,8 +189,9 @@ def plot_information(
     c = structure.common_lag
     for a, i, g in zip(axs, who, grids):
         a.imshow(g, cmap=cmap, vmin=0, vmax=2, aspect="auto", interpolation="nearest")
-        a.set_xticks(range(structure.n_agents))
-        a.set_xticklabels([f"y{j}" for j in range(structure.n_agents)], fontsize=8)
+        every = 1 if n <= 8 else (2 if n <= 16 else 5)  # every source's tick, a label on every few when n is large
+        a.set_xticks(range(n))
+        a.set_xticklabels([str(j) if j % every == 0 else "" for j in range(n)], fontsize=8 if n <= 10 else 7)
         rows = g.shape[0]
         a.set_yticks(range(rows))
         a.set_yticklabels(
@@ -187,13 +203,16 @@ def plot_information(
         a.tick_params(which="minor", length=0)
         a.set_title(f"agent {i}", fontsize=10)
         a.set_xlabel("source j")
-    axs[0].set_ylabel("step s of y_j(s)")
+    for a in axs:
+        spec = a.get_subplotspec() if hasattr(a, "get_subplotspec") else None
+        if a is axs[0] or (spec is not None and spec.is_first_col()):
+            a.set_ylabel("step s of y_j(s)")
     handles = [
         Patch(facecolor=colors[LOCAL], label="local window"),
         Patch(facecolor=colors[COMMON], label=f"common (lag ≥ {c})"),
         Patch(facecolor=colors[NOT_HELD], edgecolor="0.6", label="not held"),
     ]
-    fig.legend(handles=handles, loc="lower center", ncol=3, fontsize=8, frameon=False, bbox_to_anchor=(0.5, -0.02))
+    fig.legend(handles=handles, loc="lower center", ncol=3, fontsize=8, frameon=False, bbox_to_anchor=(0.5, 0.0))
     fig.suptitle(title if title is not None else "information structure: what each agent holds at step k", fontsize=10)
-    fig.tight_layout(rect=(0, 0.06, 1, 1))
+    fig.tight_layout(rect=(0, 0.5 / fig.get_figheight(), 1, 1))
     return np.array(axs, dtype=object) if len(axs) > 1 else axs[0]

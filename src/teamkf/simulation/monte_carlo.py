@@ -117,17 +117,40 @@ def _mean_sem(s1: int | float, s2: int | float, n: int) -> tuple[float, float]:
 
 @dataclass(frozen=True, eq=False)
 class MonteCarloResult:
-    """Sample team costs of one estimator.
+    """Sample team costs of one estimator, with their standard errors.
 
-    Attributes
+    One value of :func:`~teamkf.monte_carlo`'s result: the mean over runs of
+    c(x(k), ẑ(k)) per step and of J_T = Σ_k c(x(k), ẑ(k)), with the standard
+    error s / √n_runs of each (``ci95`` is mean ± 1.96 standard errors).
+
+    Parameters
     ----------
-    stage_mean, stage_sem : (T,) mean of c(x(k), z(k)) over runs and its standard error
-    total_mean, total_sem : mean and standard error of sum_k c(x(k), z(k))
+    estimator : str
+        The design's name in the mapping given to :func:`~teamkf.monte_carlo`.
     n_runs : int
+        The number of runs.
+    stage_mean, stage_sem : (T,) arrays
+        The mean of c(x(k), ẑ(k)) over runs, and its standard error.
+    total_mean, total_sem : float
+        The mean and standard error of Σ_k c(x(k), ẑ(k)).
     path : "errors" or "runtime"
-    seed : dict or None       {"entropy": ..., "spawn_key": [...]}: ``SeedSequence(entropy, spawn_key=spawn_key)``
-                              reproduces the run streams (recorded also when ``rng=None`` drew fresh entropy)
-    batch, chunk : int        runs per computation block and per task (see :func:`monte_carlo`)
+        How the errors were computed: the cancellation-free error recursions, or agents run on measurements.
+    seed : dict or None
+        ``{"entropy": ..., "spawn_key": [...]}``: ``SeedSequence(entropy, spawn_key=spawn_key)``
+        reproduces the run streams (recorded also when ``rng=None`` drew fresh entropy).
+    batch, chunk : int or None
+        Runs per computation block and per task (see :func:`~teamkf.monte_carlo`).
+    links : LinkStats or None
+        Per-edge packet counts on unreliable links, or None.
+
+    Examples
+    --------
+    >>> from teamkf import LinearGaussianSystem, TeamCost, design_centralized, monte_carlo
+    >>> kf = design_centralized(LinearGaussianSystem.platoon(3), TeamCost.platoon(3, 1.0), horizon=5)
+    >>> r = monte_carlo({"kf": kf}, 5, 400, rng=1)["kf"]
+    >>> lo, hi = r.ci95
+    >>> bool(lo <= kf.total_cost <= hi), r.stage_mean.shape
+    (True, (5,))
     """
 
     estimator: str
@@ -448,32 +471,49 @@ def monte_carlo(
 
     Parameters
     ----------
-    designs : mapping name -> design (with ``.system``, ``.cost`` and ``.errors`` / ``.agents``)
-    n_steps : horizon simulated
-    n_runs : number of independent runs (>= 2; any number: memory does not grow with it)
-    rng : seed (or SeedSequence / Generator created from one; None: fresh entropy, recorded in the result);
-        run r uses the counter-based stream ``RunStreams(rng).generator(r)``
-    batch : runs per computation block (memory per worker ~ one block's paths and errors). Results for a
-        seed agree to rounding whatever the batch, and bit for bit for a given batch
-    path : "errors" (cancellation-free recursions) or "runtime" (agents on measurements)
-    graph : with path="runtime", run the agents over this graph (message passing)
-        instead of the structure-driven delivery
-    chunk : runs per task (rounded up to a multiple of ``batch``; default: at most 16 blocks, and about 32
+    designs : mapping of str to Design
+        Name -> design (with ``.system``, ``.cost`` and ``.errors`` / ``.agents``); every design
+        sees the same sampled paths.
+    n_steps : int
+        The horizon simulated.
+    n_runs : int
+        The number of independent runs (>= 2; any number: memory does not grow with it).
+    rng : int, SeedSequence, Generator or None
+        The seed (None: fresh entropy, recorded in the result); run r uses the counter-based
+        stream ``RunStreams(rng).generator(r)``.
+    batch : int
+        Runs per computation block (memory per worker ~ one block's paths and errors). Results for a
+        seed agree to rounding whatever the batch, and bit for bit for a given batch.
+    path : "errors" or "runtime"
+        "errors": the cancellation-free error recursions; "runtime": the agents run on measurements.
+    graph : CommGraph or None
+        With path="runtime", run the agents over this graph (message passing)
+        instead of the structure-driven delivery.
+    chunk : int or None
+        Runs per task (rounded up to a multiple of ``batch``; default: at most 16 blocks, and about 32
         tasks when there are enough blocks, so that workers stay busy). The result does not depend on it,
-        bit for bit
-    scheduler : None or "serial" (this process), "local" (an embedded Dask LocalCluster, one
-        single-threaded worker per core), a Dask scheduler address, a ``distributed.Client`` or a cluster.
-        One chunk per task, retried (3 times) when a worker is lost; bit-for-bit the serial result
-    progress : a progress bar on stderr (None: only when stderr is a terminal)
-    links : :class:`~teamkf.simulation.links.LinkModel` (unreliable links; needs path="runtime").
+        bit for bit.
+    scheduler : None, "serial", "local", str, Client or cluster
+        None or "serial": this process; "local": an embedded Dask LocalCluster, one
+        single-threaded worker per core; a Dask scheduler address, a ``distributed.Client`` or a cluster.
+        One chunk per task, retried (3 times) when a worker is lost; bit-for-bit the serial result.
+    progress : bool or None
+        A progress bar on stderr (None: only when stderr is a terminal).
+    links : LinkModel or None
+        Unreliable links (:class:`~teamkf.simulation.links.LinkModel`; needs path="runtime").
         Run r's link events come from its own stream (seeded by ``rng``), so
         the numbers do not depend on the batch, the chunk or the worker; the
         per-edge packet counts are in each result's ``links`` field.
 
+    Returns
+    -------
+    dict of str to MonteCarloResult
+        One result per design, under the design's name: the mean cost per step and in total,
+        with standard errors and 95 % intervals (``result["mtmse"].ci95``).
+
     Examples
     --------
-    >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph
-    >>> from teamkf.estimators.kalman import design_centralized
+    >>> from teamkf import LinearGaussianSystem, TeamCost, design_centralized, monte_carlo
     >>> sys_ = LinearGaussianSystem.platoon(3)
     >>> d = design_centralized(sys_, TeamCost.platoon(3, 1.0), horizon=5)
     >>> a = monte_carlo({"kf": d}, 5, 300, rng=1, batch=100, chunk=100)["kf"]

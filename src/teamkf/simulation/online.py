@@ -20,14 +20,34 @@ __all__ = ["run_online"]
 def run_online(agents: Sequence[OnlineAgent], y: Sequence[Any]) -> FloatArray:
     """Step every agent over the horizon of ``y``.
 
+    Agent i receives y_j(s) at step s + its arrival lag, as the design's information
+    structure says, and outputs ẑ_i(k) from what it holds.
+
     Parameters
     ----------
-    agents : one online agent per team member (``design.agents()``)
-    y : list over agents of (n_runs, n_steps, d_y^j) measurements
+    agents : sequence of online agents
+        One per team member (``design.agents()``).
+    y : list over agents of (n_runs, n_steps, d_y^j) arrays
+        The measurements.
 
     Returns
     -------
-    z : (n_runs, n_steps, n_agents * d_z) estimates, agent-major in the last axis
+    z : (n_runs, n_steps, n_agents * d_z) array
+        The estimates, agent-major in the last axis.
+
+    See Also
+    --------
+    run_graph : agents that exchange messages over the graph instead.
+
+    Examples
+    --------
+    >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph, design_mtmse
+    >>> system, cost, graph = LinearGaussianSystem.platoon(4), TeamCost.platoon(4, lam=100.0), CommGraph.line(4, delay=1)
+    >>> from teamkf import sample, run_online
+    >>> mtmse = design_mtmse(system, cost, graph, horizon=30)
+    >>> x, y = sample(system, 30, n_runs=5, rng=1)
+    >>> run_online(mtmse.agents(), y).shape
+    (5, 30, 4)
     """
     from .. import _validation as V
 

@@ -214,10 +214,34 @@ def sample(
 ) -> tuple[FloatArray, list[FloatArray]]:
     """Draw x(0:T-1) and every y_i(0:T-1) for ``n_runs`` runs (see :func:`sample_paths`).
 
+    x(0) ~ N(0, Σ_x), x(k+1) = A x(k) + w(k), y_i(k) = C_i x(k) + v_i(k), with
+    w(k) ~ N(0, Q) and v(k) ~ N(0, R) independent.
+
+    Parameters
+    ----------
+    system : LinearGaussianSystem
+        The process x(k+1) = A x(k) + w(k) and the agents' measurements y_i(k) = C_i x(k) + v_i(k).
+    n_steps : int
+        The number of steps T.
+    n_runs : int
+        The number of independent runs (paths).
+    rng : int, SeedSequence, Generator or None
+        The seed: run r uses the counter-based stream ``RunStreams(rng).generator(r)``, so the
+        first runs of a larger draw are the same numbers.
+
     Returns
     -------
-    x : (n_runs, n_steps, d_x)
-    y : list over agents of (n_runs, n_steps, d_y^i)
+    x : (n_runs, n_steps, d_x) array
+        The states.
+    y : list over agents of (n_runs, n_steps, d_y^i) arrays
+        Each agent's measurements.
+
+    Examples
+    --------
+    >>> from teamkf import LinearGaussianSystem, sample
+    >>> x, y = sample(LinearGaussianSystem.platoon(4), 50, n_runs=10, rng=1)
+    >>> x.shape, len(y), y[0].shape
+    ((10, 50, 4), 4, (10, 50, 4))
     """
     p = sample_paths(system, n_steps, n_runs, rng=rng)
     return p.x, p.y

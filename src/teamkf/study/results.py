@@ -160,6 +160,25 @@ class SweepResult:
                 df[c] = df[c].astype("float64")  # None (analytic values) -> NaN
         return df
 
+    def __repr__(self) -> str:
+        """One screen at any size: the grid, the estimators and the first rows' costs (``.to_pandas()`` for all)."""
+        from .._repr import MAX_REPR_LINES, format_value
+
+        grid = ", ".join(
+            f"{k} ∈ {{{', '.join(map(str, self.grid_values(k)[:6]))}{', ...' if len(self.grid_values(k)) > 6 else ''}}}" for k in self.grid_keys
+        )
+        head = f"SweepResult({self.n_points} points × {len(self.estimators)} estimators ({', '.join(self.estimators)}); {grid or 'no grid'}"
+        lines = [head + (f"; from {self.path}" if self.path is not None else "") + ")"]
+        y = self.cost_key
+        shown = self.rows[: MAX_REPR_LINES - 2]
+        for r in shown:
+            at = ", ".join(f"{k}={r.get(k)}" for k in self.grid_keys)
+            ci = f" [{format_value(r['ci95_low'])}, {format_value(r['ci95_high'])}]" if r.get("ci95_low") is not None else ""
+            lines.append(f"  {at:<24} {r['estimator']:<14} {y} = {format_value(r.get(y))}{ci}")
+        if len(self.rows) > len(shown):
+            lines.append(f"  ... {len(self.rows) - len(shown)} more rows (.to_pandas() has them all)")
+        return "\n".join(lines)
+
     def _repr_html_(self) -> str:
         from .._repr import html_table
 
@@ -195,8 +214,15 @@ class SweepResult:
         Returns
         -------
         The matplotlib axes.
+
+        Notes
+        -----
+        Each estimator keeps its family's colour (:func:`~teamkf.plotting.family_color`), the same in
+        every plot; the other grid keys' values differ by marker and line style. Monte Carlo values
+        get error bars (their 95 % interval); an axis of integer values gets integer ticks; the legend
+        sits to the right of the axes, off the data.
         """
-        from ..plotting import _pyplot
+        from ..plotting import _pyplot, family_style, legend_outside
 
         x = self.grid_keys[0] if x is None else x
         self._check_key(x, "x")
@@ -207,7 +233,7 @@ class SweepResult:
         ycol = f"rel_to_{baseline}_pct" if baseline is not None else y
         plt = _pyplot()
         if ax is None:
-            _, ax = plt.subplots(figsize=(6, 4))
+            _, ax = plt.subplots(figsize=(7.5, 4), layout="constrained")
         others = [k for k in self.grid_keys if k != x]
         lo_col, hi_col = ("mc_ci95_low", "mc_ci95_high") if y == "mc_cost" else ("ci95_low", "ci95_high")
         groups: dict[tuple[Any, ...], list[dict[str, Any]]] = {}
@@ -218,6 +244,8 @@ class SweepResult:
         xvalues = list(_unique(r[x] for r in self.rows))
         numeric = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in xvalues)
         pos = {v: (float(v) if numeric else float(k)) for k, v in enumerate(xvalues)}
+        variants = list(_unique(gkey[1:] for gkey in groups))  # the other keys' values: a marker and a line style each
+        markers, styles = ("o", "s", "^", "D", "v", "P"), ("-", "--", ":", "-.")
         for gkey, grows in groups.items():
             pts = sorted(((pos[r[x]], r) for r in grows if r.get(ycol) is not None), key=lambda t: t[0])
             if not pts:
@@ -225,11 +253,17 @@ class SweepResult:
             xs = [p[0] for p in pts]
             ys = [float(p[1][ycol]) for p in pts]
             label = gkey[0] + (f" ({', '.join(f'{k}={v}' for k, v in zip(others, gkey[1:]))})" if others else "")
-            (line,) = ax.plot(xs, ys, marker="o", label=label)
+            v = variants.index(gkey[1:])
+            style = {**family_style(gkey[0]), "marker": markers[v % len(markers)]}
+            if others:
+                style["linestyle"] = styles[v % len(styles)]
             if baseline is None and all(p[1].get(lo_col) is not None for p in pts):
-                ax.fill_between(
-                    xs, [float(p[1][lo_col]) for p in pts], [float(p[1][hi_col]) for p in pts], color=line.get_color(), alpha=0.2, linewidth=0
-                )
+                lo = [float(p[1][lo_col]) for p in pts]
+                hi = [float(p[1][hi_col]) for p in pts]
+                yerr = [[max(0.0, a - b) for a, b in zip(ys, lo)], [max(0.0, b - a) for a, b in zip(ys, hi)]]
+                ax.errorbar(xs, ys, yerr=yerr, capsize=3, label=label + " (95 % interval)", **style)
+            else:
+                ax.plot(xs, ys, label=label, **style)
         if baseline is not None:
             ax.axhline(0.0, color="0.5", linewidth=0.8, linestyle="--")
         xvals = list(pos.values())
@@ -238,12 +272,24 @@ class SweepResult:
             ax.set_xticklabels([str(v) for v in xvalues])
         elif logx is True or (logx == "auto" and xvals and min(xvals) > 0 and max(xvals) / min(xvals) >= 100):
             ax.set_xscale("log")
+            ax.set_xticks(xvals)
+            ax.set_xticklabels([f"{v:g}" for v in xvals])
+            ax.xaxis.set_minor_locator(plt.NullLocator())
+        elif all(float(v).is_integer() for v in xvalues):  # an integer axis (delays, sizes): integer ticks only
+            from matplotlib.ticker import MaxNLocator
+
+            if len(xvals) <= 12:
+                ax.set_xticks(xvals)
+                ax.set_xticklabels([f"{int(v)}" for v in xvals])
+            else:
+                ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.set_xlabel(x)
         label = {"total_cost": "J_T", "average_cost": "average cost", "mc_cost": "Monte Carlo J_T"}.get(y, y)
         ax.set_ylabel(f"100 ({label} − {label}[{baseline}]) / {label}[{baseline}]  [%]" if baseline is not None else label)
         if title:
             ax.set_title(title)
-        ax.legend()
+        ax.grid(True, color="0.92")
+        legend_outside(ax)
         return ax
 
     # -- helpers --------------------------------------------------------------
@@ -414,17 +460,21 @@ class CostCurves:
         return pd.DataFrame.from_records(recs, columns=["estimator", "method", "t", "stage_cost", "sem"])
 
     def plot(self, ax: Any = None, *, log: bool = False, band: bool = True, cumulative: bool = False) -> Any:
-        """Cost against time, one line per estimator (with a 95 % band for Monte Carlo curves); returns the axes."""
-        from ..plotting import _pyplot
+        """Cost against time, one line per estimator (with a 95 % band for Monte Carlo curves); returns the axes.
+
+        Each estimator keeps its family's colour (:func:`~teamkf.plotting.family_color`); the legend
+        sits to the right of the axes.
+        """
+        from ..plotting import _pyplot, family_style, legend_outside
 
         plt = _pyplot()
         if ax is None:
-            _, ax = plt.subplots(figsize=(6, 4))
+            _, ax = plt.subplots(figsize=(7.5, 4), layout="constrained")
         assert self.stage_sem is not None and self.methods is not None
         for n, m, c, s in zip(self.estimators, self.methods, self.stage_costs, self.stage_sem):
             t = np.arange(1, c.shape[0] + 1)
             y = np.cumsum(c) if cumulative else c
-            (line,) = ax.plot(t, y, label=n if m == "analytic" else f"{n} ({m})")
+            (line,) = ax.plot(t, y, label=n if m == "analytic" else f"{n} ({m})", **family_style(n))
             if band and s is not None and not cumulative:
                 ax.fill_between(t, c - 1.959963984540054 * s, c + 1.959963984540054 * s, color=line.get_color(), alpha=0.2, linewidth=0)
         ax.set_xlabel("t")
@@ -433,5 +483,5 @@ class CostCurves:
             ax.set_yscale("log")
         if self.title:
             ax.set_title(self.title)
-        ax.legend()
+        legend_outside(ax)
         return ax

@@ -95,21 +95,48 @@ def _fail(key: str, message: str) -> ScenarioError:
 class Scenario(ScenarioBase):
     """A validated team scenario (kind ``"team"``): everything needed to design and compare estimators.
 
-    Attributes
+    Read one with :func:`~teamkf.load_scenario` (a TOML or JSON file) or
+    :func:`~teamkf.scenario_from_dict` (plain data); the format is in the guide's
+    "Scenario files and the command line" page.
+
+    Parameters
     ----------
     name : str
+        The scenario's name (tables and file names use it).
     horizon : int or None
         T, or None for the infinite-horizon (steady-state) design.
     system : LinearGaussianSystem
+        The process x(k+1) = A x(k) + w(k) and the agents' measurements y_i(k) = C_i x(k) + v_i(k).
     cost : TeamCost
+        The team cost c(x, ẑ) = (L x - ẑ)ᵀ S (L x - ẑ).
     graph : CommGraph
+        The communication graph: agent i hears agent j over edge (j, i) after its integer delay τ_ji.
     information : InformationStructure
         From ``[information]`` (checked against the graph) or the graph's full structure.
     estimators : tuple of str
+        The registered families compared by ``teamkf evaluate``.
     raw : dict
         The scenario as read (plain data); :meth:`updated` starts from it.
     source : str
         Where it came from (a path, or ``"<dict>"``).
+    options : mapping
+        Each family's checked options (its scenario table, defaults filled in).
+    families : mapping
+        The family records of the estimators, carried so that a Dask worker can design them.
+
+    Examples
+    --------
+    >>> from teamkf import scenario_from_dict
+    >>> sc = scenario_from_dict({
+    ...     "name": "two-sensors", "horizon": 20,
+    ...     "system": {"A": [[0.9]], "Q": 1.0, "Sigma_x": 1.0},
+    ...     "agents": [{"C": [[1.0]], "R": 0.5}, {"C": [[1.0]], "R": 2.0}],
+    ...     "graph": {"kind": "complete", "delay": 1},
+    ...     "cost": {"kind": "mse"},
+    ...     "estimators": ["mtmse", "mmse", "centralized"],
+    ... })
+    >>> sc.n_agents, sc.estimators, sc.graph.n_agents
+    (2, ('mtmse', 'mmse', 'centralized'), 2)
     """
 
     name: str
@@ -125,6 +152,36 @@ class Scenario(ScenarioBase):
     families: Mapping[str, Any] = field(repr=False, default_factory=dict)
 
     kind: ClassVar[str] = "team"
+
+    def __repr__(self) -> str:
+        """One short paragraph: name, size, horizon, graph, estimators and source (never the matrices)."""
+        from .._repr import short_repr
+
+        fields = [
+            ("name", self.name),
+            ("agents", self.n_agents),
+            ("d_x", self.system.dx),
+            ("horizon", self.horizon),
+            ("graph", self.graph),
+            ("estimators", self.estimators),
+            ("source", self.source),
+        ]
+        return short_repr(self, fields)
+
+    def _repr_html_(self) -> str:
+        from .._repr import html_table
+
+        rows: list[dict[str, Any]] = [
+            {"field": "name", "value": self.name},
+            {"field": "agents", "value": self.n_agents},
+            {"field": "state dimension d_x", "value": self.system.dx},
+            {"field": "horizon T", "value": "∞ (steady state)" if self.horizon is None else self.horizon},
+            {"field": "graph", "value": repr(self.graph)},
+            {"field": "common lag", "value": self.information.common_lag},
+            {"field": "estimators", "value": ", ".join(self.estimators)},
+            {"field": "source", "value": self.source},
+        ]
+        return html_table(["field", "value"], rows, caption=f"teamkf scenario: {self.name}")
 
     @property
     def n_agents(self) -> int:
@@ -212,6 +269,16 @@ class Scenario(ScenarioBase):
 def load_scenario(path: str | Path) -> Scenario:
     """Read and validate a scenario file (TOML, or JSON when the name ends in ``.json``).
 
+    Parameters
+    ----------
+    path : str or Path
+        The file. The packaged scenarios (``teamkf --help`` lists them) are in ``teamkf/scenarios/``.
+
+    Returns
+    -------
+    Scenario
+        The validated scenario.
+
     Raises
     ------
     FileNotFoundError
@@ -219,6 +286,14 @@ def load_scenario(path: str | Path) -> Scenario:
     ScenarioError
         On a syntax error (with the file name, line and column) or an invalid
         scenario (the message starts with the key path).
+
+    Examples
+    --------
+    >>> from importlib.resources import files
+    >>> from teamkf import load_scenario
+    >>> sc = load_scenario(files("teamkf") / "scenarios" / "platoon-4.toml")
+    >>> sc.name, sc.n_agents, sc.horizon
+    ('platoon-4', 4, 100)
     """
     V.instance(path, "path", (str, Path), "the path of a scenario file (a string or a Path)")
     p = Path(path)
@@ -313,9 +388,40 @@ def check_depth(data: Any, source: str = "scenario") -> None:
 def scenario_from_dict(d: Mapping[str, Any], source: str = "<dict>", *, families: Mapping[str, Any] | None = None) -> Scenario:
     """Validate plain data (as read from TOML or JSON) into a :class:`Scenario`.
 
-    ``families`` adds family records to the registry's for this scenario (a
-    scenario carries the records of its estimators, so that a Dask worker
-    without the user's registrations can still design them).
+    Parameters
+    ----------
+    d : mapping
+        The scenario's tables, as a TOML or JSON file would give them.
+    source : str
+        Where the data came from, for error messages.
+    families : mapping of str to Family, optional
+        Family records added to the registry's for this scenario (a scenario
+        carries the records of its estimators, so that a Dask worker without
+        the user's registrations can still design them).
+
+    Returns
+    -------
+    Scenario
+        The validated scenario.
+
+    Raises
+    ------
+    ScenarioError
+        On an invalid scenario; the message starts with the key path (``system.A: ...``).
+
+    Examples
+    --------
+    >>> from teamkf import scenario_from_dict
+    >>> sc = scenario_from_dict({
+    ...     "name": "two-sensors", "horizon": 20,
+    ...     "system": {"A": [[0.9]], "Q": 1.0, "Sigma_x": 1.0},
+    ...     "agents": [{"C": [[1.0]], "R": 0.5}, {"C": [[1.0]], "R": 2.0}],
+    ...     "graph": {"kind": "complete", "delay": 1},
+    ...     "cost": {"kind": "mse"},
+    ...     "estimators": ["mtmse", "mmse", "centralized"],
+    ... })
+    >>> sc.name, sc.horizon, sc.system.dx
+    ('two-sensors', 20, 1)
     """
     if not isinstance(d, Mapping):
         raise ScenarioError(f"scenario: expected a table of keys, found {type(d).__name__}")

@@ -99,6 +99,11 @@ def design_cikf(
         OpenBLAS's own threads, which can make a shared machine ten times slower (``docs/cikf.md``).
         None leaves the BLAS setting alone and uses no pool.
 
+    Returns
+    -------
+    CIKFDesign
+        The gains and error covariances, with the exact stage costs of the chosen form.
+
     Examples
     --------
     >>> from teamkf.study.random_field import random_field

@@ -32,20 +32,46 @@ __all__ = ["CIKFDesign", "CIKFAgent", "tracking_bound"]
 class CIKFDesign(Design):
     r"""Gains (Algorithm 2, Theorem 4) and error covariances (corrected eqs. 41-47) of the CIKF.
 
-    Attributes
+    Built by :func:`~teamkf.design_cikf`.
+
+    Parameters
     ----------
-    system, cost, graph
+    estimator, horizon, system, cost, stage_costs, average_cost, info
+        As in :class:`~teamkf.Design`: the family name, T (None for the steady state), the
+        model, the team cost, the exact E[c(x(k), ẑ(k))] per step and the plain-data facts.
+    graph : CommGraph
+        The communication graph: agent i hears agent j over edge (j, i) after its integer delay τ_ji.
     model : PseudoStateModel
-    form : "filter" (ẑ_n(k) = L_n x̂^n_{k|k}) or "predictor" (ẑ_n(k) = L_n x̂^n_{k|k-1})
-    rcond : float             pseudo-inverse cut-off of Theorem 4
-    neighbors : tuple         Ω_n, in the order of the consensus gain blocks
+        The pseudo-state model of Section III (each agent's reduced coordinates).
+    form : "filter" or "predictor"
+        ẑ_n(k) = L_n x̂^n_{k|k} (filter) or L_n x̂^n_{k|k-1} (predictor).
+    rcond : float
+        The pseudo-inverse cut-off of Theorem 4.
+    neighbors : tuple
+        Ω_n, in the order of the consensus gain blocks.
     B_cons : tuple over steps of tuples over agents of (r, d_n r) arrays
         [B_r^{n l_1}, ..., B_r^{n l_d}] in reduced coordinates.
-    B_innov : tuple over steps of tuples over agents of (r, M_n) arrays    B_u^n
-    K : (T, N, M, r)          state gains K_r^n
-    Sigma_pred, Sigma_filt : (T, N, M, M)   agent n's Σ^{nn}_{k|k-1} and Σ^{nn}_{k|k}
-    P_pred_trace : (T, N)     tr P^{nn}_{k|k-1} (pseudo-state MSE, reduced = full coordinates)
-    stage_costs : (T,)        E[c(x(k), ẑ(k))] of the chosen form (sum over agents of the MSE for the default cost)
+    B_innov : tuple over steps of tuples over agents of (r, M_n) arrays
+        The innovation gains B_u^n.
+    K : (T, N, M, r) array
+        The state gains K_r^n.
+    Sigma_pred, Sigma_filt : (T, N, M, M) arrays
+        Agent n's Σ^{nn}_{k|k-1} and Σ^{nn}_{k|k}.
+    P_pred_trace : (T, N) array
+        tr P^{nn}_{k|k-1} (pseudo-state MSE, reduced = full coordinates).
+
+    See Also
+    --------
+    design_cikf
+
+    Examples
+    --------
+    >>> from teamkf import design_cikf
+    >>> from teamkf.study.random_field import random_field
+    >>> system, graph = random_field(15, 6, rng=1)
+    >>> d = design_cikf(system, None, graph, horizon=5)
+    >>> d.K.shape[:2], len(d.neighbors)
+    ((5, 6), 6)
     """
 
     graph: CommGraph
