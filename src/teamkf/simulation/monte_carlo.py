@@ -328,7 +328,7 @@ def _run_chunk(spec: _Spec, first_block: int, last_block: int) -> dict[str, Any]
                 from .links import link_streams
 
                 seq = np.random.SeedSequence(spec.streams.entropy, spawn_key=spec.streams.spawn_key)
-                lstreams = link_streams(seq, b)[a:b]
+                lstreams = link_streams(seq, b, first_run=a)
             for name, d in spec.designs.items():
                 c = _block_costs(d, paths, spec.path, spec.graph, spec.links, lstreams, lstats.get(name))
                 tot = c.sum(axis=1)
