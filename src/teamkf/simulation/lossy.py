@@ -178,17 +178,45 @@ def relay_arrivals(out: LinkOutcomes, n: int, T: int, max_jitter: int) -> np.nda
 # ---------------------------------------------------------------------------
 # MTMSE / MMSE agents with the missed-packet rule, all runs at once
 # ---------------------------------------------------------------------------
-_CACHES: "weakref.WeakKeyDictionary[Any, dict]" = weakref.WeakKeyDictionary()
-_CACHE_MAX = 200_000
+_FINGERPRINTS: "weakref.WeakKeyDictionary[Any, bytes]" = weakref.WeakKeyDictionary()
+_CACHES: dict[bytes, dict] = {}
+_CACHE_MAX = 50_000  # fill gains kept per model (each (targets x window) doubles)
+
+
+def _fingerprint(design: Any) -> bytes:
+    """What the fill gains depend on: the model, the predictor covariances and the information structure.
+
+    MTMSE and MMSE designs of one scenario share it (the same Kalman predictor), so they share gains.
+    """
+    import hashlib
+
+    try:
+        fp = _FINGERPRINTS.get(design)
+    except TypeError:  # pragma: no cover - not weakly referenceable
+        fp = None
+    if fp is None:
+        sys, st = design.system, design.structure
+        h = hashlib.sha256()
+        for arr in (sys.A, sys.Q, sys.Sigma_x, *sys.C, *sys.R, design.P_pred):
+            a = np.ascontiguousarray(arr, dtype=float)
+            h.update(repr(a.shape).encode())
+            h.update(a.tobytes())
+        h.update(repr((design.horizon, st.common_lag, [list(map(tuple, loc)) for loc in st.local])).encode())
+        fp = h.digest()
+        try:
+            _FINGERPRINTS[design] = fp
+        except TypeError:  # pragma: no cover
+            pass
+    return fp
 
 
 def _design_cache(design: Any) -> dict:
-    try:
-        c = _CACHES.get(design)
-        if c is None:
-            c = _CACHES[design] = {"sigma": {}, "fill": {}}
-    except TypeError:  # pragma: no cover - a design that cannot be weakly referenced: no reuse across blocks
-        c = {"sigma": {}, "fill": {}}
+    fp = _fingerprint(design)
+    c = _CACHES.get(fp)
+    if c is None:
+        if len(_CACHES) >= 8:  # a few models at a time (a sweep moves on)
+            _CACHES.pop(next(iter(_CACHES)))
+        c = _CACHES[fp] = {"sigma": {}, "fill": {}}
     if len(c["fill"]) > _CACHE_MAX:  # bounded: patterns of lossy runs repeat, but need not
         c["fill"].clear()
     return c
@@ -243,7 +271,12 @@ class _TeamBatch:
 
     # --- the missed-packet rule ------------------------------------------------------
     def _fill(self, innov: FloatArray, targets: list[tuple[int, int]], lost: np.ndarray, a: int, k: int, who: int, preds: Any = None) -> None:
-        """Overwrite, in ``innov`` (R, Σ d_target), the innovations of the lost targets by their expectation."""
+        """Overwrite, in ``innov`` (R, Σ d_target), the innovations of the lost targets by their expectation.
+
+        Run r's held window measurements H_r give ỹ_W masked to H_r (zeros elsewhere) and the gain
+        G(H_r) = Σ_W[targets, H] Σ_W[H, H]^-1 (zero columns outside H), so the expected innovations are
+        G(H_r) ỹ_W(r); the gains of the patterns present are gathered per run.
+        """
         sys = self.sys
         n, w, dyt = sys.n_agents, k - a + 1, sys.dy_total
         rows = np.flatnonzero(lost.any(axis=1))
@@ -254,56 +287,55 @@ class _TeamBatch:
                 preds.append(preds[-1] @ sys.A_at(s).T)
         else:
             preds = [p[rows] for p in preds]
+        bits = held.transpose(0, 2, 1).reshape(rows.size, -1)  # window order: step, then agent
+        mask = np.repeat(bits, np.tile(self.dy, w), axis=1)  # (m, w d_y) per window coordinate
         yw = np.empty((rows.size, w * dyt))
         for u in range(w):
             s = a + u
             yw[:, u * dyt : (u + 1) * dyt] = np.concatenate([self.ys[j][rows, s] for j in range(n)], axis=1) - preds[u] @ sys.C_stack(s).T
-        bits = held.transpose(0, 2, 1).reshape(rows.size, -1)  # window order: step, then agent
+        yw = np.where(mask, yw, 0.0)
         if bits.shape[1] <= 62:
             codes = bits @ (np.int64(1) << np.arange(bits.shape[1], dtype=np.int64))
+            uniq, first, inv = np.unique(codes, return_index=True, return_inverse=True)
+            keys = [(who, a, k, int(c)) for c in uniq]
         else:
-            codes = np.packbits(bits, axis=1).view(np.dtype((np.void, -(-bits.shape[1] // 8)))).ravel()
-        uniq, inv = np.unique(codes, return_inverse=True)
-        order = np.argsort(inv, kind="stable")
-        bounds = np.searchsorted(inv[order], np.arange(len(uniq) + 1))
-        tcols = np.cumsum([0] + [self.dy[j] for j, _ in targets])
-        for g in range(len(uniq)):
-            sel = order[bounds[g] : bounds[g + 1]]
-            key = (who, a, k, uniq[g].item() if bits.shape[1] <= 62 else bytes(uniq[g]))
-            entry = self.cache["fill"].get(key)
-            if entry is None:
-                entry = self.cache["fill"][key] = self._gain(a, k, bits[sel[0]].reshape(w, n), targets, tcols)
-            hpos, cols, G = entry
-            if cols.size:
-                innov[rows[sel][:, None], cols] = yw[sel][:, hpos] @ G.T
+            packed = np.packbits(bits, axis=1)
+            uniq, first, inv = np.unique(packed, axis=0, return_index=True, return_inverse=True)
+            keys = [(who, a, k, bytes(c)) for c in uniq]
+        inv = inv.ravel()
+        fills = self.cache["fill"]
+        todo = [g for g, key in enumerate(keys) if key not in fills]
+        if todo:
+            G = self._gains(a, k, mask[first[todo]], targets)
+            for q, g in enumerate(todo):
+                fills[keys[g]] = G[q]
+        Gs = np.stack([fills[key] for key in keys])[inv]  # (m, Σ d_target, w d_y)
+        est = np.einsum("rtw,rw->rt", Gs, yw)
+        tcols = np.repeat(lost[rows], [self.dy[j] for j, _ in targets], axis=1)
+        innov[rows] = np.where(tcols, est, innov[rows])
 
-    def _gain(self, a: int, k: int, held: np.ndarray, targets: list[tuple[int, int]], tcols: np.ndarray) -> tuple[np.ndarray, np.ndarray, FloatArray]:
-        """(held window positions, target columns of the wanted ones, G = Σ_mh Σ_hh^-1) for a pattern."""
+    def _gains(self, a: int, k: int, mask: np.ndarray, targets: list[tuple[int, int]]) -> FloatArray:
+        """G(H) = Σ_W[targets, H] Σ_W[H, H]^-1 with zero columns outside H, for each row of ``mask`` (P, w d_y).
+
+        Solved as one batched system: M = Σ_W on H x H and the identity elsewhere, M X = 1_H Σ_W[:, targets].
+        """
         sys, dyt = self.sys, self.sys.dy_total
+        skey = (a, k)
+        Sigma_W = self.cache["sigma"].get(skey)
+        if Sigma_W is None:
+            from ..estimators.team import window_covariances
 
-        def positions(keys: list[tuple[int, int]]) -> np.ndarray:
-            parts = [(s - a) * dyt + self.off[j] + np.arange(self.dy[j]) for (j, s) in keys]
-            return np.concatenate(parts).astype(int) if parts else np.zeros(0, dtype=int)
-
-        hkeys = [(j, a + u) for u in range(held.shape[0]) for j in range(held.shape[1]) if held[u, j]]
-        hkeys.sort()
-        wanted = [q for q, (j, s) in enumerate(targets) if not held[s - a, j]]
-        cols = np.concatenate([np.arange(tcols[q], tcols[q + 1]) for q in wanted]).astype(int) if wanted else np.zeros(0, dtype=int)
-        h, m = positions(hkeys), positions([targets[q] for q in wanted])
-        if h.size and m.size:
-            skey = (a, k)
-            Sigma_W = self.cache["sigma"].get(skey)
-            if Sigma_W is None:
-                from ..estimators.team import window_covariances
-
-                d = self.d
-                P_a = sys.Sigma_x if a == 0 else (d.P_pred if d.horizon is None else d.P_pred[a])
-                Sigma_W = self.cache["sigma"][skey] = window_covariances(sys, k, a, P_a)[0]
-            cf = sla.cho_factor(Sigma_W[np.ix_(h, h)], lower=True, check_finite=False)
-            G = sla.cho_solve(cf, Sigma_W[np.ix_(h, m)], check_finite=False).T
-        else:
-            G = np.zeros((m.size, h.size))
-        return h, cols, G
+            d = self.d
+            P_a = sys.Sigma_x if a == 0 else (d.P_pred if d.horizon is None else d.P_pred[a])
+            Sigma_W = self.cache["sigma"][skey] = window_covariances(sys, k, a, P_a)[0]
+        tpos = np.concatenate([(s - a) * dyt + self.off[j] + np.arange(self.dy[j]) for (j, s) in targets]).astype(int)
+        hh = mask[:, :, None] & mask[:, None, :]
+        M = np.where(hh, Sigma_W[None], 0.0)
+        idx = np.arange(Sigma_W.shape[0])
+        M[:, idx, idx] = np.where(mask, M[:, idx, idx], 1.0)
+        B = np.where(mask[:, :, None], Sigma_W[None][:, :, tpos], 0.0)
+        X = np.linalg.solve(M, B)  # (P, w d_y, Σ d_target); zero rows outside H
+        return np.where(mask[:, None, :], X.transpose(0, 2, 1), 0.0)  # type: ignore[no-any-return]
 
 
 def _is_team_relay(ag: Any) -> bool:
