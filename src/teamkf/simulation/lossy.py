@@ -227,6 +227,7 @@ class _TeamBatch:
 
     def __init__(self, design: Any, i: int, ys: Sequence[FloatArray], arrivals: np.ndarray):
         self.d, self.i, self.ys, self.t = design, i, ys, arrivals  # arrivals: (R, n, T)
+        self.Y = np.concatenate(ys, axis=2)  # (R, T, Σ d_y): y(s) stacked
         self.sys = design.system
         self.c = design.structure.common_lag
         self.cache = _design_cache(design)
@@ -244,7 +245,7 @@ class _TeamBatch:
         n = sys.n_agents
         while self.a < k - c + 1:  # fold the newly common y(a) (eq. 20)
             a = self.a
-            y = np.concatenate([self.ys[j][:, a] for j in range(n)], axis=1)
+            y = self.Y[:, a]
             innov = y - self.xhat @ sys.C_stack(a).T
             lost = self.t[:, :, a] > k
             if lost.any():
@@ -275,7 +276,7 @@ class _TeamBatch:
 
         Run r's held window measurements H_r give ỹ_W masked to H_r (zeros elsewhere) and the gain
         G(H_r) = Σ_W[targets, H] Σ_W[H, H]^-1 (zero columns outside H), so the expected innovations are
-        G(H_r) ỹ_W(r); the gains of the patterns present are gathered per run.
+        G(H_r) ỹ_W(r): one matrix product per pattern present, over the runs that have it.
         """
         sys = self.sys
         n, w, dyt = sys.n_agents, k - a + 1, sys.dy_total
@@ -289,10 +290,8 @@ class _TeamBatch:
             preds = [p[rows] for p in preds]
         bits = held.transpose(0, 2, 1).reshape(rows.size, -1)  # window order: step, then agent
         mask = np.repeat(bits, np.tile(self.dy, w), axis=1)  # (m, w d_y) per window coordinate
-        yw = np.empty((rows.size, w * dyt))
-        for u in range(w):
-            s = a + u
-            yw[:, u * dyt : (u + 1) * dyt] = np.concatenate([self.ys[j][rows, s] for j in range(n)], axis=1) - preds[u] @ sys.C_stack(s).T
+        yw = self.Y[rows, a : k + 1] - np.stack([p @ sys.C_stack(a + u).T for u, p in enumerate(preds)], axis=1)
+        yw = yw.reshape(rows.size, w * dyt)
         yw = np.where(mask, yw, 0.0)
         if bits.shape[1] <= 62:
             codes = bits @ (np.int64(1) << np.arange(bits.shape[1], dtype=np.int64))
@@ -309,10 +308,15 @@ class _TeamBatch:
             G = self._gains(a, k, mask[first[todo]], targets)
             for q, g in enumerate(todo):
                 fills[keys[g]] = G[q]
-        Gs = np.stack([fills[key] for key in keys])[inv]  # (m, Σ d_target, w d_y)
-        est = np.einsum("rtw,rw->rt", Gs, yw)
-        tcols = np.repeat(lost[rows], [self.dy[j] for j, _ in targets], axis=1)
-        innov[rows] = np.where(tcols, est, innov[rows])
+        order = np.argsort(inv, kind="stable")  # runs grouped by pattern: one product per pattern
+        bounds = np.concatenate([[0], np.cumsum(np.bincount(inv, minlength=len(keys)))])
+        ys_ = yw[order]
+        est = np.empty((rows.size, innov.shape[1]))
+        for g, key in enumerate(keys):
+            est[bounds[g] : bounds[g + 1]] = ys_[bounds[g] : bounds[g + 1]] @ fills[key].T
+        tcols = np.repeat(lost[rows[order]], [self.dy[j] for j, _ in targets], axis=1)
+        r_o = rows[order]
+        innov[r_o] = np.where(tcols, est, innov[r_o])
 
     def _gains(self, a: int, k: int, mask: np.ndarray, targets: list[tuple[int, int]]) -> FloatArray:
         """G(H) = Σ_W[targets, H] Σ_W[H, H]^-1 with zero columns outside H, for each row of ``mask`` (P, w d_y).
@@ -345,6 +349,23 @@ def _is_team_relay(ag: Any) -> bool:
     return type(ag) is MeasurementRelay and type(ag.inner) is TeamAgent and not ag.omniscient
 
 
+#: the link events of the last block (its designs share them: same streams, graph and links)
+_LAST: list[Any] = []
+
+
+def _events(streams: Sequence[Any], T: int, edges: list, links: Any, omni: tuple, n: int, relays: bool) -> tuple[LinkOutcomes, np.ndarray | None]:
+    """Outcomes (and relay arrivals) of a block, reused by the next design run on the same streams."""
+    if _LAST and _LAST[0] is streams and _LAST[1] == (T, tuple(edges), omni) and _LAST[2] is links:
+        out, t = _LAST[3], _LAST[4]
+    else:
+        u, jit = draw_link_events(streams, T, len(edges))
+        out, t = link_outcomes(links, edges, u, jit, omni), None
+    if relays and t is None:
+        t = relay_arrivals(out, n, T, links.max_jitter)
+    _LAST[:] = [streams, (T, tuple(edges), omni), links, out, t]  # holds ``streams``: its id cannot be reused meanwhile
+    return out, t
+
+
 def run_lossy(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray], links: Any, streams: Sequence[Any], stats: Any) -> FloatArray:
     """The lossy message-passing loop for a block of runs (see :func:`teamkf.simulation.links.pass_messages_lossy`)."""
     from ..estimators.base import pass_messages
@@ -352,14 +373,14 @@ def run_lossy(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray],
     n = graph.n_agents
     R, T = ys[0].shape[:2]
     edges = sorted(graph.edges)
-    omni = [bool(getattr(ag, "omniscient", False)) for ag in agents]
-    u, jit = draw_link_events(streams, T, len(edges))
-    out = link_outcomes(links, edges, u, jit, omni)
+    omni = tuple(bool(getattr(ag, "omniscient", False)) for ag in agents)
+    relays = not any(omni) and all(_is_team_relay(ag) for ag in agents)
+    out, t = _events(streams, T, edges, links, omni, n, relays)
     count_links(out, stats)
     if all(omni):  # the centralized bound: every y_j(k) at step k, whatever the links
         return pass_messages(agents, graph, ys)
-    if all(_is_team_relay(ag) for ag in agents):
-        t = relay_arrivals(out, n, T, links.max_jitter)
+    if relays:
+        assert t is not None
         team = [_TeamBatch(ag.inner.design, i, ys, t[:, i]) for i, ag in enumerate(agents)]
         z = np.stack([np.concatenate([tb.step(k) for tb in team], axis=1) for k in range(T)], axis=1)
         for i, tb in enumerate(team):
