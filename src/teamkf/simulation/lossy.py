@@ -291,17 +291,19 @@ class _TeamBatch:
         """
         sys = self.sys
         n, w, dyt = sys.n_agents, k - a + 1, sys.dy_total
-        rows = np.flatnonzero(lost.any(axis=1))
-        held = self.t[rows, :, a : k + 1] <= k  # (m, n, w)
+        anyl = lost.any(axis=1)
+        full = bool(anyl.all())
+        rows = np.arange(self.R) if full else np.flatnonzero(anyl)
+        held = self.t[:, :, a : k + 1] <= k if full else self.t[:, :, a : k + 1][rows] <= k  # (m, n, w)
         if preds is None:
-            preds = [self.xhat[rows]]
+            preds = [self.xhat if full else self.xhat[rows]]
             for s in range(a, k):
                 preds.append(preds[-1] @ sys.A_at(s).T)
         else:
-            preds = [p[rows] for p in preds]
+            preds = preds if full else [p[rows] for p in preds]
         bits = held.transpose(0, 2, 1).reshape(rows.size, -1)  # window order: step, then agent
         mask = np.repeat(bits, np.tile(self.dy, w), axis=1)  # (m, w d_y) per window coordinate
-        yw = self.Y[rows, a : k + 1] - np.stack([p @ self._C(a + u).T for u, p in enumerate(preds)], axis=1)
+        yw = (self.Y[:, a : k + 1] if full else self.Y[:, a : k + 1][rows]) - np.stack([p @ self._C(a + u).T for u, p in enumerate(preds)], axis=1)
         yw = yw.reshape(rows.size, w * dyt)
         yw = np.where(mask, yw, 0.0)
         if bits.shape[1] <= 62:
