@@ -181,6 +181,7 @@ def relay_arrivals(out: LinkOutcomes, n: int, T: int, max_jitter: int) -> np.nda
 _FINGERPRINTS: "weakref.WeakKeyDictionary[Any, bytes]" = weakref.WeakKeyDictionary()
 _CACHES: dict[bytes, dict] = {}
 _CACHE_MAX = 50_000  # fill gains kept per model (each (targets x window) doubles)
+_SLAB = 32  # runs per slab of the batched product that applies the fill gains
 
 
 def _fingerprint(design: Any) -> bytes:
@@ -217,8 +218,9 @@ def _design_cache(design: Any) -> dict:
         if len(_CACHES) >= 8:  # a few models at a time (a sweep moves on)
             _CACHES.pop(next(iter(_CACHES)))
         c = _CACHES[fp] = {"sigma": {}, "fill": {}}
-    if len(c["fill"]) > _CACHE_MAX:  # bounded: patterns of lossy runs repeat, but need not
+    if c.get("n_fill", 0) > _CACHE_MAX:  # bounded: patterns of lossy runs repeat, but need not
         c["fill"].clear()
+        c["n_fill"] = 0
     return c
 
 
@@ -310,21 +312,28 @@ class _TeamBatch:
             codes: Any = bits @ (np.int64(1) << np.arange(bits.shape[1], dtype=np.int64))
         else:
             codes = np.packbits(bits, axis=1).view(np.dtype((np.void, -(-bits.shape[1] // 8)))).ravel()
-        order = np.argsort(codes, kind="stable")  # runs grouped by pattern: one product per pattern
+        order = np.argsort(codes, kind="stable")  # runs grouped by pattern
         cs = codes[order]
-        starts = np.flatnonzero(np.concatenate([[True], cs[1:] != cs[:-1]]))
-        bounds = np.append(starts, rows.size)
-        keys = [(who, a, k, c.item() if isinstance(c, np.integer) else bytes(c)) for c in cs[starts]]
-        fills = self.cache["fill"]
-        todo = [g for g, key in enumerate(keys) if key not in fills]
+        first = np.concatenate([[True], cs[1:] != cs[:-1]])
+        starts = np.flatnonzero(first)
+        gid = np.cumsum(first) - 1  # pattern of each sorted run
+        uniq = cs[starts].tolist() if bits.shape[1] <= 62 else [bytes(c) for c in cs[starts]]
+        fills = self.cache["fill"].setdefault((who, a, k), {})
+        todo = [g for g, c in enumerate(uniq) if c not in fills]
         if todo:
             G = self._gains(a, k, mask[order[starts[todo]]], targets)
             for q, g in enumerate(todo):
-                fills[keys[g]] = G[q]
-        ys_ = yw[order]
-        est = np.empty((rows.size, innov.shape[1]))
-        for g, key in enumerate(keys):
-            est[bounds[g] : bounds[g + 1]] = ys_[bounds[g] : bounds[g + 1]] @ fills[key].T
+                fills[uniq[g]] = G[q]
+            self.cache["n_fill"] = self.cache.get("n_fill", 0) + len(todo)
+        # one batched product for all patterns: each pattern's runs in slabs of _SLAB rows (zero-padded)
+        sizes = np.diff(np.append(starts, rows.size))
+        nslab = -(-sizes // _SLAB)
+        pos = np.arange(rows.size) - starts[gid]
+        vid = (np.cumsum(nslab) - nslab)[gid] + pos // _SLAB
+        pad = np.zeros((int(nslab.sum()), _SLAB, yw.shape[1]))
+        pad[vid, pos % _SLAB] = yw[order]
+        Gs = np.stack([fills[c] for c in uniq])[np.repeat(np.arange(len(uniq)), nslab)]  # (slabs, Σ d_target, w d_y)
+        est = np.matmul(pad, Gs.transpose(0, 2, 1))[vid, pos % _SLAB]
         tcols = np.repeat(lost[rows[order]], [self.dy[j] for j, _ in targets], axis=1)
         r_o = rows[order]
         innov[r_o] = np.where(tcols, est, innov[r_o])
