@@ -59,6 +59,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from .._validation import FloatArray
+from ..exceptions import TeamkfError
 from ..network.graph import CommGraph
 
 __all__ = ["LinkOutcomes", "draw_link_events", "link_outcomes", "relay_arrivals", "count_links", "run_lossy"]
@@ -227,7 +228,7 @@ def _design_cache(design: Any) -> dict:
 class _TeamBatch:
     """Agent i of an MTMSE/MMSE design over a block of runs, with per-run arrivals t_i(j, s)."""
 
-    def __init__(self, design: Any, i: int, ys: Sequence[FloatArray], arrivals: np.ndarray):
+    def __init__(self, design: Any, i: int, ys: Sequence[FloatArray], arrivals: np.ndarray, ell: Sequence[int]):
         self.d, self.i, self.ys, self.t = design, i, ys, arrivals  # arrivals: (R, n, T)
         self.Y = np.concatenate(ys, axis=2)  # (R, T, Σ d_y): y(s) stacked
         self.sys = design.system
@@ -241,6 +242,8 @@ class _TeamBatch:
         off = np.asarray(self.sys.offsets, dtype=int)
         self.off, self.dy = off, [int(v) for v in self.sys.dy]
         self._Cs: dict[int, FloatArray] = {}
+        self.ell = [int(v) for v in ell]  # ℓ_ji: y_j(s) cannot reach agent i before s + ℓ_ji
+        self._reach: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
     # --- the agent's step (TeamAgent.step, batched) ----------------------------------
     def step(self, k: int) -> tuple[FloatArray, FloatArray | None]:
@@ -303,11 +306,11 @@ class _TeamBatch:
                 preds.append(preds[-1] @ sys.A_at(s).T)
         else:
             preds = preds if full else [p[rows] for p in preds]
-        bits = held.transpose(0, 2, 1).reshape(rows.size, -1)  # window order: step, then agent
-        mask = np.repeat(bits, np.tile(self.dy, w), axis=1)  # (m, w d_y) per window coordinate
+        kkeys, kcols, kdims = self._reachable(a, k)  # only what can have arrived by k (geodesic delays)
+        bits = held[:, kkeys[:, 0], kkeys[:, 1] - a]  # (m, reachable keys)
+        mask = np.repeat(bits, kdims, axis=1)  # (m, reachable window coordinates)
         yw = (self.Y[:, a : k + 1] if full else self.Y[:, a : k + 1][rows]) - np.stack([p @ self._C(a + u).T for u, p in enumerate(preds)], axis=1)
-        yw = yw.reshape(rows.size, w * dyt)
-        yw = np.where(mask, yw, 0.0)
+        yw = np.where(mask, yw.reshape(rows.size, w * dyt)[:, kcols], 0.0)
         if bits.shape[1] <= 62:
             codes: Any = bits @ (np.int64(1) << np.arange(bits.shape[1], dtype=np.int64))
         else:
@@ -321,7 +324,9 @@ class _TeamBatch:
         fills = self.cache["fill"].setdefault((who, a, k), {})
         todo = [g for g, c in enumerate(uniq) if c not in fills]
         if todo:
-            G = self._gains(a, k, mask[order[starts[todo]]], targets)
+            fullmask = np.zeros((len(todo), w * dyt), dtype=bool)
+            fullmask[:, kcols] = mask[order[starts[todo]]]
+            G = self._gains(a, k, fullmask, targets)[:, :, kcols]
             for q, g in enumerate(todo):
                 fills[uniq[g]] = G[q]
             self.cache["n_fill"] = self.cache.get("n_fill", 0) + len(todo)
@@ -337,6 +342,21 @@ class _TeamBatch:
         tcols = np.repeat(lost[rows[order]], [self.dy[j] for j, _ in targets], axis=1)
         r_o = rows[order]
         innov[r_o] = np.where(tcols, est, innov[r_o])
+
+    def _reachable(self, a: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Window keys (j, s), a <= s <= k, with s + ℓ_ji <= k (those that can be held at k), their coordinates and sizes."""
+        key = (a, k)
+        hit = self._reach.get(key)
+        if hit is None:
+            dyt = self.sys.dy_total
+            keys = [(j, s) for s in range(a, k + 1) for j in range(self.sys.n_agents) if s + self.ell[j] <= k]
+            cols = [(s - a) * dyt + self.off[j] + np.arange(self.dy[j]) for (j, s) in keys]
+            hit = self._reach[key] = (
+                np.array(keys, dtype=int).reshape(-1, 2),
+                np.concatenate(cols).astype(int) if cols else np.zeros(0, dtype=int),
+                np.array([self.dy[j] for j, _ in keys], dtype=int),
+            )
+        return hit
 
     def _gains(self, a: int, k: int, mask: np.ndarray, targets: list[tuple[int, int]]) -> FloatArray:
         """G(H) = Σ_W[targets, H] Σ_W[H, H]^-1 with zero columns outside H, for each row of ``mask`` (P, w d_y).
@@ -402,11 +422,11 @@ def run_lossy(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray],
         return pass_messages(agents, graph, ys)
     if relays:
         assert t is not None
-        return _run_team(agents, ys, t, streams, stats)
+        return _run_team(agents, graph, ys, t, streams, stats)
     return _run_grouped(agents, graph, ys, out, stats)
 
 
-def _run_team(agents: Sequence[Any], ys: Sequence[FloatArray], t: np.ndarray, streams: Any, stats: Any) -> FloatArray:
+def _run_team(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray], t: np.ndarray, streams: Any, stats: Any) -> FloatArray:
     """MTMSE/MMSE relays: z_i(k) = L_i x̂ + F_i(k) ĩ from the shared parts (reused by the block's next design of the model)."""
     designs = [ag.inner.design for ag in agents]
     R, T = ys[0].shape[:2]
@@ -416,7 +436,12 @@ def _run_team(agents: Sequence[Any], ys: Sequence[FloatArray], t: np.ndarray, st
     if hit is not None and len(hit[0]) == len(ys) and all(a is b or np.array_equal(a, b) for a, b in zip(hit[0], ys)):
         parts, missed = hit[1], hit[2]
     else:
-        team = [_TeamBatch(d, i, ys, t[:, i]) for i, d in enumerate(designs)]
+        n = len(designs)
+        try:
+            ell = np.asarray(graph.geodesic_delays())
+        except TeamkfError:  # not strongly connected: no bound used
+            ell = np.zeros((n, n), dtype=int)
+        team = [_TeamBatch(d, i, ys, t[:, i], [int(ell[j, i]) for j in range(n)]) for i, d in enumerate(designs)]
         parts = [[tb.step(k) for k in range(T)] for tb in team]
         missed = [int(tb.missed.sum()) for tb in team]
         size = sum(x.nbytes + (0 if v is None else v.nbytes) for p in parts for x, v in p)
