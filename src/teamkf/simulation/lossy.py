@@ -39,11 +39,11 @@ r"""The lossy runtime batched over runs: link events as arrays, relays and packe
    the agent's own arithmetic on the (runs, ·) arrays, so with nothing lost the estimates are
    bit for bit those of the reliable runtime :func:`~teamkf.estimators.base.pass_messages`.
 
-Other families (KCF, CIKF, local, diffusion, CI, ICF, HCMCI) run their own tolerant ``step``:
-their runs are grouped by what arrived (the same senders, sent steps and payload layout), and each
-group steps as one batch (:func:`_run_grouped`); states of runs that took the same path through
-these groups stay stacked. An omniscient design (the centralized bound) receives every y_j(k) at
-step k whatever the links do, so it runs as on reliable links.
+Other families (KCF, CIKF, local, diffusion, CI, ICF, HCMCI) run their own tolerant ``step`` one
+run at a time on the same precomputed link events (:func:`_run_grouped`; their states are not
+batched by arrival pattern yet, so they keep the speed of teamkf 0.2). An omniscient design (the
+centralized bound) receives every y_j(k) at step k whatever the links do, so it runs as on reliable
+links, vectorized.
 
 Each block of runs is computed alone, so the result of a run depends on its block (``batch``) and
 not on how blocks are grouped into chunks or on the worker.
@@ -476,7 +476,7 @@ _SHARE_MAX_BYTES = 256 * 2**20
 # any tolerant family: runs grouped by what arrived
 # ---------------------------------------------------------------------------
 def _run_grouped(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray], out: LinkOutcomes, stats: Any) -> FloatArray:
-    """Step the agents' own ``step`` on the runs one at a time (their states need not stack)."""
+    """Step the agents' own ``step`` on the runs one at a time (their states need not stack), on the block's link events."""
     from .links import _missed
 
     n = graph.n_agents

@@ -349,14 +349,15 @@ def _chunks(n_blocks: int, per_chunk: int) -> list[tuple[int, int]]:
 
 
 def _progress(total: int, enabled: bool | None) -> Any:
-    """A tqdm bar over runs (silent when stderr is not a terminal or tqdm is missing)."""
-    if enabled is False:
+    """A tqdm bar over runs, by the rules of teamkf's one progress bar (:mod:`teamkf._progress`: on a terminal,
+    not ``--quiet``, not ``TEAMKF_PROGRESS=0``, shown after :data:`~teamkf._progress.DELAY` seconds)."""
+    from .._progress import DELAY, progress_enabled
+
+    if not progress_enabled(enabled):
         return None
-    try:
-        from tqdm.auto import tqdm
-    except ImportError:  # pragma: no cover
-        return None
-    return tqdm(total=total, unit="run", unit_scale=True, desc="Monte Carlo", disable=None if enabled is None else not enabled, file=sys.stderr)
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, unit="run", unit_scale=True, desc="Monte Carlo", file=sys.stderr, delay=DELAY, dynamic_ncols=True)
 
 
 def _serial(spec: _Spec, chunks: list[tuple[int, int]], bar: Any) -> Iterator[dict[str, Any]]:
