@@ -56,7 +56,6 @@ from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
-import scipy.linalg as sla
 
 from .._validation import FloatArray
 from ..exceptions import TeamkfError
@@ -295,7 +294,7 @@ class _TeamBatch:
         G(H_r) ỹ_W(r): one matrix product per pattern present, over the runs that have it.
         """
         sys = self.sys
-        n, w, dyt = sys.n_agents, k - a + 1, sys.dy_total
+        w, dyt = k - a + 1, sys.dy_total
         anyl = lost.any(axis=1)
         full = bool(anyl.all())
         rows = np.arange(self.R) if full else np.flatnonzero(anyl)
