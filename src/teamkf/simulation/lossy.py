@@ -381,11 +381,162 @@ class _TeamBatch:
         return np.where(mask[:, None, :], X.transpose(0, 2, 1), 0.0)  # type: ignore[no-any-return]
 
 
+_MAPS: "weakref.WeakKeyDictionary[Any, dict]" = weakref.WeakKeyDictionary()
+
+
+def _step_maps(design: Any) -> dict:
+    """The cache of a design's step maps M_{i,k}(H) (they hold its own gains: not shared between designs)."""
+    try:
+        m = _MAPS.get(design)
+        if m is None or len(m) > _CACHE_MAX:
+            m = _MAPS[design] = {}
+        return m
+    except TypeError:  # pragma: no cover - not weakly referenceable
+        return {}
+
+
+class _TeamStep:
+    r"""Every agent of an MTMSE/MMSE design over a block of runs, one linear map per step and arrival pattern.
+
+    With H the window measurements agent i holds at step k, its whole step (fold of y(a0) with the rule,
+    then the local estimate with the rule) is linear in u = [x̂(a0); y(a0 : k) on H]:
+
+    .. math::  [\hat x(a'); z_i(k)] = M_{i,k}(H)\, u,
+
+    M built once per (i, k, H) from the rule's gains (cached on the design), so a step of all agents and
+    runs is one gather of u, one sort by (agent, pattern) and one batched product: a few numpy calls per
+    step whatever the number of runs, agents and patterns. The same arithmetic as :class:`_TeamBatch`
+    in another order (equal to round-off).
+    """
+
+    def __init__(self, design: Any, ys: Sequence[FloatArray], t: np.ndarray):
+        self.d, self.sys = design, design.system
+        self.n, self.c = self.sys.n_agents, design.structure.common_lag
+        self.Y = np.concatenate(ys, axis=2)  # (R, T, Σ d_y)
+        self.t = t  # (R, n, n, T)
+        self.R, self.T = ys[0].shape[:2]
+        self.x = np.zeros((self.n * self.R, self.sys.dx))  # row i R + r: agent i, run r
+        self.cache = _design_cache(design)
+        self.mats = _step_maps(design)
+        self.missed = np.zeros((self.R, self.n, self.n, self.T), dtype=bool)
+        self.dy = [int(v) for v in self.sys.dy]
+        self.off = np.asarray(self.sys.offsets, dtype=int)
+        self.helper = _TeamBatch.__new__(_TeamBatch)  # for its gain solver (_gains) only
+        self.helper.sys, self.helper.d, self.helper.cache, self.helper.off, self.helper.dy = self.sys, design, self.cache, self.off, self.dy
+
+    def step(self, k: int) -> FloatArray:
+        """z(k) of every agent: (R, n d_z)."""
+        n, R, dyt = self.n, self.R, self.sys.dy_total
+        a0 = max(0, k - self.c)
+        w = k - a0 + 1
+        held = self.t[:, :, :, a0 : k + 1] <= k  # (R, i, j, w)
+        bits = held.transpose(1, 0, 3, 2).reshape(n * R, w * n)  # row (i, r); window order: step, then agent
+        agent = np.repeat(np.arange(n, dtype=np.int64), R)
+        if w * n <= 55:
+            codes = (bits @ (np.int64(1) << np.arange(w * n, dtype=np.int64))) + (agent << 56)
+        else:  # long windows: patterns as bytes (sorted through their rank in this block)
+            packed = np.concatenate([agent[:, None].astype(np.uint8), np.packbits(bits, axis=1)], axis=1)
+            codes = np.unique(packed, axis=0, return_inverse=True)[1].ravel()
+        mask = np.repeat(bits, np.tile(self.dy, w), axis=1)  # (n R, w d_y)
+        u = np.empty((n * R, self.sys.dx + w * dyt))
+        u[:, : self.sys.dx] = self.x
+        u[:, self.sys.dx :] = np.where(mask, np.tile(self.Y[:, a0 : k + 1].reshape(R, w * dyt), (n, 1)), 0.0)
+        order = np.argsort(codes, kind="stable")
+        cs = codes[order]
+        first = np.concatenate([[True], cs[1:] != cs[:-1]])
+        starts = np.flatnonzero(first)
+        gid = np.cumsum(first) - 1
+        lead = order[starts]  # a run of each pattern
+        keys = [(int(agent[r]), int(codes[r]) if w * n <= 55 else bytes(packed[r])) for r in lead.tolist()]
+        mats = self.mats
+        todo = [g for g, key in enumerate(keys) if (k, key) not in mats]
+        if todo:
+            by_agent: dict[int, list[int]] = {}
+            for g in todo:
+                by_agent.setdefault(keys[g][0], []).append(g)
+            for i, gs in by_agent.items():
+                Ms = self._maps(i, k, a0, mask[lead[gs]])
+                for q, g in enumerate(gs):
+                    mats[(k, keys[g])] = Ms[q]
+        sizes = np.diff(np.append(starts, n * R))
+        nslab = -(-sizes // _SLAB)
+        pos = np.arange(n * R) - starts[gid]
+        vid = (np.cumsum(nslab) - nslab)[gid] + pos // _SLAB
+        pad = np.zeros((int(nslab.sum()), _SLAB, u.shape[1]))
+        pad[vid, pos % _SLAB] = u[order]
+        Ms = np.stack([mats[(k, key)] for key in keys])[np.repeat(np.arange(len(keys)), nslab)]
+        out = np.empty((n * R, Ms.shape[1]))
+        out[order] = np.matmul(pad, Ms.transpose(0, 2, 1))[vid, pos % _SLAB]
+        dx = self.sys.dx
+        self.x = out[:, :dx]
+        # the rule's misses: the fold's y(a0) (when it folds) and the local pairs, not held at k
+        for i in range(n):
+            if k >= self.c:
+                self.missed[:, i, :, a0] |= self.t[:, i, :, a0] > k
+            pairs = self.d.structure.local_pairs(i, k)
+            if pairs:
+                js, ss = np.array([j for j, _ in pairs]), np.array([s for _, s in pairs])
+                self.missed[:, i, js, ss] |= self.t[:, i, js, ss] > k
+        return out[:, dx:].reshape(n, R, -1).transpose(1, 0, 2).reshape(R, -1)  # type: ignore[no-any-return]
+
+    def _maps(self, i: int, k: int, a0: int, mask: np.ndarray) -> FloatArray:
+        """M_{i,k}(H) for each row of ``mask`` (P, w d_y): (P, d_x + d_z, d_x + w d_y)."""
+        sys, d, n = self.sys, self.d, self.n
+        dx, dyt = sys.dx, sys.dy_total
+        w = k - a0 + 1
+        P, D = mask.shape[0], dx + w * dyt
+        X = np.zeros((P, dx, D))
+        X[:, :, :dx] = np.eye(dx)
+
+        def ytil(a: int, Xa: FloatArray) -> FloatArray:  # (P, w' d_y, D): y(s) - C(s) Φ(s, a) x̂(a), s = a..k
+            rows, Phi = [], np.eye(dx)
+            for s in range(a, k + 1):
+                sel = np.zeros((dyt, D))
+                sel[:, dx + (s - a0) * dyt + np.arange(dyt)] = np.eye(dyt)
+                rows.append(sel[None] - np.einsum("ij,pjd->pid", self._C(s) @ Phi, Xa))
+                Phi = sys.A_at(s) @ Phi
+            return np.concatenate(rows, axis=1)
+
+        a = a0
+        if k >= self.c:  # fold y(a0) with the rule
+            Yt = ytil(a0, X)
+            targets = [(j, a0) for j in range(n)]
+            E = Yt[:, :dyt].copy()
+            self._apply_rule(E, Yt, mask, targets, a0, k)
+            X = np.einsum("ij,pjd->pid", sys.A_at(a0), X + np.einsum("ij,pjd->pid", d.K_at(a0), E))
+            a = a0 + 1
+        pairs = d.structure.local_pairs(i, k)
+        Phi_k = sys.transition(k, a)
+        Z = np.einsum("ij,pjd->pid", d.cost.L_block(i, k) @ Phi_k, X)
+        if pairs:
+            Yt = ytil(a, X)
+            sub = mask[:, (a - a0) * dyt :]
+            cols = [(s - a) * dyt + self.off[j] + np.arange(self.dy[j]) for (j, s) in pairs]
+            innov = Yt[:, np.concatenate(cols)]
+            self._apply_rule(innov, Yt, sub, pairs, a, k)
+            Z = Z + np.einsum("ij,pjd->pid", d.gain_at(k)[i], innov)
+        return np.concatenate([X, Z], axis=1)
+
+    def _apply_rule(self, E: FloatArray, Yt: FloatArray, mask: np.ndarray, targets: list[tuple[int, int]], a: int, k: int) -> None:
+        """Rows of lost targets in E (P, Σ d_target, D) := G(H) Ỹ_H (the conditional expectation of their innovation)."""
+        dyt = self.sys.dy_total
+        tpos = np.concatenate([(s - a) * dyt + self.off[j] + np.arange(self.dy[j]) for (j, s) in targets]).astype(int)
+        lost = ~mask[:, tpos]  # (P, Σ d_target)
+        if not lost.any():
+            return
+        G = self.helper._gains(a, k, mask, targets)  # (P, Σ d_target, w' d_y), zero columns outside H
+        fill = np.einsum("ptw,pwd->ptd", G, np.where(mask[:, :, None], Yt, 0.0))
+        E[:] = np.where(lost[:, :, None], fill, E)
+
+    def _C(self, s: int) -> FloatArray:
+        return self.sys.C_stack(s)
+
+
 def _is_team_relay(ag: Any) -> bool:
     from ..estimators.base import MeasurementRelay
     from ..estimators.team import TeamAgent
 
-    return type(ag) is MeasurementRelay and type(ag.inner) is TeamAgent and not ag.omniscient
+    return type(ag) is MeasurementRelay and type(ag.inner) is TeamAgent and not ag.omniscient and ag.inner.index == ag.index
 
 
 #: the link events of the last block (its designs share them: same streams, graph and links)
@@ -414,7 +565,7 @@ def run_lossy(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray],
     R, T = ys[0].shape[:2]
     edges = sorted(graph.edges)
     omni = tuple(bool(getattr(ag, "omniscient", False)) for ag in agents)
-    relays = not any(omni) and all(_is_team_relay(ag) for ag in agents)
+    relays = not any(omni) and all(_is_team_relay(ag) and ag.inner.index == i and ag.inner.design is agents[0].inner.design for i, ag in enumerate(agents))
     out, t = _events(streams, T, edges, links, omni, n, relays)
     count_links(out, stats)
     if all(omni):  # the centralized bound: every y_j(k) at step k, whatever the links
@@ -426,39 +577,14 @@ def run_lossy(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray],
 
 
 def _run_team(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray], t: np.ndarray, streams: Any, stats: Any) -> FloatArray:
-    """MTMSE/MMSE relays: z_i(k) = L_i x̂ + F_i(k) ĩ from the shared parts (reused by the block's next design of the model)."""
-    designs = [ag.inner.design for ag in agents]
-    R, T = ys[0].shape[:2]
-    key = (_fingerprint(designs[0]), _fingerprint_k(designs[0]))
-    shared = _LAST[5]  # _events has just matched (or reset) the block
-    hit = shared.get(key)
-    if hit is not None and len(hit[0]) == len(ys) and all(a is b or np.array_equal(a, b) for a, b in zip(hit[0], ys)):
-        parts, missed = hit[1], hit[2]
-    else:
-        n = len(designs)
-        try:
-            ell = np.asarray(graph.geodesic_delays())
-        except TeamkfError:  # not strongly connected: no bound used
-            ell = np.zeros((n, n), dtype=int)
-        team = [_TeamBatch(d, i, ys, t[:, i], [int(ell[j, i]) for j in range(n)]) for i, d in enumerate(designs)]
-        parts = [[tb.step(k) for k in range(T)] for tb in team]
-        missed = [int(tb.missed.sum()) for tb in team]
-        size = sum(x.nbytes + (0 if v is None else v.nbytes) for p in parts for x, v in p)
-        _LAST[5] = {key: (list(ys), parts, missed)} if size <= _SHARE_MAX_BYTES else {}  # the last model only (memory)
-    zs = []
-    for k in range(T):
-        zk = []
-        for i, d in enumerate(designs):
-            x, innov = parts[i][k]
-            z = x @ d.cost.L_block(i, k).T
-            if innov is not None:
-                z = z + innov @ d.gain_at(k)[i].T
-            zk.append(z)
-        zs.append(np.concatenate(zk, axis=1))
-    for i, m in enumerate(missed):
+    """MTMSE/MMSE relays: every agent and run stepped together, one linear map per (agent, step, pattern)."""
+    del graph, streams
+    ts = _TeamStep(agents[0].inner.design, ys, t)
+    z = np.stack([ts.step(k) for k in range(ys[0].shape[1])], axis=1)
+    for i, m in enumerate(ts.missed.sum(axis=(0, 2, 3)).tolist()):
         if m:
-            stats.missed[i] = stats.missed.get(i, 0) + m
-    return np.stack(zs, axis=1)
+            stats.missed[i] = stats.missed.get(i, 0) + int(m)
+    return z
 
 
 def _fingerprint_k(design: Any) -> bytes:
