@@ -26,18 +26,24 @@ r"""The lossy runtime batched over runs: link events as arrays, relays and packe
    always later than its sending step, τ >= 1). A packet crosses each node at most once, so
    t_i(j, s) - s <= (n - 1)(τ_max + J_max) when it is finite: only that many steps are scanned.
 
-3. **The missed-packet rule, for all runs at once** (:class:`_TeamBatch`). The MTMSE/MMSE agent
+3. **The missed-packet rule, for all runs at once** (:class:`_TeamStep`). The MTMSE/MMSE agent
    i holds at step k the window measurements H = {(j, s) : a <= s <= k, t_i(j, s) <= k}. A needed
    measurement y_m that is not in H is replaced by its conditional expectation
 
    .. math::  E[y_m \mid \hat x(a), y_H] = C_m Φ \hat x(a) + Σ_W[m, H] Σ_W[H, H]^{-1} \tilde y_H
 
-   (:meth:`~teamkf.estimators.team.TeamAgent.expected_measurements`). The gain depends on the run
-   only through its arrival pattern H, so the runs are grouped by pattern at each step (a bit mask
-   over the window), the gain is computed once per pattern (and cached on the design: patterns
-   repeat across blocks), and applied to each group with one matrix product. Everything else is
-   the agent's own arithmetic on the (runs, ·) arrays, so with nothing lost the estimates are
-   bit for bit those of the reliable runtime :func:`~teamkf.estimators.base.pass_messages`.
+   (:meth:`~teamkf.estimators.team.TeamAgent.expected_measurements`, Σ_W under the nominal
+   predictor covariance). The agent's whole step — folding y(a0), a0 = k - c, into the common
+   predictor with the rule, then its local estimate with the rule — is therefore linear in
+   u = [x̂(a0); y(a0 : k) restricted to H]:
+
+   .. math::  [\hat x(a0 + 1);\ z_i(k)] = M_{i,k}(H)\, u .
+
+   The map depends on the run only through (i, H), so the rows (agent, run) are sorted by
+   (agent, pattern) at each step, M is built once per pattern (all new patterns of a step in one
+   batched solve, then cached on the design: patterns repeat across blocks), and all rows are
+   stepped by one batched matrix product. The estimates are those of the agents' own online step
+   to round-off (checked in ``tests/unit/test_lossy_mc.py``), with the same miss counts.
 
 Other families (KCF, CIKF, local, diffusion, CI, ICF, HCMCI) run their own tolerant ``step`` one
 run at a time on the same precomputed link events (:func:`_run_grouped`; their states are not
@@ -58,7 +64,6 @@ from typing import Any, Sequence
 import numpy as np
 
 from .._validation import FloatArray
-from ..exceptions import TeamkfError
 from ..network.graph import CommGraph
 
 __all__ = ["LinkOutcomes", "draw_link_events", "link_outcomes", "relay_arrivals", "count_links", "run_lossy"]
@@ -181,7 +186,7 @@ def relay_arrivals(out: LinkOutcomes, n: int, T: int, max_jitter: int) -> np.nda
 _FINGERPRINTS: "weakref.WeakKeyDictionary[Any, bytes]" = weakref.WeakKeyDictionary()
 _CACHES: dict[bytes, dict] = {}
 _CACHE_MAX = 50_000  # fill gains kept per model (each (targets x window) doubles)
-_SLAB = 32  # runs per slab of the batched product that applies the fill gains
+_STEP_SLAB = 8  # rows per slab of a step's batched product (most patterns hold few runs)
 
 
 def _fingerprint(design: Any) -> bytes:
@@ -224,161 +229,30 @@ def _design_cache(design: Any) -> dict:
     return c
 
 
-class _TeamBatch:
-    """Agent i of an MTMSE/MMSE design over a block of runs, with per-run arrivals t_i(j, s)."""
+def _fill_gains(design: Any, cache: dict, a: int, k: int, mask: np.ndarray, targets: list[tuple[int, int]]) -> FloatArray:
+    """G(H) = Σ_W[targets, H] Σ_W[H, H]^-1 with zero columns outside H, for each row of ``mask`` (P, w d_y).
 
-    def __init__(self, design: Any, i: int, ys: Sequence[FloatArray], arrivals: np.ndarray, ell: Sequence[int]):
-        self.d, self.i, self.ys, self.t = design, i, ys, arrivals  # arrivals: (R, n, T)
-        self.Y = np.concatenate(ys, axis=2)  # (R, T, Σ d_y): y(s) stacked
-        self.sys = design.system
-        self.c = design.structure.common_lag
-        self.cache = _design_cache(design)
-        R, T = ys[0].shape[:2]
-        self.R, self.T = R, T
-        self.xhat = np.zeros((R, self.sys.dx))
-        self.a = 0
-        self.missed = np.zeros((R, self.sys.n_agents, T), dtype=bool)
-        off = np.asarray(self.sys.offsets, dtype=int)
-        self.off, self.dy = off, [int(v) for v in self.sys.dy]
-        self._Cs: dict[int, FloatArray] = {}
-        self.ell = [int(v) for v in ell]  # ℓ_ji: y_j(s) cannot reach agent i before s + ℓ_ji
-        self._reach: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+    Σ_W is the covariance of the window innovations y(a : k) - C Φ x̂(a) under the nominal predictor
+    covariance P(a) (:func:`~teamkf.estimators.team.window_covariances`), as in
+    :meth:`~teamkf.estimators.team.TeamAgent.expected_measurements`. Solved as one batched system:
+    M = Σ_W on H x H and the identity elsewhere, M X = 1_H Σ_W[:, targets].
+    """
+    sys = design.system
+    dyt, off, dy = sys.dy_total, np.asarray(sys.offsets, dtype=int), [int(v) for v in sys.dy]
+    Sigma_W = cache["sigma"].get((a, k))
+    if Sigma_W is None:
+        from ..estimators.team import window_covariances
 
-    # --- the agent's step (TeamAgent.step, batched) ----------------------------------
-    def step(self, k: int) -> tuple[FloatArray, FloatArray | None]:
-        """(x̂(k | anchor), local innovation with lost entries replaced, or None without local pairs).
-
-        What the agent's estimate z_i(k) = L_i x̂ + F_i(k) ĩ is made of; MTMSE and MMSE of one model
-        share it (the same predictor and the same rule), only L_i and F_i(k) differ.
-        """
-        sys, d, c = self.sys, self.d, self.c
-        n = sys.n_agents
-        while self.a < k - c + 1:  # fold the newly common y(a) (eq. 20)
-            a = self.a
-            y = self.Y[:, a]
-            innov = y - self.xhat @ self._C(a).T
-            lost = self.t[:, :, a] > k
-            if lost.any():
-                self._fill(innov, [(j, a) for j in range(n)], lost, a, k, -1)
-                self.missed[:, :, a] |= lost
-            self.xhat = (self.xhat + innov @ d.K_at(a).T) @ sys.A_at(a).T
-            self.a += 1
-        a = self.a
-        preds = [self.xhat]
-        for s in range(a, k):
-            preds.append(preds[-1] @ sys.A_at(s).T)
-        pairs = d.structure.local_pairs(self.i, k)
-        if not pairs:
-            return preds[-1], None
-        innov = np.concatenate([self.ys[j][:, s] - preds[s - a] @ sys.C_at(j, s).T for (j, s) in pairs], axis=1)
-        js = np.array([j for j, _ in pairs])
-        ss = np.array([s for _, s in pairs])
-        lost = self.t[:, js, ss] > k
-        if lost.any():
-            self._fill(innov, pairs, lost, a, k, self.i, preds)
-            self.missed[:, js, ss] |= lost
-        return preds[-1], innov
-
-    def _C(self, s: int) -> FloatArray:
-        C = self._Cs.get(s)
-        if C is None:
-            C = self._Cs[s] = self.sys.C_stack(s)
-        return C
-
-    # --- the missed-packet rule ------------------------------------------------------
-    def _fill(self, innov: FloatArray, targets: list[tuple[int, int]], lost: np.ndarray, a: int, k: int, who: int, preds: Any = None) -> None:
-        """Overwrite, in ``innov`` (R, Σ d_target), the innovations of the lost targets by their expectation.
-
-        Run r's held window measurements H_r give ỹ_W masked to H_r (zeros elsewhere) and the gain
-        G(H_r) = Σ_W[targets, H] Σ_W[H, H]^-1 (zero columns outside H), so the expected innovations are
-        G(H_r) ỹ_W(r): one matrix product per pattern present, over the runs that have it.
-        """
-        sys = self.sys
-        w, dyt = k - a + 1, sys.dy_total
-        anyl = lost.any(axis=1)
-        full = bool(anyl.all())
-        rows = np.arange(self.R) if full else np.flatnonzero(anyl)
-        held = self.t[:, :, a : k + 1] <= k if full else self.t[:, :, a : k + 1][rows] <= k  # (m, n, w)
-        if preds is None:
-            preds = [self.xhat if full else self.xhat[rows]]
-            for s in range(a, k):
-                preds.append(preds[-1] @ sys.A_at(s).T)
-        else:
-            preds = preds if full else [p[rows] for p in preds]
-        kkeys, kcols, kdims = self._reachable(a, k)  # only what can have arrived by k (geodesic delays)
-        bits = held[:, kkeys[:, 0], kkeys[:, 1] - a]  # (m, reachable keys)
-        mask = np.repeat(bits, kdims, axis=1)  # (m, reachable window coordinates)
-        yw = (self.Y[:, a : k + 1] if full else self.Y[:, a : k + 1][rows]) - np.stack([p @ self._C(a + u).T for u, p in enumerate(preds)], axis=1)
-        yw = np.where(mask, yw.reshape(rows.size, w * dyt)[:, kcols], 0.0)
-        if bits.shape[1] <= 62:
-            codes: Any = bits @ (np.int64(1) << np.arange(bits.shape[1], dtype=np.int64))
-        else:
-            codes = np.packbits(bits, axis=1).view(np.dtype((np.void, -(-bits.shape[1] // 8)))).ravel()
-        order = np.argsort(codes, kind="stable")  # runs grouped by pattern
-        cs = codes[order]
-        first = np.concatenate([[True], cs[1:] != cs[:-1]])
-        starts = np.flatnonzero(first)
-        gid = np.cumsum(first) - 1  # pattern of each sorted run
-        uniq = cs[starts].tolist() if bits.shape[1] <= 62 else [bytes(c) for c in cs[starts]]
-        fills = self.cache["fill"].setdefault((who, a, k), {})
-        todo = [g for g, c in enumerate(uniq) if c not in fills]
-        if todo:
-            fullmask = np.zeros((len(todo), w * dyt), dtype=bool)
-            fullmask[:, kcols] = mask[order[starts[todo]]]
-            G = self._gains(a, k, fullmask, targets)[:, :, kcols]
-            for q, g in enumerate(todo):
-                fills[uniq[g]] = G[q]
-            self.cache["n_fill"] = self.cache.get("n_fill", 0) + len(todo)
-        # one batched product for all patterns: each pattern's runs in slabs of _SLAB rows (zero-padded)
-        sizes = np.diff(np.append(starts, rows.size))
-        nslab = -(-sizes // _SLAB)
-        pos = np.arange(rows.size) - starts[gid]
-        vid = (np.cumsum(nslab) - nslab)[gid] + pos // _SLAB
-        pad = np.zeros((int(nslab.sum()), _SLAB, yw.shape[1]))
-        pad[vid, pos % _SLAB] = yw[order]
-        Gs = np.stack([fills[c] for c in uniq])[np.repeat(np.arange(len(uniq)), nslab)]  # (slabs, Σ d_target, w d_y)
-        est = np.matmul(pad, Gs.transpose(0, 2, 1))[vid, pos % _SLAB]
-        tcols = np.repeat(lost[rows[order]], [self.dy[j] for j, _ in targets], axis=1)
-        r_o = rows[order]
-        innov[r_o] = np.where(tcols, est, innov[r_o])
-
-    def _reachable(self, a: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Window keys (j, s), a <= s <= k, with s + ℓ_ji <= k (those that can be held at k), their coordinates and sizes."""
-        key = (a, k)
-        hit = self._reach.get(key)
-        if hit is None:
-            dyt = self.sys.dy_total
-            keys = [(j, s) for s in range(a, k + 1) for j in range(self.sys.n_agents) if s + self.ell[j] <= k]
-            cols = [(s - a) * dyt + self.off[j] + np.arange(self.dy[j]) for (j, s) in keys]
-            hit = self._reach[key] = (
-                np.array(keys, dtype=int).reshape(-1, 2),
-                np.concatenate(cols).astype(int) if cols else np.zeros(0, dtype=int),
-                np.array([self.dy[j] for j, _ in keys], dtype=int),
-            )
-        return hit
-
-    def _gains(self, a: int, k: int, mask: np.ndarray, targets: list[tuple[int, int]]) -> FloatArray:
-        """G(H) = Σ_W[targets, H] Σ_W[H, H]^-1 with zero columns outside H, for each row of ``mask`` (P, w d_y).
-
-        Solved as one batched system: M = Σ_W on H x H and the identity elsewhere, M X = 1_H Σ_W[:, targets].
-        """
-        sys, dyt = self.sys, self.sys.dy_total
-        skey = (a, k)
-        Sigma_W = self.cache["sigma"].get(skey)
-        if Sigma_W is None:
-            from ..estimators.team import window_covariances
-
-            d = self.d
-            P_a = sys.Sigma_x if a == 0 else (d.P_pred if d.horizon is None else d.P_pred[a])
-            Sigma_W = self.cache["sigma"][skey] = window_covariances(sys, k, a, P_a)[0]
-        tpos = np.concatenate([(s - a) * dyt + self.off[j] + np.arange(self.dy[j]) for (j, s) in targets]).astype(int)
-        hh = mask[:, :, None] & mask[:, None, :]
-        M = np.where(hh, Sigma_W[None], 0.0)
-        idx = np.arange(Sigma_W.shape[0])
-        M[:, idx, idx] = np.where(mask, M[:, idx, idx], 1.0)
-        B = np.where(mask[:, :, None], Sigma_W[None][:, :, tpos], 0.0)
-        X = np.linalg.solve(M, B)  # (P, w d_y, Σ d_target); zero rows outside H
-        return np.where(mask[:, None, :], X.transpose(0, 2, 1), 0.0)  # type: ignore[no-any-return]
+        P_a = sys.Sigma_x if a == 0 else (design.P_pred if design.horizon is None else design.P_pred[a])
+        Sigma_W = cache["sigma"][(a, k)] = window_covariances(sys, k, a, P_a)[0]
+    tpos = np.concatenate([(s - a) * dyt + off[j] + np.arange(dy[j]) for (j, s) in targets]).astype(int)
+    hh = mask[:, :, None] & mask[:, None, :]
+    M = np.where(hh, Sigma_W[None], 0.0)
+    idx = np.arange(Sigma_W.shape[0])
+    M[:, idx, idx] = np.where(mask, M[:, idx, idx], 1.0)
+    B = np.where(mask[:, :, None], Sigma_W[None][:, :, tpos], 0.0)
+    X = np.linalg.solve(M, B)  # (P, w d_y, Σ d_target); zero rows outside H
+    return np.where(mask[:, None, :], X.transpose(0, 2, 1), 0.0)  # type: ignore[no-any-return]
 
 
 _MAPS: "weakref.WeakKeyDictionary[Any, dict]" = weakref.WeakKeyDictionary()
@@ -405,8 +279,8 @@ class _TeamStep:
 
     M built once per (i, k, H) from the rule's gains (cached on the design), so a step of all agents and
     runs is one gather of u, one sort by (agent, pattern) and one batched product: a few numpy calls per
-    step whatever the number of runs, agents and patterns. The same arithmetic as :class:`_TeamBatch`
-    in another order (equal to round-off).
+    step whatever the number of runs, agents and patterns. The agents' own arithmetic
+    (:class:`~teamkf.estimators.team.TeamAgent`) in another order: equal to round-off.
     """
 
     def __init__(self, design: Any, ys: Sequence[FloatArray], t: np.ndarray):
@@ -421,8 +295,6 @@ class _TeamStep:
         self.missed = np.zeros((self.R, self.n, self.n, self.T), dtype=bool)
         self.dy = [int(v) for v in self.sys.dy]
         self.off = np.asarray(self.sys.offsets, dtype=int)
-        self.helper = _TeamBatch.__new__(_TeamBatch)  # for its gain solver (_gains) only
-        self.helper.sys, self.helper.d, self.helper.cache, self.helper.off, self.helper.dy = self.sys, design, self.cache, self.off, self.dy
 
     def step(self, k: int) -> FloatArray:
         """z(k) of every agent: (R, n d_z)."""
@@ -437,36 +309,47 @@ class _TeamStep:
         else:  # long windows: patterns as bytes (sorted through their rank in this block)
             packed = np.concatenate([agent[:, None].astype(np.uint8), np.packbits(bits, axis=1)], axis=1)
             codes = np.unique(packed, axis=0, return_inverse=True)[1].ravel()
-        mask = np.repeat(bits, np.tile(self.dy, w), axis=1)  # (n R, w d_y)
-        u = np.empty((n * R, self.sys.dx + w * dyt))
-        u[:, : self.sys.dx] = self.x
-        u[:, self.sys.dx :] = np.where(mask, np.tile(self.Y[:, a0 : k + 1].reshape(R, w * dyt), (n, 1)), 0.0)
-        order = np.argsort(codes, kind="stable")
+        order = np.argsort(codes, kind="stable")  # rows grouped by (agent, pattern)
         cs = codes[order]
         first = np.concatenate([[True], cs[1:] != cs[:-1]])
         starts = np.flatnonzero(first)
         gid = np.cumsum(first) - 1
-        lead = order[starts]  # a run of each pattern
-        keys = [(int(agent[r]), int(codes[r]) if w * n <= 55 else bytes(packed[r])) for r in lead.tolist()]
-        mats = self.mats
-        todo = [g for g, key in enumerate(keys) if (k, key) not in mats]
+        lead = order[starts]  # a row of each pattern
+        keys = codes[lead].tolist() if w * n <= 55 else [bytes(packed[r]) for r in lead.tolist()]
+        store = self.mats.get(k)
+        if store is None:
+            store = self.mats[k] = {"index": {}, "maps": np.zeros((0, 0, 0))}
+        index = store["index"]
+        todo = [g for g, key in enumerate(keys) if key not in index]
         if todo:
+            dyw = np.tile(self.dy, w)
             by_agent: dict[int, list[int]] = {}
             for g in todo:
-                by_agent.setdefault(keys[g][0], []).append(g)
+                by_agent.setdefault(int(agent[lead[g]]), []).append(g)
+            new = []
             for i, gs in by_agent.items():
-                Ms = self._maps(i, k, a0, mask[lead[gs]])
-                for q, g in enumerate(gs):
-                    mats[(k, keys[g])] = Ms[q]
+                new.append((gs, self._maps(i, k, a0, np.repeat(bits[lead[gs]], dyw, axis=1))))
+            maps = np.concatenate([store["maps"].reshape(-1, *new[0][1].shape[1:])] + [m for _, m in new])
+            base = len(index)
+            for gs, _ in new:
+                for g in gs:
+                    index[keys[g]] = base
+                    base += 1
+            store["maps"] = maps
+        which = np.array([index[key] for key in keys])
         sizes = np.diff(np.append(starts, n * R))
-        nslab = -(-sizes // _SLAB)
+        nslab = -(-sizes // _STEP_SLAB)
         pos = np.arange(n * R) - starts[gid]
-        vid = (np.cumsum(nslab) - nslab)[gid] + pos // _SLAB
-        pad = np.zeros((int(nslab.sum()), _SLAB, u.shape[1]))
-        pad[vid, pos % _SLAB] = u[order]
-        Ms = np.stack([mats[(k, key)] for key in keys])[np.repeat(np.arange(len(keys)), nslab)]
+        vid = (np.cumsum(nslab) - nslab)[gid] + pos // _STEP_SLAB
+        slot = pos % _STEP_SLAB
+        dx = self.sys.dx
+        pad = np.zeros((int(nslab.sum()), _STEP_SLAB, dx + w * dyt))
+        pad[vid, slot, :dx] = self.x[order]
+        Yw = self.Y[:, a0 : k + 1].reshape(R, w * dyt)
+        pad[vid, slot, dx:] = np.where(np.repeat(bits[order], np.tile(self.dy, w), axis=1), Yw[order % R], 0.0)
+        Ms = store["maps"][np.repeat(which, nslab)]
         out = np.empty((n * R, Ms.shape[1]))
-        out[order] = np.matmul(pad, Ms.transpose(0, 2, 1))[vid, pos % _SLAB]
+        out[order] = np.matmul(pad, Ms.transpose(0, 2, 1))[vid, slot]
         dx = self.sys.dx
         self.x = out[:, :dx]
         # the rule's misses: the fold's y(a0) (when it folds) and the local pairs, not held at k
@@ -524,7 +407,7 @@ class _TeamStep:
         lost = ~mask[:, tpos]  # (P, Σ d_target)
         if not lost.any():
             return
-        G = self.helper._gains(a, k, mask, targets)  # (P, Σ d_target, w' d_y), zero columns outside H
+        G = _fill_gains(self.d, self.cache, a, k, mask, targets)  # (P, Σ d_target, w' d_y), zero columns outside H
         fill = np.einsum("ptw,pwd->ptd", G, np.where(mask[:, :, None], Yt, 0.0))
         E[:] = np.where(lost[:, :, None], fill, E)
 
@@ -553,7 +436,7 @@ def _events(streams: Sequence[Any], T: int, edges: list, links: Any, omni: tuple
     u, jit = draw_link_events(streams, T, len(edges))
     out = link_outcomes(links, edges, u, jit, omni)
     t = relay_arrivals(out, n, T, links.max_jitter) if relays else None
-    _LAST[:] = [streams, (T, tuple(edges), omni), links, out, t, {}]  # holds ``streams``: its id cannot be reused meanwhile
+    _LAST[:] = [streams, (T, tuple(edges), omni), links, out, t]  # holds ``streams``: its id cannot be reused meanwhile
     return out, t
 
 
@@ -565,7 +448,9 @@ def run_lossy(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray],
     R, T = ys[0].shape[:2]
     edges = sorted(graph.edges)
     omni = tuple(bool(getattr(ag, "omniscient", False)) for ag in agents)
-    relays = not any(omni) and all(_is_team_relay(ag) and ag.inner.index == i and ag.inner.design is agents[0].inner.design for i, ag in enumerate(agents))
+    relays = not any(omni) and all(
+        _is_team_relay(ag) and ag.inner.index == i and ag.inner.design is agents[0].inner.design for i, ag in enumerate(agents)
+    )
     out, t = _events(streams, T, edges, links, omni, n, relays)
     count_links(out, stats)
     if all(omni):  # the centralized bound: every y_j(k) at step k, whatever the links
@@ -585,16 +470,6 @@ def _run_team(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray],
         if m:
             stats.missed[i] = stats.missed.get(i, 0) + int(m)
     return z
-
-
-def _fingerprint_k(design: Any) -> bytes:
-    import hashlib
-
-    return hashlib.sha256(np.ascontiguousarray(design.K, dtype=float).tobytes()).digest()
-
-
-#: most bytes of a block's shared parts (x̂ and innovations of every step) kept for the next design
-_SHARE_MAX_BYTES = 256 * 2**20
 
 
 # ---------------------------------------------------------------------------
