@@ -246,13 +246,17 @@ def _fill_gains(design: Any, cache: dict, a: int, k: int, mask: np.ndarray, targ
         P_a = sys.Sigma_x if a == 0 else (design.P_pred if design.horizon is None else design.P_pred[a])
         Sigma_W = cache["sigma"][(a, k)] = window_covariances(sys, k, a, P_a)[0]
     tpos = np.concatenate([(s - a) * dyt + off[j] + np.arange(dy[j]) for (j, s) in targets]).astype(int)
-    hh = mask[:, :, None] & mask[:, None, :]
-    M = np.where(hh, Sigma_W[None], 0.0)
-    idx = np.arange(Sigma_W.shape[0])
-    M[:, idx, idx] = np.where(mask, M[:, idx, idx], 1.0)
-    B = np.where(mask[:, :, None], Sigma_W[None][:, :, tpos], 0.0)
-    X = np.linalg.solve(M, B)  # (P, w d_y, Σ d_target); zero rows outside H
-    return np.where(mask[:, None, :], X.transpose(0, 2, 1), 0.0)  # type: ignore[no-any-return]
+    ui = np.flatnonzero(mask.any(axis=0))  # coordinates held in some pattern: the others are identity rows
+    mk = mask[:, ui]
+    S = Sigma_W[np.ix_(ui, ui)]
+    M = np.where(mk[:, :, None] & mk[:, None, :], S[None], 0.0)
+    d = np.arange(ui.size)
+    M[:, d, d] = np.where(mk, M[:, d, d], 1.0)
+    B = np.where(mk[:, :, None], Sigma_W[np.ix_(ui, tpos)][None], 0.0)
+    X = np.linalg.solve(M, B)  # (P, |ui|, Σ d_target); zero rows outside H
+    out = np.zeros((mask.shape[0], tpos.size, mask.shape[1]))
+    out[:, :, ui] = np.where(mk[:, None, :], X.transpose(0, 2, 1), 0.0)
+    return out
 
 
 _MAPS: "weakref.WeakKeyDictionary[Any, dict]" = weakref.WeakKeyDictionary()
@@ -376,7 +380,7 @@ class _TeamStep:
             for s in range(a, k + 1):
                 sel = np.zeros((dyt, D))
                 sel[:, dx + (s - a0) * dyt + np.arange(dyt)] = np.eye(dyt)
-                rows.append(sel[None] - np.einsum("ij,pjd->pid", self._C(s) @ Phi, Xa))
+                rows.append(sel[None] - np.matmul(self._C(s) @ Phi, Xa))
                 Phi = sys.A_at(s) @ Phi
             return np.concatenate(rows, axis=1)
 
@@ -386,18 +390,18 @@ class _TeamStep:
             targets = [(j, a0) for j in range(n)]
             E = Yt[:, :dyt].copy()
             self._apply_rule(E, Yt, mask, targets, a0, k)
-            X = np.einsum("ij,pjd->pid", sys.A_at(a0), X + np.einsum("ij,pjd->pid", d.K_at(a0), E))
+            X = np.matmul(sys.A_at(a0), X + np.matmul(d.K_at(a0), E))
             a = a0 + 1
         pairs = d.structure.local_pairs(i, k)
         Phi_k = sys.transition(k, a)
-        Z = np.einsum("ij,pjd->pid", d.cost.L_block(i, k) @ Phi_k, X)
+        Z = np.matmul(d.cost.L_block(i, k) @ Phi_k, X)
         if pairs:
             Yt = ytil(a, X)
             sub = mask[:, (a - a0) * dyt :]
             cols = [(s - a) * dyt + self.off[j] + np.arange(self.dy[j]) for (j, s) in pairs]
             innov = Yt[:, np.concatenate(cols)]
             self._apply_rule(innov, Yt, sub, pairs, a, k)
-            Z = Z + np.einsum("ij,pjd->pid", d.gain_at(k)[i], innov)
+            Z = Z + np.matmul(d.gain_at(k)[i], innov)
         return np.concatenate([X, Z], axis=1)
 
     def _apply_rule(self, E: FloatArray, Yt: FloatArray, mask: np.ndarray, targets: list[tuple[int, int]], a: int, k: int) -> None:
@@ -408,7 +412,7 @@ class _TeamStep:
         if not lost.any():
             return
         G = _fill_gains(self.d, self.cache, a, k, mask, targets)  # (P, Σ d_target, w' d_y), zero columns outside H
-        fill = np.einsum("ptw,pwd->ptd", G, np.where(mask[:, :, None], Yt, 0.0))
+        fill = np.matmul(G, Yt)  # G is zero outside H: only held measurements enter
         E[:] = np.where(lost[:, :, None], fill, E)
 
     def _C(self, s: int) -> FloatArray:
