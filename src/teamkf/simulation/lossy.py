@@ -65,6 +65,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .._validation import FloatArray
+from ..exceptions import TeamkfError
 from ..network.graph import CommGraph
 
 __all__ = ["LinkOutcomes", "draw_link_events", "link_outcomes", "relay_arrivals", "count_links", "run_lossy"]
@@ -228,7 +229,7 @@ def _design_cache(design: Any) -> dict:
     return c
 
 
-def _fill_gains(design: Any, cache: dict, a: int, k: int, mask: np.ndarray, targets: list[tuple[int, int]]) -> FloatArray:
+def _fill_gains(design: Any, cache: dict, a: int, k: int, mask: np.ndarray, targets: list[tuple[int, int]], ui: np.ndarray) -> FloatArray:
     """G(H) = Σ_W[targets, H] Σ_W[H, H]^-1 with zero columns outside H, for each row of ``mask`` (P, w d_y).
 
     Σ_W is the covariance of the window innovations y(a : k) - C Φ x̂(a) under the nominal predictor
@@ -245,7 +246,8 @@ def _fill_gains(design: Any, cache: dict, a: int, k: int, mask: np.ndarray, targ
         P_a = sys.Sigma_x if a == 0 else (design.P_pred if design.horizon is None else design.P_pred[a])
         Sigma_W = cache["sigma"][(a, k)] = window_covariances(sys, k, a, P_a)[0]
     tpos = np.concatenate([(s - a) * dyt + off[j] + np.arange(dy[j]) for (j, s) in targets]).astype(int)
-    ui = np.flatnonzero(mask.any(axis=0))  # coordinates held in some pattern: the others are identity rows
+    # ui: the coordinates that can be held at all (a fixed set, so a pattern's gain does not depend on the
+    # other patterns solved with it); the others are identity rows
     mk = mask[:, ui]
     S = Sigma_W[np.ix_(ui, ui)]
     M = np.where(mk[:, :, None] & mk[:, None, :], S[None], 0.0)
@@ -290,7 +292,7 @@ class _TeamStep:
     (:class:`~teamkf.estimators.team.TeamAgent`) in another order: equal to round-off.
     """
 
-    def __init__(self, design: Any, ys: Sequence[FloatArray], t: np.ndarray):
+    def __init__(self, design: Any, ys: Sequence[FloatArray], t: np.ndarray, ell: list[list[int]]):
         self.d, self.sys = design, design.system
         self.n, self.c = self.sys.n_agents, design.structure.common_lag
         self.Y = np.concatenate(ys, axis=2)  # (R, T, Σ d_y)
@@ -299,6 +301,7 @@ class _TeamStep:
         self.x = np.zeros((self.n * self.R, self.sys.dx))  # row i R + r: agent i, run r
         self.cache = _design_cache(design)
         self.mats = _step_maps(design)
+        self.ell = ell  # ell[j][i]: y_j(s) reaches agent i at s + ell[j][i] at the earliest
         self.missed = np.zeros((self.R, self.n, self.n, self.T), dtype=bool)
         self.dy = [int(v) for v in self.sys.dy]
         self.off = np.asarray(self.sys.offsets, dtype=int)
@@ -425,7 +428,7 @@ class _TeamStep:
             Yt = ytil(a0, X)
             targets = [(j, a0) for j in range(n)]
             E = Yt[:, :dyt].copy()
-            self._apply_rule(E, Yt, mask, targets, a0, k)
+            self._apply_rule(E, Yt, mask, targets, a0, k, i)
             X = np.matmul(sys.A_at(a0), X + np.matmul(d.K_at(a0), E))
             a = a0 + 1
         pairs = d.structure.local_pairs(i, k)
@@ -435,17 +438,19 @@ class _TeamStep:
         sub = mask[:, (a - a0) * dyt :]
         cols = [(s - a) * dyt + self.off[j] + np.arange(self.dy[j]) for (j, s) in pairs]
         innov = Yt[:, np.concatenate(cols)]
-        self._apply_rule(innov, Yt, sub, pairs, a, k)
+        self._apply_rule(innov, Yt, sub, pairs, a, k, i)
         return X, innov, a
 
-    def _apply_rule(self, E: FloatArray, Yt: FloatArray, mask: np.ndarray, targets: list[tuple[int, int]], a: int, k: int) -> None:
+    def _apply_rule(self, E: FloatArray, Yt: FloatArray, mask: np.ndarray, targets: list[tuple[int, int]], a: int, k: int, i: int) -> None:
         """Rows of lost targets in E (P, Σ d_target, D) := G(H) Ỹ_H (the conditional expectation of their innovation)."""
         dyt = self.sys.dy_total
         tpos = np.concatenate([(s - a) * dyt + self.off[j] + np.arange(self.dy[j]) for (j, s) in targets]).astype(int)
         lost = ~mask[:, tpos]  # (P, Σ d_target)
         if not lost.any():
             return
-        G = _fill_gains(self.d, self.cache, a, k, mask, targets)  # (P, Σ d_target, w' d_y), zero columns outside H
+        reach = [(s - a) * dyt + self.off[j] + np.arange(self.dy[j]) for s in range(a, k + 1) for j in range(self.n) if s + self.ell[j][i] <= k]
+        ui = np.concatenate(reach).astype(int) if reach else np.zeros(0, dtype=int)
+        G = _fill_gains(self.d, self.cache, a, k, mask, targets, ui)  # (P, Σ d_target, w' d_y), zero columns outside H
         fill = np.matmul(G, Yt)  # G is zero outside H: only held measurements enter
         E[:] = np.where(lost[:, :, None], fill, E)
 
@@ -501,8 +506,13 @@ def run_lossy(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray],
 
 def _run_team(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray], t: np.ndarray, streams: Any, stats: Any) -> FloatArray:
     """MTMSE/MMSE relays: every agent and run stepped together, one linear map per (agent, step, pattern)."""
-    del graph, streams
-    ts = _TeamStep(agents[0].inner.design, ys, t)
+    del streams
+    n = len(agents)
+    try:  # y_j(s) cannot reach agent i before s + ℓ_ji (geodesic delay), whatever the links do
+        ell = np.asarray(graph.geodesic_delays()).T.tolist()  # ell[j][i] = ℓ_ji
+    except TeamkfError:  # not strongly connected: no bound used
+        ell = [[0] * n for _ in range(n)]
+    ts = _TeamStep(agents[0].inner.design, ys, t, ell)
     z = np.stack([ts.step(k) for k in range(ys[0].shape[1])], axis=1)
     for i, m in enumerate(ts.missed.sum(axis=(0, 2, 3)).tolist()):
         if m:
