@@ -64,6 +64,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .._progress import progress
 from .._validation import FloatArray
 from ..exceptions import TeamkfError
 from ..network.graph import CommGraph
@@ -376,7 +377,7 @@ class _TeamStep:
         """:meth:`_maps`, reusing the parts [x̂(a'); ĩ] that another design of the same model (MTMSE and MMSE share
         the predictor and the rule) built for the same patterns; they are handed over once and dropped."""
         fp = (_fingerprint(self.d), hashlib.sha256(np.ascontiguousarray(self.d.K, dtype=float).tobytes()).digest())
-        got = [_PRE.pop((fp, k, key), None) for key in keys]
+        got: list[Any] = [_PRE.pop((fp, k, key), None) for key in keys]
         miss = [q for q, g in enumerate(got) if g is None]
         if miss:
             X, innov, a = self._pre(i, k, a0, mask[miss])
@@ -513,7 +514,8 @@ def _run_team(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray],
     except TeamkfError:  # not strongly connected: no bound used
         ell = [[0] * n for _ in range(n)]
     ts = _TeamStep(agents[0].inner.design, ys, t, ell)
-    z = np.stack([ts.step(k) for k in range(ys[0].shape[1])], axis=1)
+    T = ys[0].shape[1]
+    z = np.stack([ts.step(k) for k in progress(range(T), desc="lossy runtime", total=T, unit="step")], axis=1)
     for i, m in enumerate(ts.missed.sum(axis=(0, 2, 3)).tolist()):
         if m:
             stats.missed[i] = stats.missed.get(i, 0) + int(m)
@@ -531,7 +533,7 @@ def _run_grouped(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArra
     R, T = ys[0].shape[:2]
     ok = out.delivered
     results = []
-    for r in range(R):
+    for r in progress(range(R), desc="lossy runtime (run by run)", total=R, unit="run"):
         states = [ag.init_state(1) for ag in agents]
         inbox: dict[int, list[list[Any]]] = {}
         zr = []
