@@ -303,7 +303,6 @@ class _TeamStep:
         self.cache = _design_cache(design)
         self.mats = _step_maps(design)
         self.ell = ell  # ell[j][i]: y_j(s) reaches agent i at s + ell[j][i] at the earliest
-        self.missed = np.zeros((self.R, self.n, self.n, self.T), dtype=bool)
         self.dy = [int(v) for v in self.sys.dy]
         self.off = np.asarray(self.sys.offsets, dtype=int)
 
@@ -363,15 +362,25 @@ class _TeamStep:
         out[order] = np.matmul(pad, Ms.transpose(0, 2, 1))[vid, slot]
         dx = self.sys.dx
         self.x = out[:, :dx]
-        # the rule's misses: the fold's y(a0) (when it folds) and the local pairs, not held at k
-        for i in range(n):
-            if k >= self.c:
-                self.missed[:, i, :, a0] |= self.t[:, i, :, a0] > k
-            pairs = self.d.structure.local_pairs(i, k)
-            if pairs:
-                js, ss = np.array([j for j, _ in pairs]), np.array([s for _, s in pairs])
-                self.missed[:, i, js, ss] |= self.t[:, i, js, ss] > k
         return out[:, dx:].reshape(n, R, -1).transpose(1, 0, 2).reshape(R, -1)  # type: ignore[no-any-return]
+
+    def misses(self) -> np.ndarray:
+        """Per agent, the measurements the rule replaced at least once, summed over runs: (n,).
+
+        y_j(s) is replaced when it is folded at s + c without having arrived, or when it is first needed in
+        agent i's window, at s + (its smallest local lag), without having arrived (later needs are implied).
+        """
+        n, T, c = self.n, self.T, self.c
+        s = np.arange(T)
+        big = 2 * T + c + 1
+        lag = np.full((n, n), big)
+        for i in range(n):
+            for j, l in self.d.structure.local_lags(i):
+                lag[i, j] = min(lag[i, j], l)
+        fold = (self.t > (s + c)) & (s + c <= T - 1)
+        need = s[None, None, :] + lag[:, :, None]  # (i, j, s)
+        loc = (self.t > need[None]) & (need[None] <= T - 1)
+        return (fold | loc).sum(axis=(0, 2, 3))  # type: ignore[no-any-return]
 
     def _maps_shared(self, i: int, k: int, a0: int, keys: list, mask: np.ndarray) -> FloatArray:
         """:meth:`_maps`, reusing the parts [x̂(a'); ĩ] that another design of the same model (MTMSE and MMSE share
@@ -516,7 +525,7 @@ def _run_team(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray],
     ts = _TeamStep(agents[0].inner.design, ys, t, ell)
     T = ys[0].shape[1]
     z = np.stack([ts.step(k) for k in progress(range(T), desc="lossy runtime", total=T, unit="step")], axis=1)
-    for i, m in enumerate(ts.missed.sum(axis=(0, 2, 3)).tolist()):
+    for i, m in enumerate(ts.misses().tolist()):
         if m:
             stats.missed[i] = stats.missed.get(i, 0) + int(m)
     return z
