@@ -212,11 +212,18 @@ class LinkStats:
             self.missed[a] = self.missed.get(a, 0) + m
 
 
-def link_streams(seed: Any, n_runs: int) -> list[np.random.SeedSequence]:
-    """One link-event stream per run: the run's noise stream extended by :data:`LINK_STREAM_KEY` (no spawning state)."""
-    from .sampling import run_streams
+def link_streams(seed: Any, n_runs: int, first_run: int = 0) -> list[np.random.SeedSequence]:
+    """The link-event streams of runs ``first_run .. n_runs - 1``: run r's is ``SeedSequence(seed).spawn(n_runs)[r]``
+    extended by :data:`LINK_STREAM_KEY`, i.e. ``SeedSequence(entropy, spawn_key=spawn_key + (r, LINK_STREAM_KEY))``,
+    built directly (no spawning state, and no cost for the runs before ``first_run``)."""
+    from .sampling import seed_sequence
 
-    return [np.random.SeedSequence(s.entropy, spawn_key=tuple(s.spawn_key) + (LINK_STREAM_KEY,)) for s in run_streams(seed, n_runs)]
+    root = seed_sequence(seed)
+    base, k0 = tuple(root.spawn_key), root.n_children_spawned  # spawn() numbers children from the parent's count
+    return [
+        np.random.SeedSequence(root.entropy, spawn_key=base + (k0 + r, LINK_STREAM_KEY), pool_size=root.pool_size)
+        for r in range(int(first_run), int(n_runs))
+    ]
 
 
 def pass_messages_lossy(
@@ -227,13 +234,16 @@ def pass_messages_lossy(
     streams: Sequence[np.random.SeedSequence],
     stats: LinkStats | None = None,
 ) -> FloatArray:
-    """The message-passing loop over unreliable links, one run at a time (each with its own link events).
+    """The message-passing loop over unreliable links, each run with its own link events.
 
     Like :func:`teamkf.estimators.base.pass_messages`, but a payload sent by j at step
     s on edge j -> i is lost with probability p_drop (or in an outage, or not sent by a
     failed agent) and otherwise arrives at s + τ_ji + e, e uniform in 0..J. The inbox
     entries keep (sender, sent step, payload); several may arrive from one sender at
     once. Returns the estimates (n_runs, T, Σ d_z); counts go into ``stats``.
+
+    Batched over runs (:mod:`teamkf.simulation.lossy`): the link events of all runs are
+    drawn up front as arrays, relays and the MTMSE/MMSE missed-packet rule run vectorized.
     """
     n = graph.n_agents
     if len(agents) != n or len(ys) != n:
@@ -246,55 +256,9 @@ def pass_messages_lossy(
         for obj in (ag, getattr(ag, "inner", None)):
             if obj is not None and hasattr(obj, "tolerant"):
                 obj.tolerant = True
-    edges = sorted(graph.edges)
-    p = {(a, b): links.p_of((a, b)) for (a, b, _) in edges}
-    J = {(a, b): links.jitter_of((a, b)) for (a, b, _) in edges}
-    down: dict[Edge, list[tuple[int, int]]] = {}
-    for a, b, f, l in links.outages:
-        down.setdefault((a, b), []).append((f, l))
-    stats = stats if stats is not None else LinkStats()
-    results = []
-    for r in range(n_runs):
-        rng = np.random.default_rng(streams[r])
-        states = [ag.init_state(1) for ag in agents]
-        inbox: dict[int, list[list[Any]]] = {}  # arrival step -> per agent list of messages
-        zr = []
-        for k in range(T):
-            box = inbox.pop(k, None) or [[] for _ in range(n)]
-            zs, payloads = [], []
-            for i, ag in enumerate(agents):
-                if getattr(ag, "omniscient", False):
-                    own: Any = [(j, k, ys[j][r : r + 1, k]) for j in range(n)]
-                    msgs: list[Any] = []
-                else:
-                    own, msgs = ys[i][r : r + 1, k], box[i]
-                states[i], z, payload = ag.step(states[i], k, own, msgs)
-                zs.append(z)
-                payloads.append(payload)
-            u = rng.random(len(edges))  # one drop and one jitter draw per edge and step, whatever happens
-            jit = rng.random(len(edges))
-            for q, (a, b, d) in enumerate(edges):
-                if getattr(agents[a], "omniscient", False):
-                    continue
-                if a in links.failures and k >= links.failures[a]:
-                    continue
-                e = (a, b)
-                stats.add(e, "sent")
-                if any(f <= k <= l for f, l in down.get(e, ())) or u[q] < p[e]:
-                    stats.add(e, "dropped")
-                    continue
-                extra = int(jit[q] * (J[e] + 1)) if J[e] else 0
-                arrive = k + d + extra
-                stats.add(e, "late" if extra else "delivered")
-                if arrive < T:
-                    inbox.setdefault(arrive, [[] for _ in range(n)])[b].append((a, k, payloads[a]))
-            zr.append(np.concatenate(zs, axis=1))
-        results.append(np.stack(zr, axis=1))
-        for i in range(n):
-            m = _missed(states[i])
-            if m:
-                stats.missed[i] = stats.missed.get(i, 0) + m
-    return np.concatenate(results, axis=0)
+    from .lossy import run_lossy
+
+    return run_lossy(agents, graph, ys, links, streams, stats if stats is not None else LinkStats())
 
 
 def _missed(state: Any) -> int:

@@ -44,6 +44,7 @@ import numpy as np
 from .. import _validation as V
 from .._validation import FloatArray
 from ..exceptions import ArgumentError, ShapeError
+from .mc_result import MonteCarloResults
 from .online import run_online
 from .sampling import RunStreams, sample_paths
 
@@ -350,7 +351,7 @@ def _run_chunk(spec: _Spec, first_block: int, last_block: int) -> dict[str, Any]
                 from .links import link_streams
 
                 seq = np.random.SeedSequence(spec.streams.entropy, spawn_key=spec.streams.spawn_key)
-                lstreams = link_streams(seq, b)[a:b]
+                lstreams = link_streams(seq, b, first_run=a)
             for name, d in spec.designs.items():
                 c = _block_costs(d, paths, spec.path, spec.graph, spec.links, lstreams, lstats.get(name))
                 tot = c.sum(axis=1)
@@ -466,7 +467,7 @@ def monte_carlo(
     scheduler: Any = None,
     progress: bool | None = None,
     links: Any = None,
-) -> dict[str, MonteCarloResult]:
+) -> MonteCarloResults:
     """Evaluate every design on the same ``n_runs`` sampled paths, streamed in blocks (module docstring).
 
     Parameters
@@ -507,8 +508,8 @@ def monte_carlo(
 
     Returns
     -------
-    dict of str to MonteCarloResult
-        One result per design, under the design's name: the mean cost per step and in total,
+    MonteCarloResults
+        A read-only mapping: one result per design, under the design's name (``.to_frame()`` for a table): the mean cost per step and in total,
         with standard errors and 95 % intervals (``result["mtmse"].ci95``).
 
     Examples
@@ -591,4 +592,4 @@ def monte_carlo(
         out[name] = MonteCarloResult(
             name, R_, np.array([m for m, _ in ms]), np.array([e for _, e in ms]), tm, ts, path, seed, B, per_chunk * B, link_totals.get(name)
         )
-    return out
+    return MonteCarloResults(out)

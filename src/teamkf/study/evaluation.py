@@ -258,7 +258,7 @@ def _evaluate_team(scenario: Any, estimators: Sequence[str] | None, runs: int, s
         designs = scenario.designs(names)
     if mc_runs and seed is None:
         seed = int(np.random.SeedSequence().entropy % (2**32))  # type: ignore[operator]
-    mc: dict[str, Any] = {}
+    mc: Mapping[str, Any] = {}
     if mc_runs:
         with np.errstate(over="ignore", invalid="ignore"):
             mc = monte_carlo(

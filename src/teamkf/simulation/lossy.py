@@ -1,0 +1,570 @@
+r"""The lossy runtime batched over runs: link events as arrays, relays and packet agents vectorized.
+
+:func:`teamkf.simulation.links.pass_messages_lossy` runs here. Its three stages:
+
+1. **Link events, all runs at once** (:func:`draw_link_events`). Run r draws, from its own stream
+   (:func:`~teamkf.simulation.links.link_streams`), one uniform u_e(k) (drop) and one uniform
+   j_e(k) (jitter) per edge e and step k, whatever happens — the same numbers, in the same order,
+   as the one-run-at-a-time loop of teamkf 0.2, so a seed gives the same drops as before. From them
+   (:func:`link_outcomes`) the packet sent on e = (a → b, τ_e) at step k
+
+   .. math::  \text{is lost} \iff k \in \text{an outage of } e \ \lor\ u_e(k) < p_e,
+              \qquad \text{else arrives at } k + τ_e + \lfloor j_e(k) (J_e + 1) \rfloor,
+
+   and nothing is sent by an agent from its failure step on. Per-edge counts are sums of these
+   arrays.
+
+2. **Relays** (packet agents behind :class:`~teamkf.estimators.base.MeasurementRelay`: MTMSE,
+   MMSE, the own-window designs). A relay forwards, at the step it first learns them, the
+   measurements it had never seen, so what reaches agent i depends only on the link events: the
+   first time t_i(j, s) at which agent i holds y_j(s) obeys
+
+   .. math::  t_i(i, s) = s, \qquad t_i(j, s) = \min_{m \to i \text{ delivers at } t_m(j, s)}
+              \big(t_m(j, s) + τ_{mi} + \text{extra}_{mi}(t_m(j, s))\big),
+
+   computed for every run as integer arrays (:func:`relay_arrivals`), step by step (an arrival is
+   always later than its sending step, τ >= 1). A packet crosses each node at most once, so
+   t_i(j, s) - s <= (n - 1)(τ_max + J_max) when it is finite: only that many steps are scanned.
+
+3. **The missed-packet rule, for all runs at once** (:class:`_TeamStep`). The MTMSE/MMSE agent
+   i holds at step k the window measurements H = {(j, s) : a <= s <= k, t_i(j, s) <= k}. A needed
+   measurement y_m that is not in H is replaced by its conditional expectation
+
+   .. math::  E[y_m \mid \hat x(a), y_H] = C_m Φ \hat x(a) + Σ_W[m, H] Σ_W[H, H]^{-1} \tilde y_H
+
+   (:meth:`~teamkf.estimators.team.TeamAgent.expected_measurements`, Σ_W under the nominal
+   predictor covariance). The agent's whole step — folding y(a0), a0 = k - c, into the common
+   predictor with the rule, then its local estimate with the rule — is therefore linear in
+   u = [x̂(a0); y(a0 : k) restricted to H]:
+
+   .. math::  [\hat x(a0 + 1);\ z_i(k)] = M_{i,k}(H)\, u .
+
+   The map depends on the run only through (i, H), so the rows (agent, run) are sorted by
+   (agent, pattern) at each step, M is built once per pattern (all new patterns of a step in one
+   batched solve, then cached on the design: patterns repeat across blocks), and all rows are
+   stepped by one batched matrix product. The estimates are those of the agents' own online step
+   to round-off (checked in ``tests/unit/test_lossy_mc.py``), with the same miss counts.
+
+Other families (KCF, CIKF, local, diffusion, CI, ICF, HCMCI) run their own tolerant ``step`` one
+run at a time on the same precomputed link events (:func:`_run_grouped`; their states are not
+batched by arrival pattern yet, so they keep the speed of teamkf 0.2). An omniscient design (the
+centralized bound) receives every y_j(k) at step k whatever the links do, so it runs as on reliable
+links, vectorized.
+
+Each block of runs is computed alone, so the result of a run depends on its block (``batch``) and
+not on how blocks are grouped into chunks or on the worker.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import weakref
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+
+from .._progress import progress
+from .._validation import FloatArray
+from ..exceptions import TeamkfError
+from ..network.graph import CommGraph
+
+__all__ = ["LinkOutcomes", "draw_link_events", "link_outcomes", "relay_arrivals", "count_links", "run_lossy"]
+
+
+@dataclass(frozen=True)
+class LinkOutcomes:
+    """What happens to the packet each edge carries at each step, for every run of a block.
+
+    Attributes
+    ----------
+    edges : list of (source, target, delay), sorted (the order of the link-event draws)
+    sent : (T, E) bool       the source sends at that step (not failed, not omniscient)
+    lost : (R, T, E) bool    the packet is lost (drop or outage); meaningful where ``sent``
+    extra : (R, T, E) int    extra jitter steps of a delivered packet
+    arrive : (R, T, E) int   arrival step k + τ_e + extra (>= T: after the horizon)
+    """
+
+    edges: list[tuple[int, int, int]]
+    sent: np.ndarray
+    lost: np.ndarray
+    extra: np.ndarray
+    arrive: np.ndarray
+
+    @property
+    def delivered(self) -> np.ndarray:
+        """(R, T, E) bool: sent, not lost and arriving within the horizon."""
+        T = self.sent.shape[0]
+        return self.sent[None] & ~self.lost & (self.arrive < T)  # type: ignore[no-any-return]
+
+
+def draw_link_events(streams: Sequence[np.random.SeedSequence], T: int, n_edges: int) -> tuple[FloatArray, FloatArray]:
+    """(u, j): the drop and jitter uniforms, each (R, T, E), of every run from its own stream.
+
+    Run r's generator is ``default_rng(streams[r])``; per step it draws E drop uniforms then E
+    jitter uniforms (the order of the one-run loop, so the numbers are the same).
+    """
+    R = len(streams)
+    draws = np.empty((R, T, 2, n_edges))
+    for r, s in enumerate(streams):
+        np.random.default_rng(s).random(out=draws[r].reshape(-1))
+    return draws[:, :, 0], draws[:, :, 1]
+
+
+def link_outcomes(links: Any, edges: Sequence[tuple[int, int, int]], u: FloatArray, jit: FloatArray, omniscient: Sequence[bool]) -> LinkOutcomes:
+    """Drops, outages, failures and jitter of every (run, step, edge) (module docstring, stage 1)."""
+    R, T, E = u.shape
+    steps = np.arange(T)
+    sent = np.ones((T, E), dtype=bool)
+    down = np.zeros((T, E), dtype=bool)
+    p = np.empty(E)
+    J = np.empty(E, dtype=np.int64)
+    d = np.empty(E, dtype=np.int64)
+    for q, (a, b, delay) in enumerate(edges):
+        if omniscient[a]:
+            sent[:, q] = False
+        if a in links.failures:
+            sent[steps >= links.failures[a], q] = False
+        for a2, b2, f, last in links.outages:
+            if (a2, b2) == (a, b):
+                down[f : last + 1, q] = True
+        p[q], J[q], d[q] = links.p_of((a, b)), links.jitter_of((a, b)), delay
+    lost = down[None] | (u < p)
+    extra = np.where(J > 0, (jit * (J + 1)).astype(np.int64), 0)
+    arrive = steps[None, :, None] + d + extra
+    return LinkOutcomes(list(edges), sent, lost, extra, arrive)
+
+
+def count_links(out: LinkOutcomes, stats: Any) -> None:
+    """Add the per-edge counts (sent, delivered on time, late, dropped) of every run to ``stats``."""
+    R = out.lost.shape[0]
+    for q, (a, b, _) in enumerate(out.edges):
+        s = out.sent[:, q]
+        n_sent = int(s.sum()) * R
+        if not n_sent:
+            continue
+        lost = out.lost[:, s, q]
+        late = (~lost) & (out.extra[:, s, q] > 0)
+        n_lost, n_late = int(lost.sum()), int(late.sum())
+        stats.add((a, b), "sent", n_sent)
+        stats.add((a, b), "dropped", n_lost)
+        stats.add((a, b), "late", n_late)
+        stats.add((a, b), "delivered", n_sent - n_lost - n_late)
+
+
+def relay_arrivals(out: LinkOutcomes, n: int, T: int, max_jitter: int) -> np.ndarray:
+    """t[r, i, j, s]: the step at which agent i first holds y_j(s) in run r (T: never), stage 2."""
+    R = out.lost.shape[0]
+    t = np.full((R, n, n, T), T, dtype=np.int32)
+    for i in range(n):
+        t[:, i, i, :] = np.arange(T)
+    if not out.edges:
+        return t
+    horizon = (n - 1) * (max(d for (_, _, d) in out.edges) + max_jitter)  # a packet's latency when it arrives
+    ok = out.delivered
+    by_src: dict[int, list[int]] = {}
+    for q, (a, _, _) in enumerate(out.edges):
+        by_src.setdefault(a, []).append(q)
+    arrive = out.arrive.astype(np.int32)
+    for k in range(T):
+        lo = max(0, k - horizon)
+        for m, qs in by_src.items():
+            qs_k = [q for q in qs if out.sent[k, q] and ok[:, k, q].any()]
+            if not qs_k:
+                continue
+            new = t[:, m, :, lo : k + 1] == k  # what m learns at k, and forwards at k
+            if not new.any():
+                continue
+            for q in qs_k:
+                b = out.edges[q][1]
+                cand = np.where(new & ok[:, k, q, None, None], arrive[:, k, q, None, None], T)
+                dst = t[:, b, :, lo : k + 1]
+                np.minimum(dst, cand, out=dst)
+    return t
+
+
+# ---------------------------------------------------------------------------
+# MTMSE / MMSE agents with the missed-packet rule, all runs at once
+# ---------------------------------------------------------------------------
+_FINGERPRINTS: "weakref.WeakKeyDictionary[Any, bytes]" = weakref.WeakKeyDictionary()
+_CACHES: dict[bytes, dict] = {}
+_CACHE_MAX = 50_000  # fill gains kept per model (each (targets x window) doubles)
+_STEP_SLAB = 8  # rows per slab of a step's batched product (most patterns hold few runs)
+
+
+def _fingerprint(design: Any) -> bytes:
+    """What the fill gains depend on: the model, the predictor covariances and the information structure.
+
+    MTMSE and MMSE designs of one scenario share it (the same Kalman predictor), so they share gains.
+    """
+    try:
+        fp = _FINGERPRINTS.get(design)
+    except TypeError:  # pragma: no cover - not weakly referenceable
+        fp = None
+    if fp is None:
+        sys, st = design.system, design.structure
+        h = hashlib.sha256()
+        for arr in (sys.A, sys.Q, sys.Sigma_x, *sys.C, *sys.R, design.P_pred):
+            a = np.ascontiguousarray(arr, dtype=float)
+            h.update(repr(a.shape).encode())
+            h.update(a.tobytes())
+        h.update(repr((design.horizon, st.common_lag, [list(map(tuple, loc)) for loc in st.local])).encode())
+        fp = h.digest()
+        try:
+            _FINGERPRINTS[design] = fp
+        except TypeError:  # pragma: no cover
+            pass
+    return fp
+
+
+def _design_cache(design: Any) -> dict:
+    fp = _fingerprint(design)
+    c = _CACHES.get(fp)
+    if c is None:
+        if len(_CACHES) >= 8:  # a few models at a time (a sweep moves on)
+            _CACHES.pop(next(iter(_CACHES)))
+        c = _CACHES[fp] = {"sigma": {}, "fill": {}}
+    if c.get("n_fill", 0) > _CACHE_MAX:  # bounded: patterns of lossy runs repeat, but need not
+        c["fill"].clear()
+        c["n_fill"] = 0
+    return c
+
+
+def _fill_gains(design: Any, cache: dict, a: int, k: int, mask: np.ndarray, targets: list[tuple[int, int]], ui: np.ndarray) -> FloatArray:
+    """G(H) = Σ_W[targets, H] Σ_W[H, H]^-1 with zero columns outside H, for each row of ``mask`` (P, w d_y).
+
+    Σ_W is the covariance of the window innovations y(a : k) - C Φ x̂(a) under the nominal predictor
+    covariance P(a) (:func:`~teamkf.estimators.team.window_covariances`), as in
+    :meth:`~teamkf.estimators.team.TeamAgent.expected_measurements`. Solved as one batched system:
+    M = Σ_W on H x H and the identity elsewhere, M X = 1_H Σ_W[:, targets].
+    """
+    sys = design.system
+    dyt, off, dy = sys.dy_total, np.asarray(sys.offsets, dtype=int), [int(v) for v in sys.dy]
+    Sigma_W = cache["sigma"].get((a, k))
+    if Sigma_W is None:
+        from ..estimators.team import window_covariances
+
+        P_a = sys.Sigma_x if a == 0 else (design.P_pred if design.horizon is None else design.P_pred[a])
+        Sigma_W = cache["sigma"][(a, k)] = window_covariances(sys, k, a, P_a)[0]
+    tpos = np.concatenate([(s - a) * dyt + off[j] + np.arange(dy[j]) for (j, s) in targets]).astype(int)
+    # ui: the coordinates that can be held at all (a fixed set, so a pattern's gain does not depend on the
+    # other patterns solved with it); the others are identity rows
+    mk = mask[:, ui]
+    S = Sigma_W[np.ix_(ui, ui)]
+    M = np.where(mk[:, :, None] & mk[:, None, :], S[None], 0.0)
+    d = np.arange(ui.size)
+    M[:, d, d] = np.where(mk, M[:, d, d], 1.0)
+    B = np.where(mk[:, :, None], Sigma_W[np.ix_(ui, tpos)][None], 0.0)
+    X = np.linalg.solve(M, B)  # (P, |ui|, Σ d_target); zero rows outside H
+    out = np.zeros((mask.shape[0], tpos.size, mask.shape[1]))
+    out[:, :, ui] = np.where(mk[:, None, :], X.transpose(0, 2, 1), 0.0)
+    return out
+
+
+_MAPS: "weakref.WeakKeyDictionary[Any, dict]" = weakref.WeakKeyDictionary()
+#: parts of step maps built by one design, waiting for the next design of the same model (popped when used)
+_PRE: dict[tuple, tuple] = {}
+_PRE_BYTES = [0]
+_PRE_MAX_BYTES = 128 * 2**20
+
+
+def _step_maps(design: Any) -> dict:
+    """The cache of a design's step maps M_{i,k}(H) (they hold its own gains: not shared between designs)."""
+    try:
+        m = _MAPS.get(design)
+        if m is None or len(m) > _CACHE_MAX:
+            m = _MAPS[design] = {}
+        return m
+    except TypeError:  # pragma: no cover - not weakly referenceable
+        return {}
+
+
+class _TeamStep:
+    r"""Every agent of an MTMSE/MMSE design over a block of runs, one linear map per step and arrival pattern.
+
+    With H the window measurements agent i holds at step k, its whole step (fold of y(a0) with the rule,
+    then the local estimate with the rule) is linear in u = [x̂(a0); y(a0 : k) on H]:
+
+    .. math::  [\hat x(a'); z_i(k)] = M_{i,k}(H)\, u,
+
+    M built once per (i, k, H) from the rule's gains (cached on the design), so a step of all agents and
+    runs is one gather of u, one sort by (agent, pattern) and one batched product: a few numpy calls per
+    step whatever the number of runs, agents and patterns. The agents' own arithmetic
+    (:class:`~teamkf.estimators.team.TeamAgent`) in another order: equal to round-off.
+    """
+
+    def __init__(self, design: Any, ys: Sequence[FloatArray], t: np.ndarray, ell: list[list[int]]):
+        self.d, self.sys = design, design.system
+        self.n, self.c = self.sys.n_agents, design.structure.common_lag
+        self.Y = np.concatenate(ys, axis=2)  # (R, T, Σ d_y)
+        self.t = t  # (R, n, n, T)
+        self.R, self.T = ys[0].shape[:2]
+        self.x = np.zeros((self.n * self.R, self.sys.dx))  # row i R + r: agent i, run r
+        self.cache = _design_cache(design)
+        self.mats = _step_maps(design)
+        self.ell = ell  # ell[j][i]: y_j(s) reaches agent i at s + ell[j][i] at the earliest
+        self.dy = [int(v) for v in self.sys.dy]
+        self.off = np.asarray(self.sys.offsets, dtype=int)
+
+    def step(self, k: int) -> FloatArray:
+        """z(k) of every agent: (R, n d_z)."""
+        n, R, dyt = self.n, self.R, self.sys.dy_total
+        a0 = max(0, k - self.c)
+        w = k - a0 + 1
+        held = self.t[:, :, :, a0 : k + 1] <= k  # (R, i, j, w)
+        bits = held.transpose(1, 0, 3, 2).reshape(n * R, w * n)  # row (i, r); window order: step, then agent
+        agent = np.repeat(np.arange(n, dtype=np.int64), R)
+        if w * n <= 55:
+            codes = (bits @ (np.int64(1) << np.arange(w * n, dtype=np.int64))) + (agent << 56)
+        else:  # long windows: patterns as bytes (sorted through their rank in this block)
+            packed = np.concatenate([agent[:, None].astype(np.uint8), np.packbits(bits, axis=1)], axis=1)
+            codes = np.unique(packed, axis=0, return_inverse=True)[1].ravel()
+        order = np.argsort(codes, kind="stable")  # rows grouped by (agent, pattern)
+        cs = codes[order]
+        first = np.concatenate([[True], cs[1:] != cs[:-1]])
+        starts = np.flatnonzero(first)
+        gid = np.cumsum(first) - 1
+        lead = order[starts]  # a row of each pattern
+        keys = codes[lead].tolist() if w * n <= 55 else [bytes(packed[r]) for r in lead.tolist()]
+        store = self.mats.get(k)
+        if store is None:
+            store = self.mats[k] = {"index": {}, "maps": np.zeros((0, 0, 0))}
+        index = store["index"]
+        todo = [g for g, key in enumerate(keys) if key not in index]
+        if todo:
+            dyw = np.tile(self.dy, w)
+            by_agent: dict[int, list[int]] = {}
+            for g in todo:
+                by_agent.setdefault(int(agent[lead[g]]), []).append(g)
+            new = []
+            for i, gs in by_agent.items():
+                new.append((gs, self._maps_shared(i, k, a0, [keys[g] for g in gs], np.repeat(bits[lead[gs]], dyw, axis=1))))
+            maps = np.concatenate([store["maps"].reshape(-1, *new[0][1].shape[1:])] + [m for _, m in new])
+            base = len(index)
+            for gs, _ in new:
+                for g in gs:
+                    index[keys[g]] = base
+                    base += 1
+            store["maps"] = maps
+        which = np.array([index[key] for key in keys])
+        sizes = np.diff(np.append(starts, n * R))
+        nslab = -(-sizes // _STEP_SLAB)
+        pos = np.arange(n * R) - starts[gid]
+        vid = (np.cumsum(nslab) - nslab)[gid] + pos // _STEP_SLAB
+        slot = pos % _STEP_SLAB
+        dx = self.sys.dx
+        pad = np.zeros((int(nslab.sum()), _STEP_SLAB, dx + w * dyt))
+        pad[vid, slot, :dx] = self.x[order]
+        Yw = self.Y[:, a0 : k + 1].reshape(R, w * dyt)
+        pad[vid, slot, dx:] = np.where(np.repeat(bits[order], np.tile(self.dy, w), axis=1), Yw[order % R], 0.0)
+        Ms = store["maps"][np.repeat(which, nslab)]
+        out = np.empty((n * R, Ms.shape[1]))
+        out[order] = np.matmul(pad, Ms.transpose(0, 2, 1))[vid, slot]
+        dx = self.sys.dx
+        self.x = out[:, :dx]
+        return out[:, dx:].reshape(n, R, -1).transpose(1, 0, 2).reshape(R, -1)  # type: ignore[no-any-return]
+
+    def misses(self) -> np.ndarray:
+        """Per agent, the measurements the rule replaced at least once, summed over runs: (n,).
+
+        y_j(s) is replaced when it is folded at s + c without having arrived, or when it is first needed in
+        agent i's window, at s + (its smallest local lag), without having arrived (later needs are implied).
+        """
+        n, T, c = self.n, self.T, self.c
+        s = np.arange(T)
+        big = 2 * T + c + 1
+        lag = np.full((n, n), big)
+        for i in range(n):
+            for j, l in self.d.structure.local_lags(i):
+                lag[i, j] = min(lag[i, j], l)
+        fold = (self.t > (s + c)) & (s + c <= T - 1)
+        need = s[None, None, :] + lag[:, :, None]  # (i, j, s)
+        loc = (self.t > need[None]) & (need[None] <= T - 1)
+        return (fold | loc).sum(axis=(0, 2, 3))  # type: ignore[no-any-return]
+
+    def _maps_shared(self, i: int, k: int, a0: int, keys: list, mask: np.ndarray) -> FloatArray:
+        """:meth:`_maps`, reusing the parts [x̂(a'); ĩ] that another design of the same model (MTMSE and MMSE share
+        the predictor and the rule) built for the same patterns; they are handed over once and dropped."""
+        fp = (_fingerprint(self.d), hashlib.sha256(np.ascontiguousarray(self.d.K, dtype=float).tobytes()).digest())
+        got: list[Any] = [_PRE.pop((fp, k, key), None) for key in keys]
+        miss = [q for q, g in enumerate(got) if g is None]
+        if miss:
+            X, innov, a = self._pre(i, k, a0, mask[miss])
+            nbytes = X[0].nbytes + (0 if innov is None else innov[0].nbytes)
+            if _PRE_BYTES[0] + nbytes * len(miss) > _PRE_MAX_BYTES:
+                _PRE.clear()
+                _PRE_BYTES[0] = 0
+            for q_, q in enumerate(miss):
+                got[q] = (X[q_], None if innov is None else innov[q_], a)
+                _PRE[(fp, k, keys[q])] = got[q]
+            _PRE_BYTES[0] += nbytes * len(miss)
+        X = np.stack([g[0] for g in got])
+        innov = None if got[0][1] is None else np.stack([g[1] for g in got])
+        return self._finish(i, k, X, innov, got[0][2])
+
+    def _maps(self, i: int, k: int, a0: int, mask: np.ndarray) -> FloatArray:
+        """M_{i,k}(H) for each row of ``mask`` (P, w d_y): (P, d_x + d_z, d_x + w d_y)."""
+        X, innov, a = self._pre(i, k, a0, mask)
+        return self._finish(i, k, X, innov, a)
+
+    def _finish(self, i: int, k: int, X: FloatArray, innov: FloatArray | None, a: int) -> FloatArray:
+        """[x̂(a'); z_i = L_i Φ(k, a') x̂(a') + F_i(k) ĩ] as maps of u."""
+        d = self.d
+        Z = np.matmul(d.cost.L_block(i, k) @ self.sys.transition(k, a), X)
+        if innov is not None:
+            Z = Z + np.matmul(d.gain_at(k)[i], innov)
+        return np.concatenate([X, Z], axis=1)
+
+    def _pre(self, i: int, k: int, a0: int, mask: np.ndarray) -> tuple[FloatArray, FloatArray | None, int]:
+        """x̂(a') and the local innovation with the rule applied, as maps of u, for each pattern (row of ``mask``)."""
+        sys, d, n = self.sys, self.d, self.n
+        dx, dyt = sys.dx, sys.dy_total
+        w = k - a0 + 1
+        P, D = mask.shape[0], dx + w * dyt
+        X = np.zeros((P, dx, D))
+        X[:, :, :dx] = np.eye(dx)
+
+        def ytil(a: int, Xa: FloatArray) -> FloatArray:  # (P, w' d_y, D): y(s) - C(s) Φ(s, a) x̂(a), s = a..k
+            rows, Phi = [], np.eye(dx)
+            for s in range(a, k + 1):
+                sel = np.zeros((dyt, D))
+                sel[:, dx + (s - a0) * dyt + np.arange(dyt)] = np.eye(dyt)
+                rows.append(sel[None] - np.matmul(self._C(s) @ Phi, Xa))
+                Phi = sys.A_at(s) @ Phi
+            return np.concatenate(rows, axis=1)
+
+        a = a0
+        if k >= self.c:  # fold y(a0) with the rule
+            Yt = ytil(a0, X)
+            targets = [(j, a0) for j in range(n)]
+            E = Yt[:, :dyt].copy()
+            self._apply_rule(E, Yt, mask, targets, a0, k, i)
+            X = np.matmul(sys.A_at(a0), X + np.matmul(d.K_at(a0), E))
+            a = a0 + 1
+        pairs = d.structure.local_pairs(i, k)
+        if not pairs:
+            return X, None, a
+        Yt = ytil(a, X)
+        sub = mask[:, (a - a0) * dyt :]
+        cols = [(s - a) * dyt + self.off[j] + np.arange(self.dy[j]) for (j, s) in pairs]
+        innov = Yt[:, np.concatenate(cols)]
+        self._apply_rule(innov, Yt, sub, pairs, a, k, i)
+        return X, innov, a
+
+    def _apply_rule(self, E: FloatArray, Yt: FloatArray, mask: np.ndarray, targets: list[tuple[int, int]], a: int, k: int, i: int) -> None:
+        """Rows of lost targets in E (P, Σ d_target, D) := G(H) Ỹ_H (the conditional expectation of their innovation)."""
+        dyt = self.sys.dy_total
+        tpos = np.concatenate([(s - a) * dyt + self.off[j] + np.arange(self.dy[j]) for (j, s) in targets]).astype(int)
+        lost = ~mask[:, tpos]  # (P, Σ d_target)
+        if not lost.any():
+            return
+        reach = [(s - a) * dyt + self.off[j] + np.arange(self.dy[j]) for s in range(a, k + 1) for j in range(self.n) if s + self.ell[j][i] <= k]
+        ui = np.concatenate(reach).astype(int) if reach else np.zeros(0, dtype=int)
+        G = _fill_gains(self.d, self.cache, a, k, mask, targets, ui)  # (P, Σ d_target, w' d_y), zero columns outside H
+        fill = np.matmul(G, Yt)  # G is zero outside H: only held measurements enter
+        E[:] = np.where(lost[:, :, None], fill, E)
+
+    def _C(self, s: int) -> FloatArray:
+        return self.sys.C_stack(s)
+
+
+def _is_team_relay(ag: Any) -> bool:
+    from ..estimators.base import MeasurementRelay
+    from ..estimators.team import TeamAgent
+
+    return type(ag) is MeasurementRelay and type(ag.inner) is TeamAgent and not ag.omniscient and ag.inner.index == ag.index
+
+
+#: the link events of the last block (its designs share them: same streams, graph and links)
+_LAST: list[Any] = []
+
+
+def _events(streams: Sequence[Any], T: int, edges: list, links: Any, omni: tuple, n: int, relays: bool) -> tuple[LinkOutcomes, np.ndarray | None]:
+    """Outcomes (and relay arrivals) of a block, reused by the next design run on the same streams and links."""
+    if _LAST and _LAST[0] is streams and _LAST[1] == (T, tuple(edges), omni) and _LAST[2] is links:
+        out, t = _LAST[3], _LAST[4]
+        if relays and t is None:
+            t = _LAST[4] = relay_arrivals(out, n, T, links.max_jitter)
+        return out, t
+    u, jit = draw_link_events(streams, T, len(edges))
+    out = link_outcomes(links, edges, u, jit, omni)
+    t = relay_arrivals(out, n, T, links.max_jitter) if relays else None
+    _LAST[:] = [streams, (T, tuple(edges), omni), links, out, t]  # holds ``streams``: its id cannot be reused meanwhile
+    return out, t
+
+
+def run_lossy(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray], links: Any, streams: Sequence[Any], stats: Any) -> FloatArray:
+    """The lossy message-passing loop for a block of runs (see :func:`teamkf.simulation.links.pass_messages_lossy`)."""
+    from ..estimators.base import pass_messages
+
+    n = graph.n_agents
+    R, T = ys[0].shape[:2]
+    edges = sorted(graph.edges)
+    omni = tuple(bool(getattr(ag, "omniscient", False)) for ag in agents)
+    relays = not any(omni) and all(
+        _is_team_relay(ag) and ag.inner.index == i and ag.inner.design is agents[0].inner.design for i, ag in enumerate(agents)
+    )
+    out, t = _events(streams, T, edges, links, omni, n, relays)
+    count_links(out, stats)
+    if all(omni):  # the centralized bound: every y_j(k) at step k, whatever the links
+        return pass_messages(agents, graph, ys)
+    if relays:
+        assert t is not None
+        return _run_team(agents, graph, ys, t, streams, stats)
+    return _run_grouped(agents, graph, ys, out, stats)
+
+
+def _run_team(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray], t: np.ndarray, streams: Any, stats: Any) -> FloatArray:
+    """MTMSE/MMSE relays: every agent and run stepped together, one linear map per (agent, step, pattern)."""
+    del streams
+    n = len(agents)
+    try:  # y_j(s) cannot reach agent i before s + ℓ_ji (geodesic delay), whatever the links do
+        ell = np.asarray(graph.geodesic_delays()).T.tolist()  # ell[j][i] = ℓ_ji
+    except TeamkfError:  # not strongly connected: no bound used
+        ell = [[0] * n for _ in range(n)]
+    ts = _TeamStep(agents[0].inner.design, ys, t, ell)
+    T = ys[0].shape[1]
+    z = np.stack([ts.step(k) for k in progress(range(T), desc="lossy runtime", total=T, unit="step")], axis=1)
+    for i, m in enumerate(ts.misses().tolist()):
+        if m:
+            stats.missed[i] = stats.missed.get(i, 0) + int(m)
+    return z
+
+
+# ---------------------------------------------------------------------------
+# any tolerant family: runs grouped by what arrived
+# ---------------------------------------------------------------------------
+def _run_grouped(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray], out: LinkOutcomes, stats: Any) -> FloatArray:
+    """Step the agents' own ``step`` on the runs one at a time (their states need not stack), on the block's link events."""
+    from .links import _missed
+
+    n = graph.n_agents
+    R, T = ys[0].shape[:2]
+    ok = out.delivered
+    results = []
+    for r in progress(range(R), desc="lossy runtime (run by run)", total=R, unit="run"):
+        states = [ag.init_state(1) for ag in agents]
+        inbox: dict[int, list[list[Any]]] = {}
+        zr = []
+        for k in range(T):
+            box = inbox.pop(k, None) or [[] for _ in range(n)]
+            zs, payloads = [], []
+            for i, ag in enumerate(agents):
+                if getattr(ag, "omniscient", False):
+                    own: Any = [(j, k, ys[j][r : r + 1, k]) for j in range(n)]
+                    msgs: list[Any] = []
+                else:
+                    own, msgs = ys[i][r : r + 1, k], box[i]
+                states[i], z, payload = ag.step(states[i], k, own, msgs)
+                zs.append(z)
+                payloads.append(payload)
+            for q, (a, b, _) in enumerate(out.edges):
+                if ok[r, k, q]:
+                    inbox.setdefault(int(out.arrive[r, k, q]), [[] for _ in range(n)])[b].append((a, k, payloads[a]))
+            zr.append(np.concatenate(zs, axis=1))
+        results.append(np.stack(zr, axis=1))
+        for i in range(n):
+            m = _missed(states[i])
+            if m:
+                stats.missed[i] = stats.missed.get(i, 0) + m
+    return np.concatenate(results, axis=0)
