@@ -221,7 +221,15 @@ FAMILY = _register_builtin(
         uses="graph",
         horizons=frozenset({"finite"}),
         analytic_cost=True,
-        options=(Option(name="variant", default="honest", check=check_variant, doc=" | ".join(f"{k!r}: {d}" for k, d in VARIANTS.items())),),
+        options=(
+            Option(
+                name="variant",
+                default="honest",
+                check=check_variant,
+                doc=" | ".join(f"{k!r}: {d}" for k, d in VARIANTS.items()),
+                choices=tuple(VARIANTS),
+            ),
+        ),
         example="design_ci(system, cost, graph, horizon=100, variant='honest')",
     )
 )

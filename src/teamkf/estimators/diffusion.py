@@ -95,6 +95,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+import scipy.linalg as sla
 
 from .. import _validation as V
 from .._validation import FloatArray
@@ -206,6 +207,14 @@ def diffusion_weights(graph: CommGraph, weights: Any = "metropolis", key: str = 
     return np.array(w, dtype=float)
 
 
+def _solve_psd(S: FloatArray, B: FloatArray) -> FloatArray:
+    """S⁻¹ B for a symmetric positive (semi-)definite S: Cholesky, or least squares when S is singular."""
+    try:
+        return np.asarray(sla.cho_solve(sla.cho_factor(S, lower=True, check_finite=False), B, check_finite=False))
+    except np.linalg.LinAlgError:
+        return np.asarray(np.linalg.lstsq(S, B, rcond=1e-12)[0])
+
+
 def information_sources(graph: CommGraph | None, T: int, honest: bool) -> list[list[list[tuple[int, int]]]]:
     """src[i][k]: (l, s) of the in-neighbours' data agent i uses at step k: s = k - τ_li (honest, once arrived) or s = k (ideal)."""
     if graph is None:
@@ -273,7 +282,7 @@ class DiffusionAlgorithm(Algorithm):
                 self.P_filt[i, k] = Pf
             for i in range(n):
                 Pnext = self.P_filt[i, k]
-                if not self._published:
+                if not self._published and not self.exact_gains:
                     items = [(i, k, self.P_filt[i, k]), *[(lnode, s, self.P_filt[lnode, s]) for lnode, s in self.src[i][k]]]
                     self.comb[(i, k)], Pc = self.combination_gains(i, k, items)
                     if self.combination == "ci":
@@ -371,7 +380,7 @@ class DiffusionAlgorithm(Algorithm):
             Sxx, Sxy, Syy = S[:dx, :dx], S[:dx, dx:], S[dx:, dx:]
             cov_en = Sxx @ Cs.T - Sxy
             cov_nn = Cs @ Sxx @ Cs.T - Cs @ Sxy - Sxy.T @ Cs.T + Syy
-            self.xgain[(i, k)] = np.linalg.lstsq(0.5 * (cov_nn + cov_nn.T), cov_en.T, rcond=1e-12)[0].T
+            self.xgain[(i, k)] = _solve_psd(0.5 * (cov_nn + cov_nn.T), cov_en.T).T
         return xbar + self.xgain[(i, k)] @ (y - Cs @ xbar)
 
     def _combine_exact(self, i: int, k: int, psi_i: Any, psis: dict[tuple[int, int], Any]) -> Any:
@@ -392,7 +401,7 @@ class DiffusionAlgorithm(Algorithm):
                 Ws = [w * np.eye(dx) for w in a / a.sum()]
             elif self.combination == "matrix":  # best linear unbiased combination: W = (J' S^-1 J)^-1 J' S^-1, J = 1 ⊗ I
                 J = np.tile(np.eye(dx), (m, 1))
-                SiJ = np.linalg.lstsq(S, J, rcond=1e-12)[0]
+                SiJ = _solve_psd(S, J)
                 W = np.linalg.solve(J.T @ SiJ, SiJ.T)
                 Ws = [W[:, a * dx : (a + 1) * dx] for a in range(m)]
             else:

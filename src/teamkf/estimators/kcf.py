@@ -731,6 +731,7 @@ FAMILY = _register_builtin(
                 default="honest",
                 check=lambda v, k: V.choice(v, k, tuple(VARIANTS)),
                 doc=" | ".join(f"{k!r}: {d}" for k, d in VARIANTS.items()),
+                choices=tuple(VARIANTS),
             ),
         ),
         example="design_kcf(system, cost, graph, horizon=100, epsilon=0.1, variant='honest')",

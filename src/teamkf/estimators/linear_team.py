@@ -308,15 +308,17 @@ def build_steps(alg: Algorithm) -> list[LinearStep]:
 
 def _advance(system: LinearGaussianSystem, st: LinearStep, P: FloatArray, X: dict[int, FloatArray]) -> tuple[FloatArray, dict[int, FloatArray]]:
     """One step of the exact error recursion: (Cov ε(k-1), Cov(ε(k-1), w(r))) -> the same at k (as :meth:`LinearTeamDesign.analytic`)."""
-    F, K = st.F, st.K
-    Pn = F @ P @ F.T + K @ system.R_stack(st.k) @ K.T
+    F, K = st.Fs, st.Ks  # type: ignore[attr-defined]
+    FP = np.asarray(F @ P)
+    KR = np.asarray(K @ system.R_stack(st.k))
+    Pn = np.asarray(F @ FP.T).T + np.asarray(K @ KR.T).T
     Xn: dict[int, FloatArray] = {}
     for r, Bm in st.B.items():
         Qr = system.Sigma_x if r == -1 else system.Q_at(r)
         BQ = Bm @ Qr
         Pn = Pn + BQ @ Bm.T
         if r in X:
-            FX = F @ X[r]
+            FX = np.asarray(F @ X[r])
             cross = FX @ Bm.T
             Pn = Pn + cross + cross.T
             Xn[r] = FX + BQ

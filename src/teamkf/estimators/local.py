@@ -83,6 +83,7 @@ FAMILY = _register_builtin(
                 default="honest",
                 check=check_variant,
                 doc="both variants are the same filter (no communication): " + ", ".join(VARIANTS),
+                choices=tuple(VARIANTS),
             ),
         ),
         example="design_local(system, cost, graph, horizon=100)",
