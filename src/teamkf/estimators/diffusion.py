@@ -99,7 +99,7 @@ import scipy.linalg as sla
 
 from .. import _validation as V
 from .._validation import FloatArray
-from ..exceptions import ArgumentError
+from ..exceptions import ArgumentError, NotPositiveDefiniteError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
 from .checks import check_graph, check_model
@@ -205,6 +205,18 @@ def diffusion_weights(graph: CommGraph, weights: Any = "metropolis", key: str = 
                 argument=key,
             )
     return np.array(w, dtype=float)
+
+
+def _information(P: FloatArray, rule: str, agent: int, s: int, k: int) -> FloatArray:
+    """P⁻¹ for the information-weighted combination rules; a typed error naming the option when P is singular."""
+    lam = np.linalg.eigvalsh(0.5 * (P + P.T))
+    if lam[0] <= 1e-12 * max(1.0, float(lam[-1])):
+        raise NotPositiveDefiniteError(
+            f"diffusion.combination: the {rule!r} rule weighs by P^-1, but agent {agent}'s covariance from step {s}, used at step {k}, "
+            f"is singular (smallest eigenvalue {lam[0]:.3g}); give Sigma_x and Q positive definite, or use combination='weights' or 'age'",
+            argument="diffusion.combination",
+        )
+    return np.asarray(np.linalg.inv(P), dtype=float)
 
 
 def _solve_psd(S: FloatArray, B: FloatArray) -> FloatArray:
@@ -324,7 +336,7 @@ class DiffusionAlgorithm(Algorithm):
             a = a / a.sum()
             mats = [w * np.eye(dx) for w in a]
         else:
-            infos = [np.linalg.inv(M) for M in Pt]
+            infos = [_information(M, self.combination, lnode, s, k) for M, (lnode, s, _) in zip(Pt, items)]
             if self.combination == "matrix":
                 omega = cw
             else:
@@ -391,6 +403,8 @@ class DiffusionAlgorithm(Algorithm):
         if self._errcov is not None:
             m = len(items)
             S = self._errcov([(q, np.eye(dx)) for q in items])
+            # a relative 1e-12 ridge: a singular Σ (a noise-free direction) keeps a unique, unbiased (Σ W = I) combination
+            S = S + 1e-12 * max(float(np.trace(S)) / len(S), 1e-300) * np.eye(len(S))
             blocks = [S[a * dx : (a + 1) * dx, a * dx : (a + 1) * dx] for a in range(m)]
             heard = {lnode for lnode, _ in used}
             cw = np.array([self.c[i, i] + sum(self.c[lnode, i] for lnode in self.nbrs[i] - heard)] + [self.c[lnode, i] for lnode, _ in used])
