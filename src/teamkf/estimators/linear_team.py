@@ -520,7 +520,8 @@ class LinearTeamDesign(Design):
     @property
     def tolerates_losses(self) -> bool:
         """True when the agents run with lost or late packets (the family defines what a missing message means)."""
-        return hasattr(self.algorithm, "agent_step_tolerant")
+        # exact gains are designed for the graph's messages: no rule for a lost one (diffusion gains="exact")
+        return hasattr(self.algorithm, "agent_step_tolerant") and not getattr(self.algorithm, "exact_gains", False)
 
     def details(self) -> dict[str, Any]:
         return {"variant": self.variant, "realizable": bool(getattr(self.algorithm, "honest", False)), "state_dim": int(self.steps[-1].F.shape[0])}

@@ -5,8 +5,9 @@ from __future__ import annotations
 from typing import Any, Sequence
 
 from .._validation import require
+from .colors import family_color
 
-__all__ = ["stage_cost_axes"]
+__all__ = ["stage_cost_axes", "family_color"]
 
 
 def _pyplot() -> Any:
