@@ -334,6 +334,16 @@ def _rank(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
+#: short plot labels of the rows' forms (published rows: none)
+_SHORT = {"tuned": "tuned", "heard-count": "heard-count", "drop-aware design (issue 21)": "drop-aware"}
+
+
+def _label(r: dict[str, Any]) -> str:
+    """``estimator variant form`` for the plot, the form shortened."""
+    parts = [r["estimator"], "" if r["variant"] == "bound" else r["variant"], _SHORT.get(r["form"], "")]
+    return " ".join(x for x in parts if x) + (" (diverging)" if r["diverging"] else "")
+
+
 def _add_lossy(
     designs: dict[str, Any], labels: dict[str, Any], key: str, fam: str, form: str, opts: dict[str, Any], system: Any, cost: Any, graph: Any, T: int
 ) -> None:
@@ -382,7 +392,7 @@ def lossy_rows(quick: bool, tuned: dict[str, dict[str, Any]]) -> list[dict[str, 
                         labels,
                         f"{fam} tuned",
                         fam,
-                        "tuned (best with a rule for lost messages)",
+                        "tuned",
                         {**opts, "variant": "honest"},
                         system,
                         cost,
@@ -489,6 +499,8 @@ def _plot(rows: list[dict[str, Any]], out_dir: Path, figures: list[str]) -> None
     from ..plotting import _pyplot, family_color
 
     plt = _pyplot()
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
     panels = list(dict.fromkeys((r["network"], r["p_drop"]) for r in rows))
     ncol = 3
     nrow = math.ceil(len(panels) / ncol)
@@ -499,10 +511,7 @@ def _plot(rows: list[dict[str, Any]], out_dir: Path, figures: list[str]) -> None
         grp = [r for r in rows if r["network"] == net and r["p_drop"] == p]
         labels, vals, colors, hatches = [], [], [], []
         for r in grp:
-            lab = " ".join(
-                x for x in (r["estimator"], r["variant"], "" if r["form"] in ("published", "published defaults", "optimum") else r["form"]) if x
-            )
-            labels.append(lab + (" (div.)" if r["diverging"] else ""))
+            labels.append(_label(r))
             v = r["J / J*"]
             vals.append(v if v is not None and v > 0 and math.isfinite(v) else np.nan)
             colors.append(family_color(r["estimator"]))
@@ -511,12 +520,16 @@ def _plot(rows: list[dict[str, Any]], out_dir: Path, figures: list[str]) -> None
         finite = [v for v in vals if np.isfinite(v)]
         cap = max(finite) if finite else 1.0
         shown = [min(v, 1e3) if np.isfinite(v) else cap for v in vals]
-        bars = ax.barh(y, shown, color=colors, edgecolor="k", linewidth=0.4)
+        bars = ax.barh(y, [v - 1.0 for v in shown], left=1.0, color=colors, edgecolor="k", linewidth=0.4)  # from MTMSE (1) to J/J*
         for b, h, r in zip(bars, hatches, grp):
             b.set_hatch(h)
             seen.setdefault(r["estimator"], b)
         ax.axvline(1.0, color="k", lw=0.8)
+        ax.plot([1.0] * sum(r["estimator"] == "mtmse" for r in grp), [a for a, r in enumerate(grp) if r["estimator"] == "mtmse"], "ko", ms=4)
         ax.set_xscale("log")
+        ax.xaxis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
+        ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.xaxis.set_minor_formatter(NullFormatter())
         ax.set_yticks(y)
         ax.set_yticklabels(labels, fontsize=8)
         ax.invert_yaxis()

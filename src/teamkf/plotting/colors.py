@@ -27,7 +27,7 @@ FAMILY_COLORS: dict[str, str] = {
     "mtmse-lossy": "#555555",
     "centralized": "#999999",
     "mmse": "#8c564b",
-    "cikf": "#e377c2",
+    "cikf": "#6a3d9a",
     "kcf": "#d55e00",
     "local": "#bcbd22",
     "diffusion": "#0072b2",
