@@ -11,7 +11,9 @@ something the graph does not deliver. The flag must be True exactly when no
 such change happens (the designs are linear: one perturbation per (j, s)
 decides it). Ideal variants exchange inside the step: on a graph whose every
 delay is at least 1 they use undelivered data, so the flag must be False —
-except ``local``, whose two variants are the same silent filter.
+except ``local``, whose two variants are the same silent filter. Every
+realizable design's stage costs are at least MTMSE's (the optimum over what the
+graph delivers): the fair forms (exact gains included) are checked against it.
 """
 
 from __future__ import annotations
@@ -81,6 +83,7 @@ def uses_undelivered(design, system, graph, seed) -> bool:
 @given(instances())
 def test_realizable_exactly_when_only_delivered_data_is_used(inst):
     system, cost, graph, seed = inst
+    optimum = teamkf.design_mtmse(system, cost, graph, T).stage_costs
     checked = 0
     for name, fam in teamkf.families().items():
         if "finite" not in fam.horizons:
@@ -100,6 +103,9 @@ def test_realizable_exactly_when_only_delivered_data_is_used(inst):
                     continue
                 leak = uses_undelivered(d, system, graph, seed)
                 assert d.realizable == (not leak), (name, opts, d.realizable, leak)
+                if d.realizable and d.stage_costs is not None:  # MTMSE is optimal among what the graph delivers
+                    sc = np.asarray(d.stage_costs)
+                    assert np.all(optimum <= sc + 1e-9 * np.maximum(1.0, np.abs(sc))), (name, opts)
                 if v == "ideal" and name != "local":
                     assert not d.realizable, (name, opts)
                 checked += 1
