@@ -62,7 +62,7 @@ from ._common import platoon, uav
 from .tuning import diverging as _diverging
 from .tuning import evaluate, tune
 
-__all__ = ["FAMILIES", "LOSSY_FAMILIES", "P_DROPS", "networks", "run"]
+__all__ = ["FAMILIES", "LOSSY_FAMILIES", "LOSSY_NETWORKS", "P_DROPS", "ROWS_VERSION", "network_rows", "lossy_network_rows", "networks", "run"]
 
 #: drop probabilities of the lossy ranking
 P_DROPS = (0.1, 0.5)
@@ -146,16 +146,20 @@ def networks(quick: bool) -> list[tuple[str, Any]]:
     ]
 
 
+#: bump when :func:`network_rows` or :func:`lossy_network_rows` compute something else (part of the cache key)
+ROWS_VERSION = 2
+
+
 def _fingerprint(system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph) -> str:
-    """A hash of everything a network's rows depend on: its arrays, and the source of the estimators and of the leaderboard."""
-    h = hashlib.sha256()
+    """A hash of everything a network's rows depend on: its arrays, :data:`ROWS_VERSION` and the source of the estimators and the tuning."""
+    h = hashlib.sha256(f"rows-v{ROWS_VERSION}".encode())
     for arr in (system.A, system.Q, system.Sigma_x, *system.C, *system.R, cost.S, cost.L):
         a = np.ascontiguousarray(np.asarray(arr, dtype=float))
         h.update(str(a.shape).encode())
         h.update(a.tobytes())
     h.update(repr(sorted(graph.edges)).encode())
     root = Path(__file__).resolve().parent.parent
-    for src in sorted([*(root / "estimators").rglob("*.py"), root / "experiments" / "leaderboard.py", root / "experiments" / "tuning.py"]):
+    for src in sorted([*(root / "estimators").rglob("*.py"), root / "simulation" / "links.py", root / "experiments" / "tuning.py"]):
         h.update(src.name.encode())
         h.update(src.read_bytes())
     return h.hexdigest()[:24]
@@ -267,11 +271,25 @@ def network_rows(name: str, system: LinearGaussianSystem, cost: TeamCost, graph:
 
 
 def _network_job(index: int, quick: bool, T: int) -> dict[str, Any]:
-    """One network's rows, from the disk cache when its fingerprint is there (runs in a worker process)."""
+    """One network's exact rows, from the disk cache when its fingerprint is there (runs in a worker process)."""
     name, build = networks(quick)[index]
     system, cost, graph = build()
-    cache = _cache_dir()
     key = f"leaderboard-{'quick' if quick else 'full'}-T{T}-{_fingerprint(system, cost, graph)}"
+    return _cached(key, lambda: network_rows(name, system, cost, graph, T, quick))
+
+
+def _lossy_job(index: int, quick: bool, tuned: dict[str, list[dict[str, Any]]]) -> dict[str, Any]:
+    """One network's p_drop rows (Monte Carlo), cached like :func:`_network_job` (the key includes the tuned options)."""
+    name, build = networks(quick)[index]
+    system, cost, graph = build()
+    tag = hashlib.sha256(json.dumps(tuned, sort_keys=True).encode()).hexdigest()[:12]
+    key = f"leaderboard-lossy-{'quick' if quick else 'full'}-{_fingerprint(system, cost, graph)}-{tag}"
+    return _cached(key, lambda: {"rows": lossy_network_rows(name, system, cost, graph, quick, tuned)})
+
+
+def _cached(key: str, compute: Any) -> dict[str, Any]:
+    """``compute()`` (a JSON-ready dict), stored as ``<cache>/<key>.json`` and read back from there when present."""
+    cache = _cache_dir()
     path = cache / f"{key}.json" if cache is not None else None
     if path is not None and path.is_file():
         try:
@@ -281,7 +299,7 @@ def _network_job(index: int, quick: bool, T: int) -> dict[str, Any]:
         except (OSError, ValueError):
             pass
     t0 = time.perf_counter()
-    out = network_rows(name, system, cost, graph, T, quick)
+    out = compute()
     out["network seconds"] = time.perf_counter() - t0
     if path is not None:
         try:
@@ -305,20 +323,18 @@ def _workers(n_jobs: int) -> int:
     return max(1, min(n_jobs, os.cpu_count() or 1))
 
 
-def _all_networks(quick: bool, T: int) -> list[dict[str, Any]]:
-    """Every network's rows, in network order; the networks in parallel processes when there are several cores."""
-    n = len(networks(quick))
-    workers = _workers(n)
+def _parallel(jobs: list[tuple[Any, tuple[Any, ...]]]) -> list[dict[str, Any]]:
+    """``[f(*args) for f, args in jobs]``, in parallel processes when there are several cores (the last jobs start first)."""
+    workers = _workers(len(jobs))
     if workers == 1:
-        return [_network_job(i, quick, T) for i in range(n)]
+        return [f(*args) for f, args in jobs]
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
 
     ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
-    order = list(range(n))[::-1]  # the larger networks are listed last: start them first
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as ex:
-        futs = {i: ex.submit(_network_job, i, quick, T) for i in order}
-        return [futs[i].result() for i in range(n)]
+        futs = {a: ex.submit(f, *args) for a, (f, args) in reversed(list(enumerate(jobs)))}  # the larger networks are listed last
+        return [futs[a].result() for a in range(len(jobs))]
 
 
 def _rank(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -359,11 +375,15 @@ def _add_lossy(
         labels[key] = (fam, form, _fmt_options(opts))
 
 
-def lossy_rows(quick: bool, tuned: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
-    """The p_drop rankings (Monte Carlo through the lossy runtime) on the UAV formation n = 4 and the platoon.
+#: the networks ranked under p_drop (indices into :func:`networks`: the UAV formation n = 4 and the platoon)
+LOSSY_NETWORKS = (0, 1)
 
-    ``tuned[network][family]`` are the tuned options of the exact ranking; a tuned form that has no rule for
-    lost messages (exact-gain diffusion) is replaced by the best tuned candidate that has one.
+
+def lossy_network_rows(name: str, system: Any, cost: Any, graph: Any, quick: bool, tuned: dict[str, list[dict[str, Any]]]) -> list[dict[str, Any]]:
+    """The p_drop rankings of one network (Monte Carlo through the lossy runtime, common random numbers).
+
+    ``tuned[family]`` are the family's candidates of the exact ranking, best first; a tuned form without a rule
+    for lost messages (exact-gain diffusion) is replaced by the best candidate that has one.
     """
     from ..simulation.links import LinkModel
     from ..simulation.monte_carlo import monte_carlo
@@ -371,63 +391,49 @@ def lossy_rows(quick: bool, tuned: dict[str, dict[str, Any]]) -> list[dict[str, 
     T, runs, seed = (12, 16, 7) if quick else (40, 200, 7)
     out: list[dict[str, Any]] = []
     fams = families()
-    for name, build in networks(quick)[:2]:
-        system, cost, graph = build()
-        designs: dict[str, Any] = {}
-        labels: dict[str, tuple[str, str, str]] = {}
-
-        for fam in ("mtmse", "centralized", "mmse", "cikf", *LOSSY_FAMILIES):
-            if fam in fams:
-                _add_lossy(
-                    designs, labels, fam, fam, "drop-aware design (issue 21)" if fam in LOSSY_FAMILIES else "published", {}, system, cost, graph, T
-                )
-        for fam, _ in FAMILIES:
-            if fam not in fams:
-                continue
-            _add_lossy(designs, labels, f"{fam} published", fam, "published defaults", {"variant": "honest"}, system, cost, graph, T)
-            for opts in tuned.get(name, {}).get(fam, []):
-                if opts and f"{fam} tuned" not in designs:
-                    _add_lossy(
-                        designs,
-                        labels,
-                        f"{fam} tuned",
-                        fam,
-                        "tuned",
-                        {**opts, "variant": "honest"},
-                        system,
-                        cost,
-                        graph,
-                        T,
-                    )
-            if fam in ("icf", "hcmci"):
-                _add_lossy(designs, labels, f"{fam} heard", fam, "heard-count", {"variant": "honest", "count": "heard"}, system, cost, graph, T)
-        for p in P_DROPS:
-            mc = monte_carlo(designs, T, runs, rng=seed, path="runtime", graph=graph, links=LinkModel(p_drop=p))
-            ref = mc["mtmse"].total_mean if "mtmse" in mc else float("nan")
-            for key, r in mc.items():
-                fam, form, opts = labels[key]
-                lo, hi = r.ci95
-                out.append(
-                    {
-                        "network": f"{name}, T = {T}",
-                        "n_agents": system.n_agents,
-                        "d_x": system.dx,
-                        "J*_avg (steady)": None,
-                        "p_drop": p,
-                        "estimator": fam,
-                        "variant": "honest" if fam in dict(FAMILIES) else "",
-                        "form": form,
-                        "options": opts,
-                        "J_T": float(r.total_mean),
-                        "J / J*": float(r.total_mean) / ref,
-                        "last / last*": None,
-                        "ci95 (MC)": f"[{lo:.6g}, {hi:.6g}] ({runs} runs)",
-                        "diverging": False,
-                        "realizable": fam != "centralized",
-                        "beats MTMSE at some step": None,
-                        "seconds": None,
-                    }
-                )
+    designs: dict[str, Any] = {}
+    labels: dict[str, tuple[str, str, str]] = {}
+    for fam in ("mtmse", "centralized", "mmse", "cikf", *LOSSY_FAMILIES):
+        if fam in fams:
+            _add_lossy(
+                designs, labels, fam, fam, "drop-aware design (issue 21)" if fam in LOSSY_FAMILIES else "published", {}, system, cost, graph, T
+            )
+    for fam, _ in FAMILIES:
+        if fam not in fams:
+            continue
+        _add_lossy(designs, labels, f"{fam} published", fam, "published defaults", {"variant": "honest"}, system, cost, graph, T)
+        for opts in tuned.get(fam, []):
+            if opts and f"{fam} tuned" not in designs:
+                _add_lossy(designs, labels, f"{fam} tuned", fam, "tuned", {**opts, "variant": "honest"}, system, cost, graph, T)
+        if fam in ("icf", "hcmci"):
+            _add_lossy(designs, labels, f"{fam} heard", fam, "heard-count", {"variant": "honest", "count": "heard"}, system, cost, graph, T)
+    for p in P_DROPS:
+        mc = monte_carlo(designs, T, runs, rng=seed, path="runtime", graph=graph, links=LinkModel(p_drop=p), progress=False)
+        ref = mc["mtmse"].total_mean if "mtmse" in mc else float("nan")
+        for key, r in mc.items():
+            fam, form, opts = labels[key]
+            lo, hi = r.ci95
+            out.append(
+                {
+                    "network": f"{name}, T = {T}",
+                    "n_agents": system.n_agents,
+                    "d_x": system.dx,
+                    "J*_avg (steady)": None,
+                    "p_drop": p,
+                    "estimator": fam,
+                    "variant": "honest" if fam in dict(FAMILIES) else "",
+                    "form": form,
+                    "options": opts,
+                    "J_T": float(r.total_mean),
+                    "J / J*": float(r.total_mean) / ref,
+                    "last / last*": None,
+                    "ci95 (MC)": f"[{lo:.6g}, {hi:.6g}] ({runs} runs)",
+                    "diverging": False,
+                    "realizable": fam != "centralized",
+                    "beats MTMSE at some step": None,
+                    "seconds": None,
+                }
+            )
     return out
 
 
@@ -456,27 +462,29 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
     """The ranked leaderboard table and plot (``quick``: fewer and smaller networks, fewer Monte Carlo runs)."""
     T = 40 if quick else 100
     t0 = time.perf_counter()
-    results = _all_networks(quick, T)
+    nets = networks(quick)
+    results = _parallel([(_network_job, (i, quick, T)) for i in range(len(nets))])
     rows = [r for res in results for r in res["rows"]]
     tuned: dict[str, dict[str, list[dict[str, Any]]]] = {}
-    for (name, _), res in zip(networks(quick), results):
+    for (name, _), res in zip(nets, results):
         for fam, tried in res["tuning"].items():  # candidates ordered by cost (the lossy ranking takes the best that tolerates losses)
             ok = [c for c in tried if c["error"] is None and not c["diverging"] and c["J / J*"] is not None]
             ok.sort(key=lambda c: c["J / J*"])
             tuned.setdefault(name, {})[fam] = [_parse_options(c["options"]) for c in ok]
-    rows += lossy_rows(quick, tuned)
+    lossy = _parallel([(_lossy_job, (i, quick, tuned[nets[i][0]])) for i in LOSSY_NETWORKS])
+    rows += [r for res in lossy for r in res["rows"]]
     ranked = _rank(rows)
     figures: list[str] = []
     if out_dir is not None and plotting_available():
         _plot(ranked, out_dir, figures)
-    cached = sum(1 for res in results if res.get("cached"))
+    cached = sum(1 for res in [*results, *lossy] if res.get("cached"))
     return ExperimentResult(
         "leaderboard",
         f"Baselines ranked by exact team cost relative to MTMSE (T = {T}), published and tuned; and by Monte Carlo under p_drop {', '.join(map(str, P_DROPS))}",
         ranked,
         COLUMNS,
         notes=(__doc__.split("\n\n", 1)[1].strip() if __doc__ else "")
-        + f"\n\nNetworks from the cache: {cached} of {len(results)}; {time.perf_counter() - t0:.1f} s.",
+        + f"\n\nParts from the cache: {cached} of {len(results) + len(lossy)} (networks, then the lossy rankings); {time.perf_counter() - t0:.1f} s.",
         figures=figures,
         data={"T": T, "tuning": {name: res["tuning"] for (name, _), res in zip(networks(quick), results)}},
     )
