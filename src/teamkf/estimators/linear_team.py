@@ -137,6 +137,10 @@ class Algorithm:
     payload_kinds: dict[str, str] = {}
     honest: bool = True
     output: str = "xhat"
+    #: families whose gains need the exact error covariance set ``exact_gains``; :func:`build_steps` then sets
+    #: ``_errcov`` (an :class:`_ErrorCovariance` of the step being built) while it runs, None otherwise
+    exact_gains: bool = False
+    _errcov: Any = None
 
     def __init__(self, system: LinearGaussianSystem, cost: TeamCost, graph: Any, horizon: int):
         self.system, self.cost, self.graph, self.horizon = system, cost, graph, horizon

@@ -411,7 +411,7 @@ def lossy_network_rows(name: str, system: Any, cost: Any, graph: Any, quick: boo
         mc = monte_carlo(designs, T, runs, rng=seed, path="runtime", graph=graph, links=LinkModel(p_drop=p), progress=False)
         ref = mc["mtmse"].total_mean if "mtmse" in mc else float("nan")
         for key, r in mc.items():
-            fam, form, opts = labels[key]
+            fam, form, opt_text = labels[key]
             lo, hi = r.ci95
             out.append(
                 {
@@ -423,7 +423,7 @@ def lossy_network_rows(name: str, system: Any, cost: Any, graph: Any, quick: boo
                     "estimator": fam,
                     "variant": "honest" if fam in dict(FAMILIES) else "",
                     "form": form,
-                    "options": opts,
+                    "options": opt_text,
                     "J_T": float(r.total_mean),
                     "J / J*": float(r.total_mean) / ref,
                     "last / last*": None,
