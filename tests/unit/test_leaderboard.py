@@ -1,24 +1,110 @@
-"""The leaderboard experiment (quick): exact costs relative to MTMSE; no honest variant below the optimum."""
+"""The leaderboard experiment (quick): ranked exact costs relative to MTMSE, published and tuned rows, true flags, p_drop rankings."""
+
+import json
+import math
 
 import numpy as np
+import pytest
 
 from teamkf.experiments import run
+from teamkf.experiments.leaderboard import FAMILIES, P_DROPS
 
 
-def test_leaderboard_quick(tmp_path):
-    res = run("leaderboard", tmp_path, quick=True)
-    assert (tmp_path / "leaderboard.csv").exists() and (tmp_path / "leaderboard.json").exists()
-    nets = {r["network"] for r in res.rows}
-    assert len(nets) == 3
-    for r in res.rows:
-        if r["variant"] == "honest":
-            assert r["J / J*"] >= 1.0 - 1e-12 and not r["beats MTMSE at some step"], r
-        if r["estimator"] == "centralized":
-            assert r["J / J*"] <= 1.0 + 1e-12
-        assert np.isfinite(r["J_T"])
+@pytest.fixture(scope="module")
+def board(tmp_path_factory):
+    out = tmp_path_factory.mktemp("board")
+    import os
+
+    old = os.environ.get("TEAMKF_CACHE_DIR")
+    os.environ["TEAMKF_CACHE_DIR"] = str(out / "cache")
+    try:
+        res = run("leaderboard", out, quick=True)
+        again = run("leaderboard", out / "again", quick=True)  # every part from the cache
+    finally:
+        if old is None:
+            os.environ.pop("TEAMKF_CACHE_DIR")
+        else:
+            os.environ["TEAMKF_CACHE_DIR"] = old
+    return out, res, again
+
+
+def test_leaderboard_quick_ranked_and_bounded(board):
+    out, res, _ = board
+    assert (out / "leaderboard.csv").exists() and (out / "leaderboard.json").exists() and (out / "leaderboard.png").exists()
+    exact = [r for r in res.rows if r["p_drop"] == 0]
+    assert len({r["network"] for r in exact}) == 3
+    for net in {r["network"] for r in exact}:
+        grp = [r for r in res.rows if r["network"] == net and r["p_drop"] == 0]
+        assert [r["rank"] for r in grp] == list(range(1, len(grp) + 1))
+        vals = [r["J / J*"] for r in grp]
+        assert vals == sorted(vals)  # ascending J / J*
+        names = {r["estimator"] for r in grp}
+        assert {"mtmse", "centralized", "mmse"} | {f for f, _ in FAMILIES} <= names
+        for r in grp:
+            if r["realizable"]:  # no realizable row beats the optimum on its graph
+                assert r["J / J*"] >= 1.0 - 1e-9 and not r["beats MTMSE at some step"], r
+            if r["variant"] == "ideal" and r["estimator"] != "local":
+                assert r["realizable"] is False
+            if r["variant"] == "honest":
+                assert not r["diverging"], r
+        for fam, _ in FAMILIES:
+            pub = next(r for r in grp if r["estimator"] == fam and r["form"] == "published defaults")
+            tuned = [r for r in grp if r["estimator"] == fam and r["form"] == "tuned"]
+            for t in tuned:
+                assert t["J_T"] <= pub["J_T"] * (1 + 1e-12)
+        for fam in ("icf", "hcmci"):
+            assert any(r["estimator"] == fam and r["form"] == "heard-count" and r["options"] == "count=heard" for r in grp)
     # the ideal variants exchange inside the step: on the complete graph they reach the centralized bound
-    uav = [r for r in res.rows if r["network"].startswith("UAV n=4")]
+    uav = [r for r in exact if r["network"].startswith("UAV n=4")]
     cen = next(r["J_T"] for r in uav if r["estimator"] == "centralized")
     for fam in ("diffusion", "kcf", "icf", "hcmci"):
         ideal = next(r["J_T"] for r in uav if r["estimator"] == fam and r["variant"] == "ideal")
         assert abs(ideal - cen) <= 1e-8 * cen, fam
+
+
+def test_leaderboard_ranks_under_packet_drops(board):
+    _, res, _ = board
+    lossy = [r for r in res.rows if r["p_drop"] > 0]
+    assert {r["p_drop"] for r in lossy} == set(P_DROPS)
+    for p in P_DROPS:
+        for net in {r["network"] for r in lossy}:
+            grp = [r for r in lossy if r["p_drop"] == p and r["network"] == net]
+            assert next(r for r in grp if r["estimator"] == "mtmse")["J / J*"] == 1.0
+            assert {f for f, _ in FAMILIES} <= {r["estimator"] for r in grp}
+            assert all(math.isfinite(r["J_T"]) and r["ci95 (MC)"] for r in grp)
+
+
+def test_leaderboard_cache_returns_the_same_rows_and_strict_json(board):
+    out, res, again = board
+    assert "Parts from the cache: 5 of 5" in again.notes and "Parts from the cache: 0 of 5" in res.notes
+    strip = lambda rows: [{k: v for k, v in r.items() if k != "seconds"} for r in rows]  # noqa: E731
+    assert strip(again.rows) == strip(res.rows)
+
+    def refuse(c):
+        raise ValueError(f"not strict JSON: {c}")
+
+    text = (out / "leaderboard.json").read_text()
+    data = json.loads(text, parse_constant=refuse)
+    assert data["rows"] and all(np.isfinite(r["J / J*"]) for r in data["rows"] if r["J / J*"] is not None)
+
+
+def test_a_registered_drop_aware_design_is_ranked_under_drops():
+    """The hook for issue 21: a family registered as ``mtmse_lossy`` joins the p_drop rankings."""
+    import teamkf
+    from teamkf import design_mtmse
+    from teamkf.experiments.leaderboard import lossy_network_rows, networks
+
+    def design(system, cost, structure, horizon=None):
+        return design_mtmse(system, cost, structure, horizon)
+
+    teamkf.register_family(name="mtmse_lossy", design=design, title="test stand-in for the drop-aware design", uses="structure")
+    try:
+        name, build = networks(True)[1]
+        system, cost, graph = build()
+        rows = lossy_network_rows(name, system, cost, graph, True, {})
+    finally:
+        teamkf.unregister_family("mtmse_lossy")
+    mine = [r for r in rows if r["estimator"] == "mtmse_lossy"]
+    assert len(mine) == len(P_DROPS) and all(r["form"] == "drop-aware design (issue 21)" for r in mine)
+    ref = {r["p_drop"]: r["J_T"] for r in rows if r["estimator"] == "mtmse"}
+    assert all(r["J_T"] == ref[r["p_drop"]] for r in mine)  # the stand-in is MTMSE: the same runs, the same cost

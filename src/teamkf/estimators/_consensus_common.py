@@ -29,13 +29,14 @@ from typing import Any
 import numpy as np
 
 from .. import _validation as V
-from .._lazy import scipy_linalg as sla  # SciPy / networkx load on first use
+from .._lazy import scipy_linalg as sla  # SciPy loads on first use
+from .._lazy import scipy_optimize as sopt
 from .._validation import FloatArray
-from ..exceptions import ArgumentError
+from ..exceptions import ArgumentError, NotPositiveDefiniteError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
 from ._kalman_common import kalman_step
-from .linear_team import Algorithm, delivered, freshest
+from .linear_team import Algorithm, _block_diag, delivered, freshest, process_noise
 
 __all__ = [
     "VARIANTS",
@@ -58,6 +59,42 @@ VARIANTS: dict[str, str] = {
 def check_variant(v: Any, key: str) -> str:
     """The ``variant`` option: "ideal" (exchanges within the step) or "honest" (one delay-compensated exchange per step)."""
     return V.choice(v, key, tuple(VARIANTS))
+
+
+#: combination rules of the diffusion step (module docstring)
+COMBINATIONS: dict[str, str] = {
+    "weights": "the published scalar combination with the weights c_lk (age-blind)",
+    "age": "age-aware scalar weights c_lk / tr(P~_l) (P~_l: the received estimate's covariance after its age), normalized",
+    "matrix": "information-matrix weights (sum c_lk P~_l^-1)^-1 c_lk P~_l^-1",
+    "ci": "covariance intersection of the received estimates (trace-minimizing), prediction from the CI covariance",
+}
+
+
+def check_combination(v: Any, key: str) -> str:
+    """The ``combination`` option: "weights" (published), "age", "matrix" or "ci" (module docstring)."""
+    return V.choice(v, key, tuple(COMBINATIONS), what="a combination rule, one of")
+
+
+def check_lazy(v: Any, key: str) -> float:
+    """The ``lazy`` option α in (0, 1]: x̂ = (1 - α) ψ_k + α x̂^comb (1: no laziness)."""
+    a = V.real(v, key, minimum=0.0, strict=True, what="a lazy-update factor")
+    if a > 1.0:
+        raise ArgumentError(
+            f"{key}: expected a lazy-update factor 0 < alpha <= 1 (1: the combination itself), found {a:g}; give a value in (0, 1]", argument=key
+        )
+    return float(a)
+
+
+#: how the gains are designed (module docstring)
+GAINS: dict[str, str] = {
+    "nominal": "the published gains from the nominal covariances P_k (which ignore the correlations of delayed data)",
+    "exact": "the adaptation gain (linear MMSE) and the combination rule from the exact error covariances of the joint recursion",
+}
+
+
+def check_gains(v: Any, key: str) -> str:
+    """The ``gains`` option: "nominal" (published) or "exact" (module docstring)."""
+    return V.choice(v, key, tuple(GAINS), what="a gain design, one of")
 
 
 def check_weights(w: Any, key: str) -> Any:
@@ -111,6 +148,26 @@ def diffusion_weights(graph: CommGraph, weights: Any = "metropolis", key: str = 
     return np.array(w, dtype=float)
 
 
+def _information(P: FloatArray, rule: str, agent: int, s: int, k: int) -> FloatArray:
+    """P⁻¹ for the information-weighted combination rules; a typed error naming the option when P is singular."""
+    lam = np.linalg.eigvalsh(0.5 * (P + P.T))
+    if lam[0] <= 1e-12 * max(1.0, float(lam[-1])):
+        raise NotPositiveDefiniteError(
+            f"diffusion.combination: the {rule!r} rule weighs by P^-1, but agent {agent}'s covariance from step {s}, used at step {k}, "
+            f"is singular (smallest eigenvalue {lam[0]:.3g}); give Sigma_x and Q positive definite, or use combination='weights' or 'age'",
+            argument="diffusion.combination",
+        )
+    return np.asarray(np.linalg.inv(P), dtype=float)
+
+
+def _solve_psd(S: FloatArray, B: FloatArray) -> FloatArray:
+    """S⁻¹ B for a symmetric positive (semi-)definite S: Cholesky, or least squares when S is singular."""
+    try:
+        return np.asarray(sla.cho_solve(sla.cho_factor(S, lower=True, check_finite=False), B, check_finite=False))
+    except np.linalg.LinAlgError:
+        return np.asarray(np.linalg.lstsq(S, B, rcond=1e-12)[0])
+
+
 def information_sources(graph: CommGraph | None, T: int, honest: bool) -> list[list[list[tuple[int, int]]]]:
     """src[i][k]: (l, s) of the in-neighbours' data agent i uses at step k: s = k - τ_li (honest, once arrived) or s = k (ideal)."""
     if graph is None:
@@ -136,38 +193,116 @@ class DiffusionAlgorithm(Algorithm):
         """The graph whose in-neighbours' data is fused (None: no communication)."""
         return self.graph
 
-    def __init__(self, system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph | None, horizon: int, c: FloatArray, honest: bool):
+    def __init__(
+        self,
+        system: LinearGaussianSystem,
+        cost: TeamCost,
+        graph: CommGraph | None,
+        horizon: int,
+        c: FloatArray,
+        honest: bool,
+        combination: str = "weights",
+        lazy: float = 1.0,
+        gains: str = "nominal",
+    ):
         super().__init__(system, cost, graph, horizon)
         self.honest, self.c = honest, c
+        self.combination, self.lazy = combination, float(lazy)
+        #: exact gains: the adaptation gain and the combination from the exact error covariances (module docstring)
+        self.exact_gains = gains == "exact"
+        self._errcov: Any = None
+        self.xgain: dict[tuple[int, int], FloatArray] = {}
+        self.xcomb: dict[tuple[int, int], list[FloatArray]] = {}
         n, dx, T = system.n_agents, system.dx, horizon
         self.src = information_sources(self.info_graph, T, honest) or [[[] for _ in range(T)] for _ in range(n)]
         self.nbrs = [set(graph.in_neighbors(i)) if graph is not None and self.info_graph is not None else set() for i in range(n)]
         self.gain: dict[tuple[int, int, int, int], tuple[FloatArray, FloatArray]] = {}  # (i,k,l,s) -> (G̃ = C̃'R̃^-1, Y = G̃ C̃)
         self.P_filt = np.empty((n, T, dx, dx))
         self.P_pred = np.empty((n, T, dx, dx))
-        for i in range(n):
-            P = system.Sigma_x
-            for k in range(T):
-                self.P_pred[i, k] = P
+        #: (i, k) -> [(l, s, W)]: x̂_i = Σ W ψ_l(s) (W includes Φ(k, s)); only for the non-published rules
+        self.comb: dict[tuple[int, int], list[tuple[int, int, FloatArray]]] = {}
+        P = [system.Sigma_x for _ in range(n)]
+        for k in range(T):
+            for i in range(n):
+                self.P_pred[i, k] = P[i]
                 Cs, Rs = [], []
                 for lnode, s in [(i, k), *self.src[i][k]]:
                     Ct, Rt, G, Y = self.compensated(lnode, s, k)
                     self.gain[(i, k, lnode, s)] = (G, Y)
                     Cs.append(Ct)
                     Rs.append(Rt)
-                _, Pf = kalman_step(P, np.vstack(Cs), sla.block_diag(*Rs))  # (P^-1 + S)^-1, Joseph form
+                _, Pf = kalman_step(P[i], np.vstack(Cs), _block_diag(Rs))  # (P^-1 + S)^-1, Joseph form
                 self.P_filt[i, k] = Pf
+            for i in range(n):
+                Pnext = self.P_filt[i, k]
+                if not self._published and not self.exact_gains:
+                    items = [(i, k, self.P_filt[i, k]), *[(lnode, s, self.P_filt[lnode, s]) for lnode, s in self.src[i][k]]]
+                    self.comb[(i, k)], Pc = self.combination_gains(i, k, items)
+                    if self.combination == "ci":
+                        Pnext = Pc
                 if k + 1 < T:
                     A = system.A_at(k)
-                    P = A @ Pf @ A.T + system.Q_at(k)
-                    P = 0.5 * (P + P.T)
+                    Pn = A @ Pnext @ A.T + system.Q_at(k)
+                    P[i] = 0.5 * (Pn + Pn.T)
         self.schedules = {"P_filt": self.P_filt, "P_pred": self.P_pred, "weights": c}
+
+    @property
+    def _published(self) -> bool:
+        """The published scalar combination without laziness (its arithmetic is kept exactly as before)."""
+        return self.combination == "weights" and self.lazy == 1.0
+
+    def combination_gains(self, i: int, k: int, items: list[tuple[int, int, FloatArray]]) -> tuple[list[tuple[int, int, FloatArray]], FloatArray]:
+        """The combination x̂_i = Σ W_l ψ_l(s) over ``items`` = [(l, s, P_l(s|s))] (own first), and the covariance for the prediction.
+
+        W_l includes the propagation Φ(k, s) and the lazy mix; the covariance is P_i(k|k) except for the
+        CI rule (its P_f). The rules are those of the module docstring.
+        """
+        dx = self.system.dx
+        heard = {lnode for lnode, _, _ in items[1:]}
+        Pt = []
+        for _lnode, s, Pl in items:
+            if s == k:
+                Pt.append(Pl)
+            else:
+                Phi = self.Phi(k, s)
+                M = Phi @ Pl @ Phi.T + process_noise(self.system, k, s)
+                Pt.append(0.5 * (M + M.T))
+        # scalar weights over the items: c_li, the weight of neighbours not heard going to the agent itself
+        cw = np.array([self.c[i, i] + sum(self.c[lnode, i] for lnode in self.nbrs[i] - heard)] + [self.c[lnode, i] for lnode, _, _ in items[1:]])
+        Pc = items[0][2]
+        if self.combination == "weights":
+            mats = [w * np.eye(dx) for w in cw]
+        elif self.combination == "age":
+            a = cw / np.array([np.trace(M) for M in Pt])
+            a = a / a.sum()
+            mats = [w * np.eye(dx) for w in a]
+        else:
+            infos = [_information(M, self.combination, lnode, s, k) for M, (lnode, s, _) in zip(Pt, items)]
+            if self.combination == "matrix":
+                omega = cw
+            else:
+                omega = ci_weights(infos)
+            Pf = np.linalg.inv(sum(w * Y for w, Y in zip(omega, infos)))
+            Pf = 0.5 * (Pf + Pf.T)
+            mats = [w * Pf @ Y for w, Y in zip(omega, infos)]
+            if self.combination == "ci":
+                Pc = Pf
+        al = self.lazy
+        out = []
+        for a_idx, ((lnode, s, _), W) in enumerate(zip(items, mats)):
+            W = al * W + ((1.0 - al) * np.eye(dx) if a_idx == 0 else 0.0)
+            if s != k:
+                W = W @ self.Phi(k, s)
+            out.append((lnode, s, W))
+        return out, Pc
 
     def _prior(self, i: int, k: int, prev: dict | None, zero: Any) -> Any:
         return zero(self.system.dx) if prev is None else self.system.A_at(k - 1) @ prev["xhat"]
 
     def adapt(self, i: int, k: int, xbar: Any, ys: dict[tuple[int, int], Any]) -> Any:
-        """ψ_i = x̄ + P(t|t)(q - S x̄), q = Σ G̃_l y_l(s), S = Σ Y_l over {i} ∪ sources."""
+        """ψ_i = x̄ + P(t|t)(q - S x̄), q = Σ G̃_l y_l(s), S = Σ Y_l over {i} ∪ sources (exact gains: x̄ + K (ỹ - C̃ x̄))."""
+        if self.exact_gains:
+            return self._adapt_exact(i, k, xbar, ys)
         r = None
         for lnode, s in [(i, k), *self.src[i][k]]:
             G, Y = self.gain[(i, k, lnode, s)]
@@ -175,8 +310,76 @@ class DiffusionAlgorithm(Algorithm):
             r = term if r is None else r + term
         return xbar + self.P_filt[i, k] @ r
 
+    def _adapt_exact(self, i: int, k: int, xbar: Any, ys: dict[tuple[int, int], Any]) -> Any:
+        r"""Exact-gain adaptation: the linear MMSE update of the prior with the measurements it holds.
+
+        With e the prior's error x(k) - x̄ and e_y = C̃ x(k) - ỹ the errors of the stacked (delay-compensated)
+        measurements, the innovation is ν = ỹ - C̃ x̄ = C̃ e - e_y and
+
+        .. math:: K = \operatorname{Cov}(e, \nu)\,\operatorname{Cov}(\nu)^{-1}, \qquad \psi = \bar x + K \nu,
+
+        with the covariances the exact ones of the joint error recursion (:mod:`.linear_team`), which include the
+        correlation between the compensation noise and the prior error that the published gain ignores.
+        """
+        keys = [(i, k), *self.src[i][k]]
+        Ct = [self.compensated(lnode, s, k)[0] for lnode, s in keys]
+        Cs = np.vstack(Ct)
+        y = ys[keys[0]] if len(keys) == 1 else np.vstack([ys[key] for key in keys])
+        if self._errcov is not None:
+            dx = self.system.dx
+            S = self._errcov([(xbar, np.eye(dx)), *[(ys[key], C) for key, C in zip(keys, Ct)]])
+            Sxx, Sxy, Syy = S[:dx, :dx], S[:dx, dx:], S[dx:, dx:]
+            cov_en = Sxx @ Cs.T - Sxy
+            cov_nn = Cs @ Sxx @ Cs.T - Cs @ Sxy - Sxy.T @ Cs.T + Syy
+            self.xgain[(i, k)] = _solve_psd(0.5 * (cov_nn + cov_nn.T), cov_en.T).T
+        return xbar + self.xgain[(i, k)] @ (y - Cs @ xbar)
+
+    def _combine_exact(self, i: int, k: int, psi_i: Any, psis: dict[tuple[int, int], Any]) -> Any:
+        """Exact-gain combination: the rule applied with the exact error covariances of the items (BLUE for "matrix")."""
+        dx = self.system.dx
+        used = self.src[i][k]
+        items = [psi_i, *[self.Phi(k, s) @ psis[(lnode, s)] for lnode, s in used]]
+        if self._errcov is not None:
+            m = len(items)
+            S = self._errcov([(q, np.eye(dx)) for q in items])
+            # a relative 1e-12 ridge: a singular Σ (a noise-free direction) keeps a unique, unbiased (Σ W = I) combination
+            S = S + 1e-12 * max(float(np.trace(S)) / len(S), 1e-300) * np.eye(len(S))
+            blocks = [S[a * dx : (a + 1) * dx, a * dx : (a + 1) * dx] for a in range(m)]
+            heard = {lnode for lnode, _ in used}
+            cw = np.array([self.c[i, i] + sum(self.c[lnode, i] for lnode in self.nbrs[i] - heard)] + [self.c[lnode, i] for lnode, _ in used])
+            if self.combination == "weights":
+                Ws = [w * np.eye(dx) for w in cw]
+            elif self.combination == "age":
+                a = cw / np.array([np.trace(B) for B in blocks])
+                Ws = [w * np.eye(dx) for w in a / a.sum()]
+            elif self.combination == "matrix":  # best linear unbiased combination: W = (J' S^-1 J)^-1 J' S^-1, J = 1 ⊗ I
+                J = np.tile(np.eye(dx), (m, 1))
+                SiJ = _solve_psd(S, J)
+                W = np.linalg.solve(J.T @ SiJ, SiJ.T)
+                Ws = [W[:, a * dx : (a + 1) * dx] for a in range(m)]
+            else:
+                infos = [np.linalg.inv(B) for B in blocks]
+                omega = ci_weights(infos)
+                Pf = np.linalg.inv(sum(w * Y for w, Y in zip(omega, infos)))
+                Ws = [w * Pf @ Y for w, Y in zip(omega, infos)]
+            al = self.lazy
+            self.xcomb[(i, k)] = [al * W + ((1.0 - al) * np.eye(dx) if a == 0 else 0.0) for a, W in enumerate(Ws)]
+        out = None
+        for W, q in zip(self.xcomb[(i, k)], items):
+            t = W @ q
+            out = t if out is None else out + t
+        return out
+
     def combine(self, i: int, k: int, psi_i: Any, psis: dict[tuple[int, int], Any]) -> Any:
-        """x̂_i = c_ii ψ_i + Σ c_li Φ(k, s) ψ_l(s); weights of neighbours not yet heard go to c_ii."""
+        """x̂_i = c_ii ψ_i + Σ c_li Φ(k, s) ψ_l(s); weights of neighbours not yet heard go to c_ii (other rules: the gains W)."""
+        if self.exact_gains:
+            return self._combine_exact(i, k, psi_i, psis)
+        if not self._published:
+            out = None
+            for lnode, s, W in self.comb[(i, k)]:
+                t = W @ (psi_i if (lnode, s) == (i, k) else psis[(lnode, s)])
+                out = t if out is None else out + t
+            return out
         used = self.src[i][k]
         cii = self.c[i, i] + sum(self.c[lnode, i] for lnode in self.nbrs[i] - {l2 for l2, _ in used})
         out = cii * psi_i
@@ -205,13 +408,19 @@ class DiffusionAlgorithm(Algorithm):
 
         then :math:`\hat x_i = c'_{ii}\,\psi_i + \sum_{l \in D_i} c_{li}\,\Phi(t, s_l)\,\psi_l(s_l)` over the set
         D_i of neighbours that delivered (the most recent packet s_l of each), with
-        :math:`c'_{ii} = c_{ii} + \sum_{l \notin D_i} c_{li}` (:mod:`teamkf.estimators.diffusion`), and
+        :math:`c'_{ii} = c_{ii} + \sum_{l \notin D_i} c_{li}` (module docstring), and
         P_i(t+1|t) = A P_i(t|t) Aᵀ + Q. It sends (y_i(t), ψ_i(t)), like :meth:`agent_step`.
 
         Returns
         -------
         (state, payload) : state = {"xhat": x̂_i(t|t), "P": P_i(t+1|t)}, payload = {"y", "psi"}
         """
+        if self.exact_gains:
+            from ..exceptions import UnsupportedOperationError
+
+            raise UnsupportedOperationError(
+                "diffusion", "lost or late packets with gains='exact'", "its gains are designed for the graph's messages; use gains='nominal'"
+            )
         sysm = self.system
         xbar = self._prior(i, k, prev, zero)
         P = sysm.Sigma_x if prev is None else prev.get("P", self.P_pred[i, k])
@@ -219,22 +428,90 @@ class DiffusionAlgorithm(Algorithm):
         r, Pf = self.fuse_delivered(i, k, xbar, P, y_i, pk)  # (P^-1 + S)^-1, Joseph form (as the design)
         psi = xbar + Pf @ r
         fresh = freshest(pk)
-        cii = self.c[i, i] + sum(self.c[lnode, i] for lnode in self.nbrs[i] - {l2 for l2, _, _ in fresh})
-        xhat = cii * psi
-        for lnode, s, p in fresh:
-            if self.c[lnode, i] != 0.0:
-                xhat = xhat + self.c[lnode, i] * (self.Phi(k, s) @ p["psi"])
+        Pnext = Pf
+        if self._published:
+            cii = self.c[i, i] + sum(self.c[lnode, i] for lnode in self.nbrs[i] - {l2 for l2, _, _ in fresh})
+            xhat = cii * psi
+            for lnode, s, p in fresh:
+                if self.c[lnode, i] != 0.0:
+                    xhat = xhat + self.c[lnode, i] * (self.Phi(k, s) @ p["psi"])
+        else:  # the rule over what was delivered, with the senders' covariances P_l(s|s) carried in their packets
+            items = [(i, k, Pf), *[(lnode, s, p.get("P", self.P_filt[lnode, s])) for lnode, s, p in fresh]]
+            gains, Pc = self.combination_gains(i, k, items)
+            psis = {(lnode, s): p["psi"] for lnode, s, p in fresh}
+            xhat = None
+            for lnode, s, W in gains:
+                t = W @ (psi if (lnode, s) == (i, k) else psis[(lnode, s)])
+                xhat = t if xhat is None else xhat + t
+            if self.combination == "ci":
+                Pnext = Pc
         if k + 1 < self.horizon:
             A = sysm.A_at(k)
-            P = A @ Pf @ A.T + sysm.Q_at(k)
+            P = A @ Pnext @ A.T + sysm.Q_at(k)
             P = 0.5 * (P + P.T)
-        return {"xhat": xhat, "P": P}, {"y": y_i, "psi": psi}
+        return {"xhat": xhat, "P": P}, {"y": y_i, "psi": psi, "P": Pf}
 
     def team_step(self, k: int, prev: list[dict | None], ys: list[Any], zero: Any) -> list[dict]:
         n = self.system.n_agents
         yd = {(j, k): ys[j] for j in range(n)}
         psis = {(i, k): self.adapt(i, k, self._prior(i, k, prev[i], zero), yd) for i in range(n)}
         return [{"xhat": self.combine(i, k, psis[(i, k)], psis)} for i in range(n)]
+
+
+COUNTS: dict[str, str] = {
+    "all": "the published rule: N, the number of agents (counts the own measurement N times when fewer are heard)",
+    "heard": "m_i(k), the number of agents whose data entered agent i's fusion at step k (own Kalman filter when none is heard)",
+}
+
+
+def check_count(v: Any, key: str) -> str:
+    """The ``count`` option: "all" (published N) or "heard" (module docstring)."""
+    return V.choice(v, key, tuple(COUNTS), what="an agent count, one of")
+
+
+def heard_counts(graph: CommGraph, src: list, T: int, honest: bool, iterations: int) -> FloatArray:
+    """m[i, k]: 1 + the neighbours heard at step k (honest), or the size of the ``iterations``-hop in-neighbourhood (ideal)."""
+    n = graph.n_agents
+    m = np.empty((n, T))
+    for i in range(n):
+        if honest:
+            for k in range(T):
+                m[i, k] = 1 + len({j for j, _ in src[i][k]})
+        else:
+            reach = {i}
+            for _ in range(iterations):
+                reach = reach | {j for a in reach for j in graph.in_neighbors(a)}
+            m[i, :] = len(reach)
+    return m
+
+
+def ci_weights(infos: list[FloatArray]) -> FloatArray:
+    """ω on the simplex minimizing tr((Σ ω_j Y_j)⁻¹) for information matrices Y_j (SLSQP, exact gradient)."""
+    m = len(infos)
+    if m == 1:
+        return np.ones(1)
+
+    def f(w: FloatArray) -> tuple[float, FloatArray]:
+        Pf = np.linalg.inv(sum(wj * Y for wj, Y in zip(w, infos)))
+        P2 = Pf @ Pf
+        return float(np.trace(Pf)), np.array([-float(np.sum(P2 * Y)) for Y in infos])
+
+    traces = np.array([np.trace(np.linalg.inv(Y)) for Y in infos])
+    w0 = np.full(m, 1.0 / m)
+    res = sopt.minimize(
+        f,
+        w0,
+        jac=True,
+        method="SLSQP",
+        bounds=[(0.0, 1.0)] * m,
+        constraints=({"type": "eq", "fun": lambda w: np.sum(w) - 1.0, "jac": lambda w: np.ones(m)},),
+        options={"ftol": 1e-12, "maxiter": 200},
+    )
+    w = np.clip(res.x, 0.0, None)
+    w = w / w.sum()
+    best = np.zeros(m)
+    best[int(np.argmin(traces))] = 1.0  # never worse than the best single estimate
+    return w if f(w)[0] <= f(best)[0] else best
 
 
 #: the most consensus iterations per step (ICF, HCMCI); consensus has converged to round-off long before

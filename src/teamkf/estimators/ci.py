@@ -42,12 +42,11 @@ from typing import Any
 
 import numpy as np
 
-from .._lazy import scipy_optimize as sopt  # SciPy / networkx load on first use
 from .._validation import FloatArray
 from ..exceptions import NotPositiveDefiniteError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
-from ._consensus_common import VARIANTS, DiffusionAlgorithm, check_variant, finite_horizon, information_sources
+from ._consensus_common import VARIANTS, DiffusionAlgorithm, check_variant, ci_weights, finite_horizon, information_sources
 from .checks import check_graph, check_information_form, check_model
 from .linear_team import LinearTeamDesign, delivered, finish_design, freshest, process_noise
 from .registry import Family, Option, _register_builtin
@@ -69,35 +68,6 @@ def _information(P: FloatArray, agent: int, s: int, k: int) -> FloatArray:
     return np.asarray(np.linalg.inv(P), dtype=float)
 
 
-def ci_weights(infos: list[FloatArray]) -> FloatArray:
-    """ω on the simplex minimizing tr((Σ ω_j Y_j)⁻¹) for information matrices Y_j (SLSQP, exact gradient)."""
-    m = len(infos)
-    if m == 1:
-        return np.ones(1)
-
-    def f(w: FloatArray) -> tuple[float, FloatArray]:
-        Pf = np.linalg.inv(sum(wj * Y for wj, Y in zip(w, infos)))
-        P2 = Pf @ Pf
-        return float(np.trace(Pf)), np.array([-float(np.sum(P2 * Y)) for Y in infos])
-
-    traces = np.array([np.trace(np.linalg.inv(Y)) for Y in infos])
-    w0 = np.full(m, 1.0 / m)
-    res = sopt.minimize(
-        f,
-        w0,
-        jac=True,
-        method="SLSQP",
-        bounds=[(0.0, 1.0)] * m,
-        constraints=({"type": "eq", "fun": lambda w: np.sum(w) - 1.0, "jac": lambda w: np.ones(m)},),
-        options={"ftol": 1e-12, "maxiter": 200},
-    )
-    w = np.clip(res.x, 0.0, None)
-    w = w / w.sum()
-    best = np.zeros(m)
-    best[int(np.argmin(traces))] = 1.0  # never worse than the best single estimate
-    return w if f(w)[0] <= f(best)[0] else best
-
-
 class CIAlgorithm(DiffusionAlgorithm):
     """Local KF per agent (no combination), then CI fusion of the local estimates received."""
 
@@ -109,7 +79,6 @@ class CIAlgorithm(DiffusionAlgorithm):
         return None  # the local filters use own measurements only
 
     def __init__(self, system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, horizon: int, honest: bool):
-
         super().__init__(system, cost, graph, horizon, np.eye(system.n_agents), honest)
         n, T = system.n_agents, horizon
         self.fuse_src = information_sources(graph, T, honest)
@@ -196,28 +165,9 @@ def design_ci(
 ) -> LinearTeamDesign:
     """Design local Kalman filters with covariance-intersection fusion, with the exact team cost.
 
-    Parameters
-    ----------
-    system : LinearGaussianSystem
-        The process x(k+1) = A x(k) + w(k) and the agents' measurements y_i(k) = C_i x(k) + v_i(k).
-    cost : TeamCost
-        The team cost c(x, ẑ) = (L x - ẑ)ᵀ S (L x - ẑ) (``None``: the sum of the agents' MSEs).
-    graph : CommGraph
-        The communication graph: agent i hears agent j over edge (j, i) after its integer delay τ_ji.
-    horizon : int
-        Number of steps T (finite horizon only).
-    variant : "honest" (default) or "ideal"
-        "honest": one exchange per step over the graph's delays, delay-compensated (realizable);
-        "ideal": neighbours' current data within the step (a bound, not realizable on a delay graph).
-
-    Returns
-    -------
-    LinearTeamDesign
-        The per-step linear maps with the exact team cost (stage costs E[c(x(k), ẑ(k))]).
-
     Examples
     --------
-    >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph, design_ci
+    >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph
     >>> d = design_ci(LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 10.0), CommGraph.line(4), 10)
     >>> d.label
     'ci [honest]'
@@ -239,8 +189,15 @@ FAMILY = _register_builtin(
         uses="graph",
         horizons=frozenset({"finite"}),
         analytic_cost=True,
-        options=(Option(name="variant", default="honest", check=check_variant, doc=" | ".join(f"{k!r}: {d}" for k, d in VARIANTS.items())),),
-        lossy_links=True,  # capabilities (registry.Family)
+        options=(
+            Option(
+                name="variant",
+                default="honest",
+                check=check_variant,
+                doc=" | ".join(f"{k!r}: {d}" for k, d in VARIANTS.items()),
+                choices=tuple(VARIANTS),
+            ),
+        ),
         example="design_ci(system, cost, graph, horizon=100, variant='honest')",
     )
 )

@@ -22,6 +22,15 @@ k = s + τ_ji the prior pair through the prediction with process noise and the
 novelty of y_j(s) as a measurement of x(k) (delay compensation); the weights of
 neighbours not yet heard go to the agent itself. ``iterations`` is then unused.
 
+Counting the agents (``count``)
+-------------------------------
+``count="all"`` (default) is the published ω = N. ``count="heard"`` uses
+ω_i(k) = m_i(k), the number of agents whose novelty entered agent i's average
+at step k (itself and the neighbours heard; the L-hop in-neighbourhood for the
+ideal variant; see :func:`~teamkf.estimators.icf.heard_counts`): an agent that
+hears nobody is then exactly its own Kalman filter instead of one that counts
+its measurement N times.
+
 Unreliable links (:mod:`teamkf.simulation.links`)
 -------------------------------------------------
 On lossy links the agents run :meth:`HCMCIAlgorithm.agent_step_tolerant`, the
@@ -59,7 +68,17 @@ import numpy as np
 from ..exceptions import ArgumentError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
-from ._consensus_common import VARIANTS, check_iterations, check_variant, diffusion_weights, finite_horizon, information_sources
+from ._consensus_common import (
+    COUNTS,
+    VARIANTS,
+    check_count,
+    check_iterations,
+    check_variant,
+    diffusion_weights,
+    finite_horizon,
+    heard_counts,
+    information_sources,
+)
 from .checks import check_graph, check_information_form, check_model
 from .linear_team import Algorithm, LinearTeamDesign, compensate_information, delivered, finish_design, freshest
 from .registry import Family, Option, _register_builtin
@@ -71,15 +90,20 @@ class HCMCIAlgorithm(Algorithm):
     state_kinds = {"xhat": "x"}
     payload_kinds = {"xbar": "x", "y": "y"}
 
-    def __init__(self, system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, horizon: int, iterations: int, honest: bool):
+    def __init__(
+        self, system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, horizon: int, iterations: int, honest: bool, count: str = "all"
+    ):
         super().__init__(system, cost, graph, horizon)
         if system.is_time_varying:
             raise ArgumentError("system: the 'hcmci' family needs a time-invariant model here", argument="system")
         self.honest, self.L = honest, (1 if honest else iterations)
         n, dx, T = system.n_agents, system.dx, horizon
         self.omega = float(n)
+        self.count = count
         self.pi = diffusion_weights(graph, "metropolis").T  # pi[i, j]: agent i's weight on j
         self.src = information_sources(graph, T, honest)
+        #: ω_i(k): N (published) or the number of agents heard (module docstring)
+        self.om = np.full((n, T), float(n)) if count == "all" else heard_counts(graph, self.src, T, honest, self.L)
         self.ins = [list(graph.in_neighbors(i)) for i in range(n)]
         self.Obar = np.empty((n, T, dx, dx))
         self.Om = np.empty((n, T, dx, dx))
@@ -104,7 +128,7 @@ class HCMCIAlgorithm(Algorithm):
                         self.nov_c[(i, k, j, s)] = (Yn, Gc)
                         Oi = Oi + self.pi[i, j] * Yc
                         dOi = dOi + self.pi[i, j] * Yn
-                    self.Om[i, k] = Oi + self.omega * dOi
+                    self.Om[i, k] = Oi + self.om[i, k] * dOi
             else:
                 Os = [self.Obar[i, k] for i in range(n)]
                 ds = list(dO)
@@ -112,7 +136,7 @@ class HCMCIAlgorithm(Algorithm):
                     Os = [self.pi[i, i] * Os[i] + sum((self.pi[i, j] * Os[j] for j in self.ins[i]), np.zeros((dx, dx))) for i in range(n)]
                     ds = [self.pi[i, i] * ds[i] + sum((self.pi[i, j] * ds[j] for j in self.ins[i]), np.zeros((dx, dx))) for i in range(n)]
                 for i in range(n):
-                    self.Om[i, k] = Os[i] + self.omega * ds[i]
+                    self.Om[i, k] = Os[i] + self.om[i, k] * ds[i]
             for i in range(n):
                 A = system.A_at(k)
                 P = A @ np.linalg.inv(self.Om[i, k]) @ A.T + system.Q_at(k)
@@ -135,7 +159,7 @@ class HCMCIAlgorithm(Algorithm):
             _, Gc = self.nov_c[(i, k, j, s)]
             q = q + self.pi[i, j] * (Tm @ p["xbar"])
             dq = dq + self.pi[i, j] * (Gc @ p["y"])
-        xh = self.Ominv[i, k] @ (q + self.omega * dq)
+        xh = self.Ominv[i, k] @ (q + self.om[i, k] * dq)
         return {"xhat": xh}, {"xbar": xbar, "y": y_i}
 
     def agent_step_tolerant(self, i: int, k: int, prev: dict | None, y_i: Any, inbox: Any, zero: Any) -> tuple[dict, dict]:
@@ -174,8 +198,9 @@ class HCMCIAlgorithm(Algorithm):
             _, _, Gc, Yn = self.compensated(j, s, k)
             dOi = dOi + self.pi[i, j] * Yn
             dq = dq + self.pi[i, j] * (Gc @ p["y"])
-        Om = Oi + self.omega * dOi
-        xh = np.linalg.inv(Om) @ (q + self.omega * dq)
+        om = self.omega if self.count == "all" else float(1 + len({j for j, _, _ in pk}))
+        Om = Oi + om * dOi
+        xh = np.linalg.inv(Om) @ (q + om * dq)
         A = sysm.A_at(k)
         P = A @ np.linalg.inv(Om) @ A.T + sysm.Q_at(k)
         On = np.linalg.inv(0.5 * (P + P.T))
@@ -196,38 +221,26 @@ class HCMCIAlgorithm(Algorithm):
                 nq.append(a)
                 nd.append(b)
             qs, ds = nq, nd
-        return [{"xhat": self.Ominv[i, k] @ (qs[i] + self.omega * ds[i])} for i in range(n)]
+        return [{"xhat": self.Ominv[i, k] @ (qs[i] + self.om[i, k] * ds[i])} for i in range(n)]
 
 
 def design_hcmci(
-    system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, horizon: int | None = None, *, iterations: int = 5, variant: str = "honest"
+    system: LinearGaussianSystem,
+    cost: TeamCost,
+    graph: CommGraph,
+    horizon: int | None = None,
+    *,
+    iterations: int = 5,
+    variant: str = "honest",
+    count: str = "all",
 ) -> LinearTeamDesign:
     """Design the HCMCI filter with its exact team cost (module docstring).
 
-    Parameters
-    ----------
-    system : LinearGaussianSystem
-        The process x(k+1) = A x(k) + w(k) and the agents' measurements y_i(k) = C_i x(k) + v_i(k).
-    cost : TeamCost
-        The team cost c(x, ẑ) = (L x - ẑ)ᵀ S (L x - ẑ) (``None``: the sum of the agents' MSEs).
-    graph : CommGraph
-        The communication graph: agent i hears agent j over edge (j, i) after its integer delay τ_ji.
-    horizon : int
-        Number of steps T (finite horizon only).
-    iterations : int >= 1
-        Consensus iterations per step (ideal variant; the honest one exchanges once per step).
-    variant : "honest" (default) or "ideal"
-        "honest": one exchange per step over the graph's delays, delay-compensated (realizable);
-        "ideal": neighbours' current data within the step (a bound, not realizable on a delay graph).
-
-    Returns
-    -------
-    LinearTeamDesign
-        The per-step linear maps with the exact team cost (stage costs E[c(x(k), ẑ(k))]).
+    ``count``: "all" (published ω = N) or "heard" (ω = the agents actually heard; module docstring).
 
     Examples
     --------
-    >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph, design_hcmci
+    >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph
     >>> d = design_hcmci(LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 10.0), CommGraph.line(4), 10, iterations=3, variant="ideal")
     >>> d.info["iterations"]
     3
@@ -238,8 +251,9 @@ def design_hcmci(
     variant = check_variant(variant, "variant")
     L = check_iterations(iterations, "iterations")
     T = finite_horizon(horizon, "hcmci", system, cost)
-    alg = HCMCIAlgorithm(system, cost, graph, T, L, honest=(variant == "honest"))
-    return finish_design("hcmci", alg, variant, {"iterations": alg.L, "omega": alg.omega})
+    cnt = check_count(count, "hcmci.count")
+    alg = HCMCIAlgorithm(system, cost, graph, T, L, honest=(variant == "honest"), count=cnt)
+    return finish_design("hcmci", alg, variant, {"iterations": alg.L, "omega": alg.omega if cnt == "all" else "heard", "count": cnt})
 
 
 FAMILY = _register_builtin(
@@ -252,9 +266,15 @@ FAMILY = _register_builtin(
         analytic_cost=True,
         options=(
             Option(name="iterations", default=5, check=check_iterations, doc="consensus iterations L per step (ideal variant)"),
-            Option(name="variant", default="honest", check=check_variant, doc=" | ".join(f"{k!r}: {d}" for k, d in VARIANTS.items())),
+            Option(
+                name="variant",
+                default="honest",
+                check=check_variant,
+                doc=" | ".join(f"{k!r}: {d}" for k, d in VARIANTS.items()),
+                choices=tuple(VARIANTS),
+            ),
+            Option(name="count", default="all", check=check_count, doc=" | ".join(f"{k!r}: {d}" for k, d in COUNTS.items()), choices=tuple(COUNTS)),
         ),
-        lossy_links=True,  # capabilities (registry.Family)
         example="design_hcmci(system, cost, graph, horizon=100, iterations=5, variant='ideal')",
     )
 )

@@ -20,6 +20,18 @@ uses it at k = s + τ_ji as the pair (V_j(s), v_j(s)) through the prediction wit
 process noise (:func:`~teamkf.estimators.linear_team.compensate_information`);
 ``iterations`` is then unused.
 
+Counting the agents (``count``)
+-------------------------------
+``count="all"`` (default) is the published rule: the prior weight J̄_i/N and
+J_i = N V_i assume that consensus averages all N agents. When an agent hears
+fewer (one exchange per step, a sparse graph, lost packets), that counts its own
+measurement N times; with nobody heard it is the Kalman filter of y_i with noise
+covariance R_i/N. ``count="heard"`` replaces N by m_i(k), the number of agents
+whose data entered agent i's pair at step k (itself and the neighbours heard:
+1 + |N_i(k)| for the honest variant and on lossy links, the size of the K-hop
+in-neighbourhood for the ideal one), so an agent that hears nobody is exactly
+its own Kalman filter; with everybody heard it is the published rule.
+
 Unreliable links (:mod:`teamkf.simulation.links`)
 -------------------------------------------------
 On lossy links the agents run :meth:`ICFAlgorithm.agent_step_tolerant`: the
@@ -54,18 +66,19 @@ from typing import Any
 import numpy as np
 
 from .. import _validation as V
-from .._lazy import scipy_linalg as sla  # SciPy / networkx load on first use
+from .._lazy import scipy_linalg as sla  # SciPy loads on first use
 from ..exceptions import ArgumentError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
-from ._consensus_common import VARIANTS, check_iterations, check_variant, finite_horizon, information_sources
+from ._consensus_common import COUNTS, VARIANTS, check_count, check_iterations, check_variant, finite_horizon, heard_counts, information_sources
 from .checks import check_graph, check_information_form, check_model
 from .linear_team import Algorithm, LinearTeamDesign, compensate_information, delivered, finish_design, freshest
 from .registry import Family, Option, _register_builtin
 
-__all__ = ["design_icf", "check_iterations", "check_rate", "consensus_rate"]
+__all__ = ["design_icf", "check_iterations", "check_rate", "consensus_rate", "check_count", "COUNTS", "heard_counts"]
 
 
+#: how the agents are counted (module docstring)
 def check_rate(v: Any, key: str) -> float | None:
     """The ``epsilon`` option: the consensus rate (> 0; None picks one below 1 / max degree)."""
     return None if v is None else V.real(v, key, minimum=0.0, strict=True, what="a consensus rate")
@@ -90,11 +103,24 @@ class ICFAlgorithm(Algorithm):
     state_kinds = {"xhat": "x"}
     payload_kinds = {"xhat": "x"}
 
-    def __init__(self, system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, horizon: int, epsilon: float, iterations: int, honest: bool):
+    def __init__(
+        self,
+        system: LinearGaussianSystem,
+        cost: TeamCost,
+        graph: CommGraph,
+        horizon: int,
+        epsilon: float,
+        iterations: int,
+        honest: bool,
+        count: str = "all",
+    ):
         super().__init__(system, cost, graph, horizon)
         self.honest, self.eps, self.K = honest, epsilon, iterations if not honest else 1
         n, dx, T = system.n_agents, system.dx, horizon
         self.src = information_sources(graph, T, honest)
+        self.count = count
+        #: m[i, k]: the number the agents are counted by (N published, or the agents heard)
+        self.m = np.full((n, T), float(n)) if count == "all" else heard_counts(graph, self.src, T, honest, self.K)
         self.ins = [list(graph.in_neighbors(i)) for i in range(n)]
         self.G, self.U = [], []
         for j in range(n):
@@ -112,7 +138,7 @@ class ICFAlgorithm(Algorithm):
         for k in range(T):
             for i in range(n):
                 self.Jbar[i, k] = Jbar[i]
-                self.V0[i, k] = Jbar[i] / n + self.U[i]
+                self.V0[i, k] = Jbar[i] / self.m[i, k] + self.U[i]
             if honest:
                 for i in range(n):
                     Vi = self.V0[i, k].copy()
@@ -129,7 +155,7 @@ class ICFAlgorithm(Algorithm):
                     self.Vf[i, k] = Vs[i]
             for i in range(n):
                 A = system.A_at(k)
-                Jinv = np.linalg.inv(n * self.Vf[i, k])
+                Jinv = np.linalg.inv(self.m[i, k] * self.Vf[i, k])
                 Jbar[i] = np.linalg.inv(A @ Jinv @ A.T + system.Q_at(k))
                 Jbar[i] = 0.5 * (Jbar[i] + Jbar[i].T)
         self.Vinv = np.linalg.inv(self.Vf)
@@ -137,7 +163,7 @@ class ICFAlgorithm(Algorithm):
 
     def _v0(self, i: int, k: int, prev: dict | None, y_i: Any, zero: Any) -> Any:
         xbar = zero(self.system.dx) if prev is None else self.system.A_at(k - 1) @ prev["xhat"]
-        return (self.Jbar[i, k] / self.system.n_agents) @ xbar + self.G[i] @ y_i
+        return (self.Jbar[i, k] / self.m[i, k]) @ xbar + self.G[i] @ y_i
 
     def agent_step(self, i: int, k: int, prev: dict | None, y_i: Any, inbox: Any, zero: Any) -> tuple[dict, dict]:
         v0 = self._v0(i, k, prev, y_i, zero)
@@ -167,10 +193,13 @@ class ICFAlgorithm(Algorithm):
         sysm, n = self.system, self.system.n_agents
         Jbar = self.Jbar[i, 0] if prev is None else prev.get("Jbar", self.Jbar[i, k])
         xbar = zero(sysm.dx) if prev is None else sysm.A_at(k - 1) @ prev["xhat"]
+        fresh = freshest(delivered(self.graph, i, inbox))
+        if self.count == "heard":
+            n = 1 + len(fresh)
         V0 = Jbar / n + self.U[i]
         v0 = (Jbar / n) @ xbar + self.G[i] @ y_i
         Vi, v = V0.copy(), v0
-        for _j, s, p in freshest(delivered(self.graph, i, inbox)):
+        for _j, s, p in fresh:
             Yc, Tm = compensate_information(sysm, p["V"], s, k)
             Vi = Vi + self.eps * (Yc - V0)
             v = v + self.eps * (Tm @ p["xhat"] - v0)
@@ -204,35 +233,20 @@ def design_icf(
     iterations: int = 5,
     epsilon: float | None = None,
     variant: str = "honest",
+    count: str = "all",
 ) -> LinearTeamDesign:
     """Design the information-weighted consensus filter with its exact team cost (module docstring).
 
     Parameters
     ----------
-    system : LinearGaussianSystem
-        The process x(k+1) = A x(k) + w(k) and the agents' measurements y_i(k) = C_i x(k) + v_i(k).
-    cost : TeamCost
-        The team cost c(x, ẑ) = (L x - ẑ)ᵀ S (L x - ẑ) (``None``: the sum of the agents' MSEs).
-    graph : CommGraph
-        The communication graph: agent i hears agent j over edge (j, i) after its integer delay τ_ji.
-    horizon : int
-        Number of steps T (finite horizon only).
     iterations : int >= 1
         Consensus iterations K per step (ideal variant; the honest one exchanges once per step).
-    epsilon : float in (0, 1/Δ_max), or None
-        The consensus step; None gives 1/(Δ_max + 1), Δ_max the largest in-degree.
-    variant : "honest" (default) or "ideal"
-        "honest": one exchange per step over the graph's delays, delay-compensated (realizable);
-        "ideal": neighbours' current data within the step (a bound, not realizable on a delay graph).
-
-    Returns
-    -------
-    LinearTeamDesign
-        The per-step linear maps with the exact team cost (stage costs E[c(x(k), ẑ(k))]).
+    epsilon : float in (0, 1/Δ_max), or None for 1/(Δ_max + 1)
+    count : "all" (published: N) or "heard" (the agents actually heard; module docstring)
 
     Examples
     --------
-    >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph, design_icf
+    >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph
     >>> d = design_icf(LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 10.0), CommGraph.line(4), 10, variant="ideal")
     >>> d.label
     'icf [ideal]'
@@ -244,8 +258,9 @@ def design_icf(
     K = check_iterations(iterations, "iterations")
     eps = consensus_rate(graph, epsilon, key="icf.epsilon")
     T = finite_horizon(horizon, "icf", system, cost)
-    alg = ICFAlgorithm(system, cost, graph, T, eps, K, honest=(variant == "honest"))
-    return finish_design("icf", alg, variant, {"epsilon": eps, "iterations": alg.K})
+    cnt = check_count(count, "icf.count")
+    alg = ICFAlgorithm(system, cost, graph, T, eps, K, honest=(variant == "honest"), count=cnt)
+    return finish_design("icf", alg, variant, {"epsilon": eps, "iterations": alg.K, "count": cnt})
 
 
 FAMILY = _register_builtin(
@@ -261,9 +276,15 @@ FAMILY = _register_builtin(
             Option(
                 name="epsilon", default=None, check=check_rate, doc="consensus rate, 0 < epsilon < 1/max in-degree (default 1/(max in-degree + 1))"
             ),
-            Option(name="variant", default="honest", check=check_variant, doc=" | ".join(f"{k!r}: {d}" for k, d in VARIANTS.items())),
+            Option(
+                name="variant",
+                default="honest",
+                check=check_variant,
+                doc=" | ".join(f"{k!r}: {d}" for k, d in VARIANTS.items()),
+                choices=tuple(VARIANTS),
+            ),
+            Option(name="count", default="all", check=check_count, doc=" | ".join(f"{k!r}: {d}" for k, d in COUNTS.items()), choices=tuple(COUNTS)),
         ),
-        lossy_links=True,  # capabilities (registry.Family)
         example="design_icf(system, cost, graph, horizon=100, iterations=5, variant='ideal')",
     )
 )

@@ -760,6 +760,7 @@ FAMILY = _register_builtin(
                 default="honest",
                 check=lambda v, k: V.choice(v, k, tuple(VARIANTS)),
                 doc=" | ".join(f"{k!r}: {d}" for k, d in VARIANTS.items()),
+                choices=tuple(VARIANTS),
             ),
         ),
         lossy_links=True,  # capabilities (registry.Family)

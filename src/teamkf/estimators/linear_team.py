@@ -137,6 +137,10 @@ class Algorithm:
     payload_kinds: dict[str, str] = {}
     honest: bool = True
     output: str = "xhat"
+    #: families whose gains need the exact error covariance set ``exact_gains``; :func:`build_steps` then sets
+    #: ``_errcov`` (an :class:`_ErrorCovariance` of the step being built) while it runs, None otherwise
+    exact_gains: bool = False
+    _errcov: Any = None
 
     def __init__(self, system: LinearGaussianSystem, cost: TeamCost, graph: Any, horizon: int):
         self.system, self.cost, self.graph, self.horizon = system, cost, graph, horizon
@@ -197,8 +201,21 @@ class Algorithm:
             Rs.append(Rt)
             term = G @ y - Y @ xbar
             r = term if r is None else r + term
-        _, P_post = kalman_step(P, np.vstack(Cs), sla.block_diag(*Rs))
+        _, P_post = kalman_step(P, np.vstack(Cs), _block_diag(Rs))
         return r, P_post
+
+
+def _block_diag(blocks: Sequence[FloatArray]) -> FloatArray:
+    """Block-diagonal matrix of 2-D blocks (scipy's ``block_diag`` without its per-call overhead)."""
+    rows = sum(b.shape[0] for b in blocks)
+    cols = sum(b.shape[1] for b in blocks)
+    out = np.zeros((rows, cols))
+    r = c = 0
+    for b in blocks:
+        out[r : r + b.shape[0], c : c + b.shape[1]] = b
+        r += b.shape[0]
+        c += b.shape[1]
+    return out
 
 
 def _target(system: LinearGaussianSystem, slot: Slot) -> FloatArray:
@@ -221,6 +238,9 @@ def build_steps(alg: Algorithm) -> list[LinearStep]:
             max_out[j] = max(max_out[j], d)
     prev_slots: tuple[Slot, ...] = ()
     steps: list[LinearStep] = []
+    exact = bool(getattr(alg, "exact_gains", False))
+    Pk: FloatArray = np.zeros((0, 0))
+    Xk: dict[int, FloatArray] = {}
     for k in range(T):
         starts = np.concatenate([[0], np.cumsum([s.dim for s in prev_slots])]).astype(int)
         nprev = int(starts[-1])
@@ -240,6 +260,8 @@ def build_steps(alg: Algorithm) -> list[LinearStep]:
             return sel(pos, s.dim)
 
         ys = [sel(nprev + int(offs[i]), dys[i]) for i in range(n)]
+        if exact:  # the exact error covariance of any expression of this step (families with exact gains)
+            alg._errcov = _ErrorCovariance(alg, k, prev_slots, nprev, Pk, Xk)
         prev_states: list[dict | None] = [None if k == 0 else {name: get(("state", i, name)) for name in alg.state_kinds} for i in range(n)]
         new_slots: list[Slot] = []
         rows: list[FloatArray] = []
@@ -280,8 +302,79 @@ def build_steps(alg: Algorithm) -> list[LinearStep]:
             H[i * cost.dz : (i + 1) * cost.dz, p : p + dx] = cost.L_block(i, k)
         B = _noise_terms(alg, k, prev_slots, slots, F, K)
         steps.append(LinearStep(k=k, slots=slots, F=F, K=K, H=H, B=B))
+        if exact:
+            Pk, Xk = _advance(sysm, steps[-1], Pk, Xk)
         prev_slots = slots
+    if exact:
+        alg._errcov = None
     return steps
+
+
+def _advance(system: LinearGaussianSystem, st: LinearStep, P: FloatArray, X: dict[int, FloatArray]) -> tuple[FloatArray, dict[int, FloatArray]]:
+    """One step of the exact error recursion: (Cov ε(k-1), Cov(ε(k-1), w(r))) -> the same at k (as :meth:`LinearTeamDesign.analytic`)."""
+    F, K = st.Fs, st.Ks  # type: ignore[attr-defined]
+    FP = np.asarray(F @ P)
+    KR = np.asarray(K @ system.R_stack(st.k))
+    Pn = np.asarray(F @ FP.T).T + np.asarray(K @ KR.T).T
+    Xn: dict[int, FloatArray] = {}
+    for r, Bm in st.B.items():
+        Qr = system.Sigma_x if r == -1 else system.Q_at(r)
+        BQ = Bm @ Qr
+        Pn = Pn + BQ @ Bm.T
+        if r in X:
+            FX = np.asarray(F @ X[r])
+            cross = FX @ Bm.T
+            Pn = Pn + cross + cross.T
+            Xn[r] = FX + BQ
+        else:
+            Xn[r] = BQ
+    return 0.5 * (Pn + Pn.T), Xn
+
+
+class _ErrorCovariance:
+    """The exact joint covariance of the errors M x(k) - q of expressions q of step k (symbolic columns).
+
+    An expression q = [F_q | K_q] over (ξ(k-1), y(k)) with target M x(k) has the error
+    e = F_q ε(k-1) - K_q v(k) + Σ_r B_r w(r) (w(-1) = x(0)), B_r as in :func:`_noise_terms`; the
+    covariance follows from Cov ε(k-1) and Cov(ε(k-1), w(r)) of the recursion (:func:`_advance`).
+    """
+
+    def __init__(self, alg: Algorithm, k: int, prev: Sequence[Slot], nprev: int, P: FloatArray, X: dict[int, FloatArray]):
+        self.alg, self.k, self.prev, self.nprev, self.P, self.X = alg, k, prev, nprev, P, X
+        sysm = alg.system
+        b = min([s.step for s in prev] + [k])
+        self.lo = -1 if b == 0 else b
+        self.C = sysm.C_stack(k)
+        self.R = sysm.R_stack(k)
+        self._rows: dict[int, FloatArray] = {}
+
+    def _target_rows(self, r: int) -> FloatArray:
+        if r not in self._rows:
+            dx = self.alg.system.dx
+            out = np.zeros((sum(s.dim for s in self.prev), dx))
+            p = 0
+            for s in self.prev:
+                if r <= s.step - 1:
+                    out[p : p + s.dim] = _target(self.alg.system, s) @ self.alg.Phi(s.step, r + 1)
+                p += s.dim
+            self._rows[r] = out
+        return self._rows[r]
+
+    def __call__(self, items: Sequence[tuple[FloatArray, FloatArray]]) -> FloatArray:
+        """Cov of the stacked errors M_a x(k) - q_a for ``items`` = [(q_a, M_a)]."""
+        sysm, k = self.alg.system, self.k
+        q = np.vstack([np.asarray(a, dtype=float) for a, _ in items])
+        M = np.vstack([m for _, m in items])
+        Fq, Kq = q[:, : self.nprev], q[:, self.nprev :]
+        S = Fq @ self.P @ Fq.T + Kq @ self.R @ Kq.T
+        for r in range(self.lo, k):
+            Bq = M @ self.alg.Phi(k, r + 1) - Fq @ self._target_rows(r) - Kq @ (self.C @ self.alg.Phi(k, r + 1))
+            Qr = sysm.Sigma_x if r == -1 else sysm.Q_at(r)
+            S = S + Bq @ Qr @ Bq.T
+            if r in self.X:
+                c = Fq @ self.X[r] @ Bq.T
+                S = S + c + c.T
+        return 0.5 * (S + S.T)
 
 
 def _noise_terms(alg: Algorithm, k: int, prev: Sequence[Slot], new: Sequence[Slot], F: FloatArray, K: FloatArray) -> dict[int, FloatArray]:
@@ -454,7 +547,8 @@ class LinearTeamDesign(Design):
     @property
     def tolerates_losses(self) -> bool:
         """True when the agents run with lost or late packets (the family defines what a missing message means)."""
-        return hasattr(self.algorithm, "agent_step_tolerant")
+        # exact gains are designed for the graph's messages: no rule for a lost one (diffusion gains="exact")
+        return hasattr(self.algorithm, "agent_step_tolerant") and not getattr(self.algorithm, "exact_gains", False)
 
     def details(self) -> dict[str, Any]:
         return {"variant": self.variant, "realizable": bool(getattr(self.algorithm, "honest", False)), "state_dim": int(self.steps[-1].F.shape[0])}
@@ -537,7 +631,9 @@ def finish_design(estimator: str, alg: Algorithm, variant: str, info: dict[str, 
         steps = build_steps(alg)
         with np.errstate(over="ignore", invalid="ignore"):
             stage, _ = LinearTeamDesign.analytic(alg.system, alg.cost, steps)
-    inf = {"variant": variant, "cost_method": "analytic", **(info or {})}
+    # realizable exactly when the agents run one exchange per step over the graph (the honest step); an ideal
+    # variant exchanges inside the step, which no delay graph delivers (Design.realizable reads this)
+    inf = {"variant": variant, "cost_method": "analytic", "realizable": bool(alg.honest), **(info or {})}
     return LinearTeamDesign(
         estimator=estimator,
         horizon=alg.horizon,

@@ -61,6 +61,9 @@ class Option:
         naming ``key`` (the key path in the scenario, e.g. ``"kcf.epsilon"``).
     doc : str
         One line for the documentation and error messages.
+    choices : tuple
+        The allowed values when the option is a choice (``variant``: every variant of the
+        family; the property tests run each of them); empty otherwise.
 
     See Also
     --------
@@ -82,6 +85,7 @@ class Option:
     default: Any
     check: Callable[[Any, str], Any]
     doc: str = ""
+    choices: tuple[Any, ...] = ()
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name.isidentifier():
@@ -217,6 +221,14 @@ class Family:
     def option_names(self) -> tuple[str, ...]:
         return tuple(o.name for o in self.options)
 
+    @property
+    def variants(self) -> tuple[str, ...]:
+        """Every value of the family's ``variant`` option (its ``choices``), or ``()`` for a family without variants."""
+        for o in self.options:
+            if o.name == "variant":
+                return tuple(o.choices) if o.choices else (o.default,)
+        return ()
+
     def check_options(self, table: Any, prefix: str | None = None) -> dict[str, Any]:
         """Validate an options table (from a scenario or keywords): known keys, checked values, defaults filled."""
         key = self.name if prefix is None else prefix
@@ -277,7 +289,7 @@ class Family:
             "cost": "analytic" if self.analytic_cost else "monte-carlo",
             "unit_delays": self.unit_delays,
             "capabilities": list(self.capabilities),
-            "options": {o.name: {"default": o.default, "doc": o.doc} for o in self.options},
+            "options": {o.name: {"default": o.default, "doc": o.doc, **({"choices": list(o.choices)} if o.choices else {})} for o in self.options},
         }
 
 
