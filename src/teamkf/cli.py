@@ -146,29 +146,7 @@ def _cmd_population(sc: Any, args: argparse.Namespace) -> int:
         rows = {r["estimator"]: {k: v for k, v in r.items() if k != "estimator" and v is not None} for r in ev.json_rows()}
         print(dumps_json({**out, "schema_version": ev.schema_version, "estimators": rows}))
         return 0
-    m = sc.model
-    if out.get("diverged") and not np.isfinite(out["state_variance"]):
-        print(
-            f"scenario {sc.name}: population of N = {m.n_agents:,} interference-coupled agents, horizon T = {sc.horizon}, "
-            f"{out['filter']} filter, feedback f = {m.f:g} (a_f = {out['a_f']:g})\n"
-            f"  diverged: the closed loop is unstable under this filter from step {out['diverged_at']} on (gains, variances and cost not finite)"
-        )
-        return 0
-    print(
-        f"scenario {sc.name}: population of N = {m.n_agents:,} interference-coupled agents, horizon T = {sc.horizon}, "
-        f"{out['filter']} filter, feedback f = {m.f:g} (a_f = {out['a_f']:g})"
-    )
-    tail = ", ".join(f"{v:.4g}" for v in out["gains"][-5:])
-    iso = out.get("isolated_gains")
-    print(f"  final gains K_T (last 5, oldest first): [..., {tail}]")
-    if iso:
-        print(f"  isolated Kalman sequence (last 5):      [..., {', '.join(f'{v:.4g}' for v in iso[-5:])}]")
-    print(
-        f"  stationarity index {out['stationarity_index']:.3g}; state variance Var x_T = {out['state_variance']:.6g}; "
-        f"average LQ cost per agent {out['average_lq_cost']:.6g}"
-    )
-    if out.get("diverged"):
-        print(f"  diverged: the closed loop is unstable (Var x_k > 4.5e11 times the noise variance from step {out['diverged_at']} on)")
+    print(sc.describe_result(out))
     return 0
 
 
@@ -490,8 +468,9 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 # filter: recorded measurements (teamkf.study.measurements)
 # ---------------------------------------------------------------------------
 def _cmd_filter(args: argparse.Namespace) -> int:
-    """``teamkf filter SCENARIO --measurements FILE [--truth FILE] --out FILE [--estimators ...]``."""
-    from .study import measurements as M
+    """``teamkf filter SCENARIO --measurements FILE [--truth FILE] --out FILE [--estimators ...]`` (:mod:`teamkf.study.filtering`)."""
+    from . import get_family
+    from .study.filtering import filter_to_files
 
     inputs = [args.scenario, args.measurements, args.truth, args.drops]
     out_path = _check_output(args.out, "--out", (".csv", ".parquet"), inputs=inputs)
@@ -505,77 +484,15 @@ def _cmd_filter(args: argparse.Namespace) -> int:
     sc = _load(args.scenario)
     sc.require_simulation("teamkf filter", "SCENARIO")
     names = list(args.estimators) if args.estimators else list(sc.estimators)
-    from . import get_family
-
     for k, name in enumerate(names):
         get_family(name, f"--estimators[{k}]")
-    if sc.horizon is None:  # steady-state designs: stream the file in chunks (bounded memory)
-        return _filter_streamed(sc, args, names, out_path, cost_path)
-    log = M.read_measurements(args.measurements, sc.system, sc.horizon)
-    truth = M.read_truth(args.truth, sc.system.dx, log.n_steps) if args.truth else None
-    res = M.filter_log(sc, log, estimators=names, truth=truth)
-    fmt = out_path.suffix.lower()
-    _write_atomic(out_path, lambda fh: M.write_estimates(fh, res.estimates, res.n_agents, fmt=fmt))
-    if cost_path is not None and res.stage_costs is not None:
-        import pandas as pd
-
-        T = log.n_steps
-        frame = pd.concat(
-            [pd.DataFrame({"step": np.arange(T), "estimator": name, "cost": c}) for name, c in res.stage_costs.items()], ignore_index=True
-        )
-        _write_atomic(cost_path, lambda fh: M.write_frame(frame, fh, fmt))
+    run = filter_to_files(sc, args.measurements, out_path, estimators=names, truth=args.truth, cost_out=cost_path, chunk_rows=args.chunk_rows)
     if args.json:
-        out = {"scenario": sc.name, "measurements": str(args.measurements), "out": str(out_path), **res.summary()}
-        if cost_path is not None:
-            out["cost_out"] = str(cost_path)
-        print(dumps_json(out))
+        print(dumps_json(run.summary))
         return 0
-    if res.loglik is not None:
-        ll = f"{res.loglik:.6f}" if np.isfinite(res.loglik) else f"{res.loglik} (non-finite: a measurement lies far outside what the model predicts)"
-        print(f"log-likelihood of the data under the centralized filter: {ll}")
-    gaps = "no gaps" if not log.has_gaps else f"{sum(int(np.isnan(y).any(axis=1).sum()) for y in log.y)} agent-steps with missing values"
-    print(f"{sc.name}: {log.n_steps} steps, {res.n_agents} agents ({gaps}); estimates of {', '.join(names)} written to {out_path}")
-    if res.total_costs is not None:
-        print(format_table(["estimator", "realized team cost (sum over steps)"], [[k, _fmt(v)] for k, v in res.total_costs.items()], align="lr"))
-        print(f"per-step realized costs written to {cost_path}")
-    return 0
-
-
-def _filter_streamed(sc: Any, args: argparse.Namespace, names: list[str], out_path: Path, cost_path: Path | None) -> int:
-    from .study.stream import stream_filter
-
-    fmt = out_path.suffix.lower()
-    done: dict[str, Any] = {}
-
-    def run(fh: Any, ch: Any = None) -> None:
-        done["summary"] = stream_filter(
-            sc,
-            args.measurements,
-            fh,
-            fmt=fmt,
-            estimators=names,
-            truth=args.truth,
-            cost_out=ch,
-            chunk_rows=args.chunk_rows,
-            progress=None,
-        )
-
-    if cost_path is not None:
-        _write_atomic(out_path, lambda fh: _write_atomic(cost_path, lambda ch: run(fh, ch)))
-    else:
-        _write_atomic(out_path, run)
-    summ = done["summary"]
-    if args.json:
-        out = {"scenario": sc.name, "measurements": str(args.measurements), "out": str(out_path), **summ.summary()}
-        if cost_path is not None:
-            out["cost_out"] = str(cost_path)
-        print(dumps_json(out))
-        return 0
-    print(
-        f"{sc.name}: {summ.n_steps} steps streamed (steady-state gains), {summ.rows_in} measurement rows; {summ.rows_out} estimate rows of {', '.join(names)} written to {out_path}"
-    )
-    if summ.total_costs is not None:
-        print(format_table(["estimator", "realized team cost (sum over steps)"], [[k, _fmt(v)] for k, v in summ.total_costs.items()], align="lr"))
+    print("\n".join(run.lines))
+    if run.total_costs is not None:
+        print(format_table(["estimator", "realized team cost (sum over steps)"], [[k, _fmt(v)] for k, v in run.total_costs.items()], align="lr"))
         print(f"per-step realized costs written to {cost_path}")
     return 0
 
@@ -680,30 +597,10 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
 
 
 def _check_scheduler(address: str) -> None:
-    """Fail fast (2 s) when a Dask scheduler address is malformed or nothing listens there."""
-    import socket
-    from urllib.parse import urlsplit
+    """Fail fast (2 s) when a Dask scheduler address is malformed or nothing listens there (:func:`teamkf.study.outputs.check_scheduler`)."""
+    from .study.outputs import check_scheduler
 
-    if address in ("local", "serial"):
-        return
-    parts = urlsplit(address if "://" in address else f"tcp://{address}")
-    try:
-        host, port = parts.hostname, parts.port
-    except ValueError:
-        host, port = None, None
-    if parts.scheme not in ("tcp", "tls", "ws", "wss", "inproc", "ucx") or not host or port is None:
-        raise ArgumentError(
-            f"--scheduler: expected 'serial', 'local' or a Dask scheduler address like tcp://host:8786, found {address!r}", argument="--scheduler"
-        )
-    try:
-        with socket.create_connection((host, port), timeout=2.0):
-            pass
-    except OSError as exc:
-        raise ArgumentError(
-            f"--scheduler: cannot reach a Dask scheduler at {address!r} ({exc.strerror or exc}); start one (dask scheduler) "
-            "or use 'local' / 'serial'",
-            argument="--scheduler",
-        ) from None
+    check_scheduler(address, "--scheduler")
 
 
 def _check_output_dir(path: str, flag: str, inputs: Sequence[Any] = ()) -> Path:

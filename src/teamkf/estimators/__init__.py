@@ -32,11 +32,11 @@ _LAZY = {
     "get_family": ".registry",
     "register_family": ".registry",
     "unregister_family": ".registry",
-    "StaticTeamEstimate": ".team",
+    "StaticTeamEstimate": ".static_team",
     "TeamDesign": ".team",
     "design_mmse": ".team",
     "design_mtmse": ".team",
-    "static_team_estimate": ".team",
+    "static_team_estimate": ".static_team",
 }
 __getattr__, __dir__ = attach(__name__, _LAZY)
 

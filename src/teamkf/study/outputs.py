@@ -30,7 +30,7 @@ from typing import Any, Callable, Iterable, Sequence
 
 from ..exceptions import ArgumentError
 
-__all__ = ["FORMATS", "check_output", "check_output_dir", "same_file", "write_atomic"]
+__all__ = ["FORMATS", "check_output", "check_output_dir", "check_scheduler", "same_file", "write_atomic"]
 
 #: the extensions of each output format (the first one is suggested in messages)
 FORMATS: dict[str, tuple[str, ...]] = {
@@ -205,3 +205,27 @@ def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return mask
+
+
+def check_scheduler(address: str, flag: str = "scheduler") -> None:
+    """Fail fast (2 s) when a Dask scheduler address is malformed or nothing listens there."""
+    import socket
+    from urllib.parse import urlsplit
+
+    if address in ("local", "serial"):
+        return
+    parts = urlsplit(address if "://" in address else f"tcp://{address}")
+    try:
+        host, port = parts.hostname, parts.port
+    except ValueError:
+        host, port = None, None
+    if parts.scheme not in ("tcp", "tls", "ws", "wss", "inproc", "ucx") or not host or port is None:
+        raise ArgumentError(f"{flag}: expected 'serial', 'local' or a Dask scheduler address like tcp://host:8786, found {address!r}", argument=flag)
+    try:
+        with socket.create_connection((host, port), timeout=2.0):
+            pass
+    except OSError as exc:
+        raise ArgumentError(
+            f"{flag}: cannot reach a Dask scheduler at {address!r} ({exc.strerror or exc}); start one (dask scheduler) or use 'local' / 'serial'",
+            argument=flag,
+        ) from None

@@ -72,6 +72,30 @@ class PopulationScenario(ScenarioBase):
     #: the one estimator of a population scenario: ``("bulk",)`` (exact or memory-n, by ``population.memory``)
     estimators: tuple[str, ...] = field(default=(POPULATION_ESTIMATOR,), init=False)
 
+    def describe_result(self, out: Mapping[str, Any]) -> str:
+        """The text ``teamkf evaluate`` prints for :meth:`evaluate`'s result ``out`` (a few lines)."""
+        m = self.model
+        head = (
+            f"scenario {self.name}: population of N = {m.n_agents:,} interference-coupled agents, horizon T = {self.horizon}, "
+            f"{out['filter']} filter, feedback f = {m.f:g} (a_f = {out['a_f']:g})"
+        )
+        if out.get("diverged") and not math.isfinite(out["state_variance"]):
+            return (
+                f"{head}\n  diverged: the closed loop is unstable under this filter from step {out['diverged_at']} on "
+                "(gains, variances and cost not finite)"
+            )
+        lines = [head, f"  final gains K_T (last 5, oldest first): [..., {', '.join(f'{v:.4g}' for v in out['gains'][-5:])}]"]
+        iso = out.get("isolated_gains")
+        if iso:
+            lines.append(f"  isolated Kalman sequence (last 5):      [..., {', '.join(f'{v:.4g}' for v in iso[-5:])}]")
+        lines.append(
+            f"  stationarity index {out['stationarity_index']:.3g}; state variance Var x_T = {out['state_variance']:.6g}; "
+            f"average LQ cost per agent {out['average_lq_cost']:.6g}"
+        )
+        if out.get("diverged"):
+            lines.append(f"  diverged: the closed loop is unstable (Var x_k > 4.5e11 times the noise variance from step {out['diverged_at']} on)")
+        return "\n".join(lines)
+
     def evaluate(self) -> dict[str, Any]:
         """:func:`evaluate_population` of the model over the horizon, with the scenario's name."""
         try:
