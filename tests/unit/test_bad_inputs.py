@@ -661,7 +661,7 @@ def test_bad_scenario(row: tuple[str, Any, str], workdir: Path, capsys: Any) -> 
     _check_cli(capsys, ["evaluate", str(path)], key)
     with pytest.raises(TeamkfError) as info:
         sc = teamkf.load_scenario(path)
-        sc.designs() if hasattr(sc, "designs") else sc.evaluate()
+        sc.designs() if sc.simulates else sc.evaluate()
     assert key in str(info.value), str(info.value)
 
 

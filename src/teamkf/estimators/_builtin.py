@@ -2,5 +2,8 @@
 
 from importlib import import_module
 
-for _name in ("kalman", "team", "kcf", "cikf", "local", "diffusion", "ci", "icf", "hcmci", "team_lossy"):
+#: the modules of the built-in families, in the order ``teamkf.families()`` lists them
+MODULES = ("kalman", "team", "kcf", "cikf", "local", "diffusion", "ci", "icf", "hcmci", "team_lossy")
+
+for _name in MODULES:
     import_module(f"{__package__}.{_name}")

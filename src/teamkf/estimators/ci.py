@@ -165,9 +165,28 @@ def design_ci(
 ) -> LinearTeamDesign:
     """Design local Kalman filters with covariance-intersection fusion, with the exact team cost.
 
+    Parameters
+    ----------
+    system : LinearGaussianSystem
+        The process x(k+1) = A x(k) + w(k) and the agents' measurements y_i(k) = C_i x(k) + v_i(k).
+    cost : TeamCost
+        The team cost c(x, ẑ) = (L x - ẑ)ᵀ S (L x - ẑ) (``None``: the sum of the agents' MSEs).
+    graph : CommGraph
+        The communication graph: agent i hears agent j over edge (j, i) after its integer delay τ_ji.
+    horizon : int
+        Number of steps T (finite horizon only).
+    variant : "honest" (default) or "ideal"
+        "honest": one exchange per step over the graph's delays, delay-compensated (realizable);
+        "ideal": neighbours' current data within the step (a bound, not realizable on a delay graph).
+
+    Returns
+    -------
+    LinearTeamDesign
+        The per-step linear maps with the exact team cost (stage costs E[c(x(k), ẑ(k))]).
+
     Examples
     --------
-    >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph
+    >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph, design_ci
     >>> d = design_ci(LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 10.0), CommGraph.line(4), 10)
     >>> d.label
     'ci [honest]'

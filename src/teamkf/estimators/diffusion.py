@@ -132,20 +132,38 @@ def design_diffusion(
 
     Parameters
     ----------
-    system, cost, graph
+    system : LinearGaussianSystem
+        The process x(k+1) = A x(k) + w(k) and the agents' measurements y_i(k) = C_i x(k) + v_i(k).
+    cost : TeamCost
+        The team cost c(x, ẑ) = (L x - ẑ)ᵀ S (L x - ẑ) (``None``: the sum of the agents' MSEs).
+    graph : CommGraph
+        The communication graph: agent i hears agent j over edge (j, i) after its integer delay τ_ji.
     horizon : int
         Number of steps T (finite horizon only).
-    weights : "metropolis", "uniform" or an n×n column-stochastic matrix c[l, k]
-    variant : "honest" (default) or "ideal" (module docstring)
-    combination : "weights" (published, default), "age", "matrix" or "ci" (module docstring)
+    weights : "metropolis", "uniform" or array
+        The combination weights: a rule, or an n×n column-stochastic matrix c[l, k].
+    variant : "honest" (default) or "ideal"
+        "honest": one exchange per step over the graph's delays, delay-compensated (realizable);
+        "ideal": neighbours' current data within the step (a bound, not realizable on a delay graph).
+
+    combination : "weights", "age", "matrix" or "ci"
+        How the neighbours' intermediate estimates are combined: "weights" (the published fixed weights, default),
+        "age" (weights that discount older messages), "matrix" (the best linear unbiased combination with the
+        exact error covariances), "ci" (covariance intersection).
     lazy : float in (0, 1]
-        α of the lazy combination x̂ = (1 - α) ψ_k + α x̂^comb (1: none, the published step)
-    gains : "nominal" (published, default) or "exact"
-        "exact": the adaptation gain and the combination rule from the exact error covariances (module docstring)
+        α of the lazy combination x̂ = (1 - α) ψ_k + α x̂^comb (1: none, the published step).
+    gains : "nominal" or "exact"
+        "nominal" (published, default): the adaptation gain from each agent's nominal covariance; "exact": the
+        adaptation gain and the combination rule from the exact error covariances.
+
+    Returns
+    -------
+    LinearTeamDesign
+        The per-step linear maps with the exact team cost (stage costs E[c(x(k), ẑ(k))]).
 
     Examples
     --------
-    >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph
+    >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph, design_diffusion
     >>> d = design_diffusion(LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 10.0), CommGraph.line(4), 20)
     >>> d.label, d.stage_costs.shape
     ('diffusion [honest]', (20,))

@@ -239,14 +239,34 @@ def design_icf(
 
     Parameters
     ----------
+    system : LinearGaussianSystem
+        The process x(k+1) = A x(k) + w(k) and the agents' measurements y_i(k) = C_i x(k) + v_i(k).
+    cost : TeamCost
+        The team cost c(x, ẑ) = (L x - ẑ)ᵀ S (L x - ẑ) (``None``: the sum of the agents' MSEs).
+    graph : CommGraph
+        The communication graph: agent i hears agent j over edge (j, i) after its integer delay τ_ji.
+    horizon : int
+        Number of steps T (finite horizon only).
     iterations : int >= 1
         Consensus iterations K per step (ideal variant; the honest one exchanges once per step).
-    epsilon : float in (0, 1/Δ_max), or None for 1/(Δ_max + 1)
-    count : "all" (published: N) or "heard" (the agents actually heard; module docstring)
+    epsilon : float in (0, 1/Δ_max), or None
+        The consensus step; None gives 1/(Δ_max + 1), Δ_max the largest in-degree.
+    variant : "honest" (default) or "ideal"
+        "honest": one exchange per step over the graph's delays, delay-compensated (realizable);
+        "ideal": neighbours' current data within the step (a bound, not realizable on a delay graph).
+
+    count : "all" or "heard"
+        "all" (published): the own measurement is weighted as if N agents were heard; "heard": by the number of
+        estimates actually heard (the local Kalman filter when none arrives).
+
+    Returns
+    -------
+    LinearTeamDesign
+        The per-step linear maps with the exact team cost (stage costs E[c(x(k), ẑ(k))]).
 
     Examples
     --------
-    >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph
+    >>> from teamkf import LinearGaussianSystem, TeamCost, CommGraph, design_icf
     >>> d = design_icf(LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 10.0), CommGraph.line(4), 10, variant="ideal")
     >>> d.label
     'icf [ideal]'

@@ -51,11 +51,29 @@ def design_local(
 ) -> LinearTeamDesign:
     """Design the per-agent (local) Kalman filters with their exact team cost.
 
-    ``graph`` is only used to run the (silent) agents on the runtime; None is allowed.
+    Each agent runs the Kalman filter of its own measurements only; nothing is exchanged.
+
+    Parameters
+    ----------
+    system : LinearGaussianSystem
+        The process x(k+1) = A x(k) + w(k) and the agents' measurements y_i(k) = C_i x(k) + v_i(k).
+    cost : TeamCost
+        The team cost c(x, ẑ) = (L x - ẑ)ᵀ S (L x - ẑ) (``None``: the sum of the agents' MSEs).
+    graph : CommGraph or None
+        Only used to run the (silent) agents on the runtime; None is allowed.
+    horizon : int
+        Number of steps T (finite horizon only).
+    variant : str
+        "honest" (the only one: local filters need no exchange).
+
+    Returns
+    -------
+    LinearTeamDesign
+        The per-step linear maps with the exact team cost (stage costs E[c(x(k), ẑ(k))]).
 
     Examples
     --------
-    >>> from teamkf import LinearGaussianSystem, TeamCost
+    >>> from teamkf import LinearGaussianSystem, TeamCost, design_local
     >>> d = design_local(LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 10.0), None, 10)
     >>> float(d.total_cost) > 0
     True

@@ -389,7 +389,18 @@ def _load_builtins() -> None:
     global _BUILTINS_LOADED
     if not _BUILTINS_LOADED:
         _BUILTINS_LOADED = True
-        from . import _builtin  # noqa: F401  (imports every family module, which registers itself)
+        from . import _builtin  # imports every family module, which registers itself
+
+        # the built-in families in the order of their modules (whatever was imported first), then every other
+        order = [f"{__package__}.{m}" for m in _builtin.MODULES]
+
+        def rank(fam: Family) -> int:
+            mod = getattr(fam.design, "__module__", "") or ""
+            return next((k for k, m in enumerate(order) if mod == m or mod.startswith(m + ".")), len(order))
+
+        records = sorted(_REGISTRY.values(), key=rank)  # stable: registration order within a module
+        _REGISTRY.clear()
+        _REGISTRY.update({f.name: f for f in records})
 
 
 def _load_entry_points() -> None:
@@ -493,11 +504,23 @@ _PLUGINS: list[tuple[str, str | None, str | None]] = []
 
 
 def loaded_plugins() -> tuple[tuple[str, str | None, str | None], ...]:
-    """The plug-ins loaded in this process: ``(module name, file path or None, source text or None)``.
+    """The plug-ins loaded in this process, in the order they were loaded.
 
     A Dask worker, a process pool or an agent process loads the same plug-ins with :func:`load_plugins_into`
     before it unpickles a design of a plug-in family (:mod:`teamkf.simulation.parallel` does it for every Dask
     client teamkf opens); a file's source travels with it, so the workers need not see the file.
+
+    Returns
+    -------
+    tuple of (str, str or None, str or None)
+        ``(module name, file path or None, source text or None)`` per plug-in (path and source for a ``.py``
+        file, None for an importable module).
+
+    Examples
+    --------
+    >>> import teamkf
+    >>> all(len(p) == 3 for p in teamkf.loaded_plugins())
+    True
     """
     return tuple(_PLUGINS)
 
@@ -550,7 +573,22 @@ def load_plugin(spec: str) -> Any:
     A file is imported under the name ``teamkf_plugin_<stem>``; its source is remembered
     (:func:`loaded_plugins`) so that Dask workers load the same module. An exception while importing it
     becomes one :class:`~teamkf.exceptions.ArgumentError` naming the plug-in (the original is chained).
-    Returns the module.
+
+    Parameters
+    ----------
+    spec : str
+        A ``.py`` file path or an importable module name; loading the same plug-in twice is a no-op.
+
+    Returns
+    -------
+    module
+        The imported module (its families are registered).
+
+    Examples
+    --------
+    >>> import teamkf
+    >>> teamkf.load_plugin("teamkf.estimators.kcf").__name__
+    'teamkf.estimators.kcf'
     """
     import importlib
     import sys

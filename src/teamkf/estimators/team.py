@@ -148,7 +148,7 @@ class TeamDesign(Design):
 
     Parameters
     ----------
-    estimator, horizon, system, cost, stage_costs, average_cost, info
+    estimator, horizon, system, cost, stage_costs, average_cost, info, graph
         As in :class:`~teamkf.Design`: the family name, T (None for the steady state), the
         model, the team cost, the exact E[c(x(k), ẑ(k))] per step and the plain-data facts.
     structure : InformationStructure

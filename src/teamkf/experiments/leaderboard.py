@@ -66,7 +66,7 @@ __all__ = ["FAMILIES", "LOSSY_FAMILIES", "LOSSY_NETWORKS", "P_DROPS", "ROWS_VERS
 
 #: drop probabilities of the lossy ranking
 P_DROPS = (0.1, 0.5)
-#: the drop-aware design of issue 21, ranked under p_drop when it is registered (either spelling)
+#: the drop-aware design (mtmse_lossy), ranked under p_drop when it is registered (either spelling)
 LOSSY_FAMILIES = ("mtmse_lossy", "mtmse-lossy")
 
 #: (family, variants) ranked on every network
@@ -147,7 +147,7 @@ def networks(quick: bool) -> list[tuple[str, Any]]:
 
 
 #: bump when :func:`network_rows` or :func:`lossy_network_rows` compute something else (part of the cache key)
-ROWS_VERSION = 2
+ROWS_VERSION = 3
 
 
 def _fingerprint(system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph) -> str:
@@ -351,7 +351,7 @@ def _rank(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 #: short plot labels of the rows' forms (published rows: none)
-_SHORT = {"tuned": "tuned", "heard-count": "heard-count", "drop-aware design (issue 21)": "drop-aware"}
+_SHORT = {"tuned": "tuned", "heard-count": "heard-count", "drop-aware design": "drop-aware"}
 
 
 def _label(r: dict[str, Any]) -> str:
@@ -395,9 +395,7 @@ def lossy_network_rows(name: str, system: Any, cost: Any, graph: Any, quick: boo
     labels: dict[str, tuple[str, str, str]] = {}
     for fam in ("mtmse", "centralized", "mmse", "cikf", *LOSSY_FAMILIES):
         if fam in fams:
-            _add_lossy(
-                designs, labels, fam, fam, "drop-aware design (issue 21)" if fam in LOSSY_FAMILIES else "published", {}, system, cost, graph, T
-            )
+            _add_lossy(designs, labels, fam, fam, "drop-aware design" if fam in LOSSY_FAMILIES else "published", {}, system, cost, graph, T)
     for fam, _ in FAMILIES:
         if fam not in fams:
             continue

@@ -259,14 +259,3 @@ def pass_messages_lossy(
     from .lossy import run_lossy
 
     return run_lossy(agents, graph, ys, links, streams, stats if stats is not None else LinkStats())
-
-
-def _missed(state: Any) -> int:
-    """Deadline misses an agent's state recorded (measurements replaced by their expectation)."""
-    if isinstance(state, dict):
-        if "missed" in state:
-            return int(state["missed"])
-        inner = state.get("inner")
-        if isinstance(inner, dict):
-            return int(inner.get("missed", 0))
-    return 0

@@ -536,7 +536,6 @@ def _run_team(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray],
 # ---------------------------------------------------------------------------
 def _run_grouped(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray], out: LinkOutcomes, stats: Any) -> FloatArray:
     """Step the agents' own ``step`` on the runs one at a time (their states need not stack), on the block's link events."""
-    from .links import _missed
 
     n = graph.n_agents
     R, T = ys[0].shape[:2]
@@ -568,3 +567,14 @@ def _run_grouped(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArra
             if m:
                 stats.missed[i] = stats.missed.get(i, 0) + m
     return np.concatenate(results, axis=0)
+
+
+def _missed(state: Any) -> int:
+    """Deadline misses an agent's state recorded (measurements replaced by their expectation)."""
+    if isinstance(state, dict):
+        if "missed" in state:
+            return int(state["missed"])
+        inner = state.get("inner")
+        if isinstance(inner, dict):
+            return int(inner.get("missed", 0))
+    return 0

@@ -25,5 +25,29 @@ def evaluate_point(scenario: Any, estimators: Sequence[str] | None = None, runs:
 
     Deterministic: the same (scenario, estimators, runs, seed) gives the same rows anywhere. See
     :mod:`teamkf.study.evaluation` for the keys and the Monte Carlo rule.
+
+    Parameters
+    ----------
+    scenario : Scenario or PopulationScenario
+        Any scenario kind.
+    estimators : sequence of str, optional
+        Registry names (default: the scenario's).
+    runs : int
+        Monte Carlo runs for every estimator (0: only those without an analytic cost, with 1000 runs).
+    seed : int, optional
+        Seed of the Monte Carlo runs.
+
+    Returns
+    -------
+    list of dict
+        One row per estimator, keys :data:`teamkf.study.evaluation.ROW_KEYS`.
+
+    Examples
+    --------
+    >>> from teamkf import evaluate_point
+    >>> from teamkf.study.scenario import load_packaged
+    >>> rows = evaluate_point(load_packaged("platoon-4"), ["mtmse", "centralized"])
+    >>> [(r["estimator"], r["method"]) for r in rows]
+    [('mtmse', 'analytic'), ('centralized', 'analytic')]
     """
     return [dict(r) for r in evaluate(scenario, estimators, runs=runs, seed=seed).rows]
