@@ -27,6 +27,8 @@ PACKAGED = ROOT / "src" / "teamkf" / "scenarios"
 EXAMPLES = ROOT / "examples" / "scenarios"
 POPULATION = ("interference",)
 NAMES = ["platoon-4", "platoon-4-is1", "platoon-4-steady", "uav-4", "uav-10", "lqg-2"]
+#: packaged for teamkf deploy (6 agent processes, 200 steps; tests/unit/test_deploy.py)
+DEPLOY = ["platoon-6"]
 
 PLATOON_A = [[0.9, 0, 0, 0], [0.7, 0.9, 0, 0], [0.7, 0.7, 0.9, 0], [0.5, 0.7, 0.7, 0.9]]
 IS1_LOCAL = [[[0, 0, 1], [1, 1, 1]], [[0, 1, 1], [1, 0, 1], [2, 1, 1]], [[1, 1, 1], [2, 0, 1], [3, 1, 1]], [[2, 1, 1], [3, 0, 1]]]
@@ -55,7 +57,7 @@ def error_of(d: dict) -> str:
 # packaged scenarios
 # ---------------------------------------------------------------------------
 def test_packaged_list():
-    assert sorted(n for n in packaged_scenarios() if n not in POPULATION) == sorted(NAMES)
+    assert sorted(n for n in packaged_scenarios() if n not in POPULATION) == sorted(NAMES + DEPLOY)
 
 
 @pytest.mark.parametrize("name", NAMES)

@@ -445,6 +445,8 @@ def test_package_bar_rules(monkeypatch):
 
     import teamkf._progress as P
 
+    monkeypatch.delenv("TEAMKF_PROGRESS", raising=False)  # the suite may silence bars; this test needs them on
+    monkeypatch.setattr(P, "_QUIET", False)
     buf = io.StringIO()
     with P.bar(3, desc="points", unit="point", enabled=True, stream=buf, delay=0) as b:
         assert b.shown
