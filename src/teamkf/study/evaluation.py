@@ -243,19 +243,16 @@ def _evaluate_team(scenario: Any, estimators: Sequence[str] | None, runs: int, s
     from ..simulation.monte_carlo import monte_carlo
 
     names = tuple(scenario.estimators if estimators is None else estimators)
-    mc_only = [n for n in names if not scenario.family(n).analytic_cost]
-    simulated = list(names) if runs else mc_only
-    mc_runs = runs or (DEFAULT_MC_RUNS if mc_only else 0)
-    if mc_runs and scenario.horizon is None:
-        what = "runs" if runs else f"estimators {', '.join(mc_only)}"
-        raise ArgumentError(
-            f"{'runs' if runs else 'horizon'}: Monte Carlo ({what}) needs a finite horizon, but scenario {scenario.name!r} has none "
-            "(steady state); add horizon = T to the scenario",
-            argument="runs" if runs else "horizon",
-        )
-    check_capabilities(scenario, simulated, simulate=bool(mc_runs))
+    # refused before any work on the families' declarations; then decided on the designs themselves (a variant
+    # without a closed form, e.g. KCF 'stale', or a design whose cost overflowed, is simulated too)
+    expected = [n for n in names if not scenario.family(n).analytic_cost]
+    _check_monte_carlo(scenario, runs, names if runs else expected)
     with np.errstate(over="ignore", invalid="ignore"):  # a diverging design: its cost is not finite (inf/NaN in the row)
         designs = scenario.designs(names)
+    mc_only = [n for n, d in designs.items() if not d.has_analytic_cost]
+    simulated = list(names) if runs else mc_only
+    mc_runs = runs or (DEFAULT_MC_RUNS if mc_only else 0)
+    _check_monte_carlo(scenario, mc_runs, simulated)
     if mc_runs and seed is None:
         seed = int(np.random.SeedSequence().entropy % (2**32))  # type: ignore[operator]
     mc: Mapping[str, Any] = {}
@@ -306,6 +303,20 @@ def _evaluate_team(scenario: Any, estimators: Sequence[str] | None, runs: int, s
         monte_carlo=mc,
         details=details,
     )
+
+
+def _check_monte_carlo(scenario: Any, runs: int, simulated: Sequence[str]) -> None:
+    """Monte Carlo needs a finite horizon and, over unreliable links, families that declare ``lossy_links``."""
+    if not runs and not simulated:
+        return
+    if scenario.horizon is None:
+        what = "runs" if runs else f"estimators {', '.join(simulated)}"
+        raise ArgumentError(
+            f"{'runs' if runs else 'horizon'}: Monte Carlo ({what}) needs a finite horizon, but scenario {scenario.name!r} has none "
+            "(steady state); add horizon = T to the scenario",
+            argument="runs" if runs else "horizon",
+        )
+    check_capabilities(scenario, simulated, simulate=True)
 
 
 def _num(v: Any) -> float | None:
