@@ -46,7 +46,7 @@ On lossy links the agents run :meth:`DiffusionAlgorithm.agent_step_tolerant`:
   y_k alone (:mod:`teamkf.estimators.local`).
 
 Combination rules (``combination``) and lazy updates (``lazy``)
---------------------------------------------------------------
+---------------------------------------------------------------
 The published combination is the scalar one above (``combination="weights"``).
 The fair honest forms weigh each received ψ̃_l = Φ(t,s) ψ_l(s) by how good it is
 after its age, with the nominal covariance P̃_l = Φ(t,s) P_l(s|s) Φ(t,s)ᵀ + Q(t,s)

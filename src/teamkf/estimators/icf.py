@@ -28,7 +28,7 @@ fewer (one exchange per step, a sparse graph, lost packets), that counts its own
 measurement N times; with nobody heard it is the Kalman filter of y_i with noise
 covariance R_i/N. ``count="heard"`` replaces N by m_i(k), the number of agents
 whose data entered agent i's pair at step k (itself and the neighbours heard:
-1 + |N_i(k)| for the honest variant and on lossy links, the size of the K-hop
+1 + \|N_i(k)\| for the honest variant and on lossy links, the size of the K-hop
 in-neighbourhood for the ideal one), so an agent that hears nobody is exactly
 its own Kalman filter; with everybody heard it is the published rule.
 

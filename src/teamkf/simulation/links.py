@@ -213,7 +213,9 @@ class LinkStats:
 
 
 def link_streams(seed: Any, n_runs: int, first_run: int = 0) -> list[np.random.SeedSequence]:
-    """The link-event streams of runs ``first_run .. n_runs - 1``: run r's is ``SeedSequence(seed).spawn(n_runs)[r]``
+    """The link-event streams of runs ``first_run`` to ``n_runs - 1``, one per run.
+
+    Run r's is ``SeedSequence(seed).spawn(n_runs)[r]``
     extended by :data:`LINK_STREAM_KEY`, i.e. ``SeedSequence(entropy, spawn_key=spawn_key + (r, LINK_STREAM_KEY))``,
     built directly (no spawning state, and no cost for the runs before ``first_run``)."""
     from .sampling import seed_sequence

@@ -2,14 +2,12 @@
 
 Modules
 -------
-=====================================================  ================================================================
-:mod:`~teamkf.study.measurements.format`              the file formats (the contract of ``teamkf filter``): readers,
-                                                       writers, validation, :class:`MeasurementFileError`; the streaming
-                                                       reader (:mod:`teamkf.study.stream`) uses its public names
-:mod:`~teamkf.study.measurements.transform`           known means (inputs, offsets), innovations and log-likelihood,
-                                                       the masked model of a log with gaps
-:mod:`~teamkf.study.measurements.workflow`            design for a log, filter it with every estimator, realized costs
-=====================================================  ================================================================
+- :mod:`~teamkf.study.measurements.format`: the file formats (the contract of ``teamkf filter``): readers,
+  writers, validation, :class:`MeasurementFileError`; the streaming reader (:mod:`teamkf.study.stream`) uses
+  its public names.
+- :mod:`~teamkf.study.measurements.transform`: known means (inputs, offsets), innovations and
+  log-likelihood, the masked model of a log with gaps.
+- :mod:`~teamkf.study.measurements.workflow`: design for a log, filter it with every estimator, realized costs.
 
 Every public name of the three is importable from here.
 
