@@ -1,6 +1,6 @@
 """Start one OS process per agent, watch them, and leave none behind.
 
-:func:`launch` starts the given commands (one per agent), each in a session of
+:func:`launch` starts the given commands (one per agent), each in a process group of
 its own and, on Linux, with ``PR_SET_PDEATHSIG`` so that a child dies with the
 launcher even when the launcher is killed with SIGKILL. On Ctrl-C (SIGINT) or
 SIGTERM (its handlers are installed explicitly, also where a shell started it with

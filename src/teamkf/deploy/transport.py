@@ -4,7 +4,7 @@ A :class:`Transport` delivers opaque frames (bytes, :mod:`teamkf.deploy.codec`)
 addressed to one agent. It knows nothing of steps, deadlines or payloads; the
 agent loop (:mod:`teamkf.deploy.agent`) does. Two implementations prove the seam:
 
-* :class:`ZenohTransport` (the default): one Zenoh peer session per agent, listening
+* :class:`ZenohTransport` (the default): one Zenoh peer per agent, listening
   on the agent's endpoint from the roster and connecting to the others' (explicit
   endpoints, no multicast scouting); agent i subscribes to the key ``<prefix>/<i>``
   and publishes a frame for agent b on ``<prefix>/<b>``, reliable, with congestion
@@ -51,7 +51,7 @@ def zenoh_module() -> Any:
 
 
 class ZenohTransport(Transport):
-    """A Zenoh peer session for agent ``me`` (see the module docstring).
+    """A Zenoh peer for agent ``me`` (see the module docstring).
 
     Parameters
     ----------
@@ -111,7 +111,7 @@ class ZenohTransport(Transport):
         if s is not None:
             try:
                 s.close()
-            except Exception:  # pragma: no cover - closing a session that the runtime already dropped
+            except Exception:  # pragma: no cover - closing a peer that the runtime already dropped
                 pass
 
 
