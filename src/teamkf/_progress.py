@@ -47,9 +47,9 @@ def set_quiet(value: bool = True) -> bool:
 
 
 @contextmanager
-def quiet() -> Iterator[None]:
-    """``with quiet(): ...`` runs the block without progress bars."""
-    old = set_quiet(True)
+def quiet(value: bool = True) -> Iterator[None]:
+    """``with quiet(): ...`` runs the block without progress bars (``quiet(False)`` leaves the setting as it is)."""
+    old = set_quiet(value or _QUIET)
     try:
         yield
     finally:

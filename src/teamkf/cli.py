@@ -864,14 +864,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
     except _UsageError as exc:
         return _error(str(exc))
-    if getattr(args, "quiet", False):
-        from ._progress import set_quiet
-
-        set_quiet(True)
     import warnings
 
+    from ._progress import quiet
+
     try:
-        with warnings.catch_warnings(record=True) as caught:  # numpy's RuntimeWarnings: one summary line, never raw
+        # numpy's RuntimeWarnings: one summary line, never raw; --quiet holds for this command only
+        with warnings.catch_warnings(record=True) as caught, quiet(getattr(args, "quiet", False)):
             warnings.simplefilter("always", RuntimeWarning)
             rc = int(args.func(args))
         _report_warnings(caught)
