@@ -25,12 +25,16 @@ import json
 import sys
 import traceback
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
-import numpy as np
-
+from ._lazy import lazy_module
 from ._version import __version__
 from .exceptions import ArgumentError, ScenarioError, TeamkfError
+
+if TYPE_CHECKING:
+    import numpy as np
+else:  # imported on first use: --help, --version and every COMMAND --help start without numpy
+    np = lazy_module("numpy")
 
 __all__ = ["main", "build_parser"]
 
@@ -611,16 +615,19 @@ def _check_output_dir(path: str, flag: str, inputs: Sequence[Any] = ()) -> Path:
 
 
 def _help_text() -> tuple[str, str]:
-    """The description and epilog of ``teamkf --help``: every registered family and packaged scenario."""
-    from . import families
-    from .study.scenario import packaged_scenarios
+    """The description and epilog of ``teamkf --help``: every registered family and packaged scenario.
+
+    Read from the families' declarations (:func:`teamkf.study.catalog.family_listing`): no family module,
+    numpy or SciPy is imported to print it.
+    """
+    from .study.catalog import family_listing, packaged_scenarios
 
     lines = [
         "Design, run and evaluate decentralized estimators for teams of agents that share information over a",
         "communication graph with delays. Estimator families (estimators = [...] in a scenario file):",
         "",
     ]
-    for name, fam in families().items():
+    for name, fam in family_listing().items():
         cost = "analytic cost" if fam.analytic_cost else "Monte Carlo cost"
         lines.append(f"  {name:12s} {fam.title} [{cost}]")
         if fam.example:

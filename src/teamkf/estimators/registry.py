@@ -26,15 +26,24 @@ True
 
 from __future__ import annotations
 
-import difflib
 import warnings
 from dataclasses import dataclass, field
 from typing import Any, Callable, Literal, Mapping, Sequence
 
-from .. import _validation as V
 from ..exceptions import ArgumentError, GraphError, TeamkfError
 
-__all__ = ["Family", "Option", "register_family", "unregister_family", "families", "get_family", "load_plugin", "ENTRY_POINT_GROUP", "PLUGINS_ENV"]
+__all__ = [
+    "Family",
+    "Option",
+    "register_family",
+    "unregister_family",
+    "families",
+    "get_family",
+    "family_listing",
+    "load_plugin",
+    "ENTRY_POINT_GROUP",
+    "PLUGINS_ENV",
+]
 
 #: environment variable with plugin modules or files to load (separated by os.pathsep), as ``teamkf --plugin``
 PLUGINS_ENV = "TEAMKF_PLUGINS"
@@ -172,6 +181,8 @@ class Family:
     CAPABILITIES = ("analytic_cost", "lossy_links", "missing_data", "steady_form")
 
     def __post_init__(self) -> None:
+        from .. import _validation as V  # imported here: listing the families (teamkf --help) needs no numpy
+
         if not isinstance(self.name, str) or not self.name.isidentifier() or self.name != self.name.lower():
             raise ArgumentError(f"name: expected a lower-case identifier such as 'my_filter', found {self.name!r}", argument="name")
         if self.name in RESERVED_NAMES:
@@ -231,6 +242,10 @@ class Family:
 
     def check_options(self, table: Any, prefix: str | None = None) -> dict[str, Any]:
         """Validate an options table (from a scenario or keywords): known keys, checked values, defaults filled."""
+        import difflib
+
+        from .. import _validation as V
+
         key = self.name if prefix is None else prefix
         if table is None:
             table = {}
@@ -380,7 +395,10 @@ def unregister_family(name: str) -> None:
 
 
 def _register_builtin(family: Family) -> Family:
-    """Used by teamkf's own family modules at import."""
+    """Used by teamkf's own family modules at import; the record must match its declaration in :mod:`._builtin`."""
+    from ._builtin import check_declared
+
+    check_declared(family)
     _REGISTRY.setdefault(family.name, family)
     return family
 
@@ -389,8 +407,9 @@ def _load_builtins() -> None:
     global _BUILTINS_LOADED
     if not _BUILTINS_LOADED:
         _BUILTINS_LOADED = True
-        from . import _builtin  # imports every family module, which registers itself
+        from . import _builtin
 
+        _builtin.load()  # imports every family module, which registers itself
         # the built-in families in the order of their modules (whatever was imported first), then every other
         order = [f"{__package__}.{m}" for m in _builtin.MODULES]
 
@@ -412,6 +431,7 @@ def _load_entry_points() -> None:
 
     load_env_plugins()
     for ep in entry_points(group=ENTRY_POINT_GROUP):
+        _load_builtins()  # an installed family never shadows a built-in one
         try:
             obj = ep.load()
             fam = obj() if callable(obj) and not isinstance(obj, Family) else obj
@@ -451,6 +471,33 @@ def families() -> dict[str, Family]:
     return dict(_REGISTRY)
 
 
+def family_listing() -> dict[str, Any]:
+    """Every registered family as plain data, name -> :class:`~teamkf.estimators._builtin.Declared`, in the order of :func:`families`.
+
+    What ``teamkf --help`` prints. Until a family record is asked for, the built-in families come from
+    their declarations (:data:`teamkf.estimators._builtin.DECLARED`) and no family module is imported;
+    the plug-ins (``TEAMKF_PLUGINS``, entry points, ``register_family``) are loaded and listed as
+    :func:`families` lists them.
+
+    Returns
+    -------
+    dict of str to Declared
+        ``(name, module, title, analytic_cost, capabilities, example)`` of each family.
+
+    Examples
+    --------
+    >>> from teamkf.estimators.registry import families, family_listing
+    >>> list(family_listing()) == list(families())
+    True
+    """
+    from ._builtin import DECLARED, declaration_of
+
+    _load_entry_points()  # a plug-in registers through register_family, which loads the built-in modules first
+    if _BUILTINS_LOADED:
+        return {name: declaration_of(fam) for name, fam in families().items()}
+    return {d.name: d for d in DECLARED}
+
+
 def get_family(name: Any, key: str = "estimator") -> Family:
     """The registry record of the family called ``name``.
 
@@ -482,6 +529,10 @@ def get_family(name: Any, key: str = "estimator") -> Family:
     ...
     teamkf.exceptions.ArgumentError: estimator: unknown estimator 'mtmes'; did you mean 'mtmse'? available: ...
     """
+    import difflib
+
+    from .. import _validation as V
+
     fams = families()
     if isinstance(name, str) and name in fams:
         return fams[name]
@@ -593,6 +644,8 @@ def load_plugin(spec: str) -> Any:
     import importlib
     import sys
     from pathlib import Path
+
+    from .. import _validation as V
 
     if not isinstance(spec, str) or not spec:
         raise ArgumentError(f"plugin: expected a module name or a .py file, found {V.describe(spec)}", argument="plugin")

@@ -804,16 +804,10 @@ def _estimators(x: Any, fams: Mapping[str, Any] | None = None) -> tuple[str, ...
 # packaged scenarios
 # ---------------------------------------------------------------------------
 def packaged_scenarios() -> dict[str, Any]:
-    """The example scenarios shipped with teamkf: name -> path (a Traversable)."""
-    from importlib.resources import files
+    """The example scenarios shipped with teamkf: name -> path (a Traversable); see :func:`teamkf.study.catalog.packaged_scenarios`."""
+    from .catalog import packaged_scenarios as listed
 
-    root = files("teamkf").joinpath("scenarios")
-    try:
-        entries = list(root.iterdir())
-    except (FileNotFoundError, NotADirectoryError):  # pragma: no cover - broken install
-        return {}
-    found = {e.name[: -len(".toml")]: e for e in entries if e.name.endswith(".toml")}
-    return {name: found[name] for name in sorted(found)}
+    return listed()
 
 
 def load_packaged(name: str) -> Scenario:
