@@ -615,11 +615,7 @@ def _check_output_dir(path: str, flag: str, inputs: Sequence[Any] = ()) -> Path:
 
 
 def _help_text() -> tuple[str, str]:
-    """The description and epilog of ``teamkf --help``: every registered family and packaged scenario.
-
-    Read from the families' declarations (:func:`teamkf.study.catalog.family_listing`): no family module,
-    numpy or SciPy is imported to print it.
-    """
+    """The description and epilog of ``teamkf --help``: every family (from :func:`~teamkf.study.catalog.family_listing`) and packaged scenario."""
     from .study.catalog import family_listing, packaged_scenarios
 
     lines = [
