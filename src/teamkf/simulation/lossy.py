@@ -268,6 +268,20 @@ _PRE_BYTES = [0]
 _PRE_MAX_BYTES = 128 * 2**20
 
 
+def _append_maps(store: dict, new: FloatArray) -> None:
+    """Append maps to a step's store (capacity doubled when full, so a block adding a few patterns copies nothing)."""
+    size = store.get("size", 0)
+    buf = store.get("buf")
+    if buf is None or size + len(new) > len(buf):
+        grown = np.empty((max(2 * (size + len(new)), 16), *new.shape[1:]))
+        if size:
+            grown[:size] = buf[:size]
+        buf = store["buf"] = grown
+    buf[size : size + len(new)] = new
+    store["size"] = size + len(new)
+    store["maps"] = buf[: size + len(new)]
+
+
 def _step_maps(design: Any) -> dict:
     """The cache of a design's step maps M_{i,k}(H) (they hold its own gains: not shared between designs)."""
     try:
@@ -298,8 +312,10 @@ class _TeamStep:
         self.n, self.c = self.sys.n_agents, design.structure.common_lag
         self.Y = np.concatenate(ys, axis=2)  # (R, T, Σ d_y)
         self.t = t  # (R, n, n, T)
+        self.tt = np.ascontiguousarray(t.transpose(1, 0, 3, 2))  # (i, r, s, j): a step's window is one slice
         self.R, self.T = ys[0].shape[:2]
         self.x = np.zeros((self.n * self.R, self.sys.dx))  # row i R + r: agent i, run r
+        self.agent = np.repeat(np.arange(self.n, dtype=np.int64), self.R)
         self.cache = _design_cache(design)
         self.mats = _step_maps(design)
         self.ell = ell  # ell[j][i]: y_j(s) reaches agent i at s + ell[j][i] at the earliest
@@ -311,9 +327,8 @@ class _TeamStep:
         n, R, dyt = self.n, self.R, self.sys.dy_total
         a0 = max(0, k - self.c)
         w = k - a0 + 1
-        held = self.t[:, :, :, a0 : k + 1] <= k  # (R, i, j, w)
-        bits = held.transpose(1, 0, 3, 2).reshape(n * R, w * n)  # row (i, r); window order: step, then agent
-        agent = np.repeat(np.arange(n, dtype=np.int64), R)
+        bits = (self.tt[:, :, a0 : k + 1] <= k).reshape(n * R, w * n)  # row (i, r); window order: step, then agent
+        agent = self.agent
         if w * n <= 55:
             codes = (bits @ (np.int64(1) << np.arange(w * n, dtype=np.int64))) + (agent << 56)
         else:  # long windows: patterns as bytes (sorted through their rank in this block)
@@ -321,14 +336,16 @@ class _TeamStep:
             codes = np.unique(packed, axis=0, return_inverse=True)[1].ravel()
         order = np.argsort(codes, kind="stable")  # rows grouped by (agent, pattern)
         cs = codes[order]
-        first = np.concatenate([[True], cs[1:] != cs[:-1]])
+        first = np.empty(cs.size, dtype=bool)
+        first[0] = True
+        np.not_equal(cs[1:], cs[:-1], out=first[1:])
         starts = np.flatnonzero(first)
         gid = np.cumsum(first) - 1
         lead = order[starts]  # a row of each pattern
         keys = codes[lead].tolist() if w * n <= 55 else [bytes(packed[r]) for r in lead.tolist()]
         store = self.mats.get(k)
         if store is None:
-            store = self.mats[k] = {"index": {}, "maps": np.zeros((0, 0, 0))}
+            store = self.mats[k] = {"index": {}, "maps": None}
         index = store["index"]
         todo = [g for g, key in enumerate(keys) if key not in index]
         if todo:
@@ -336,31 +353,27 @@ class _TeamStep:
             by_agent: dict[int, list[int]] = {}
             for g in todo:
                 by_agent.setdefault(int(agent[lead[g]]), []).append(g)
-            new = []
             for i, gs in by_agent.items():
-                new.append((gs, self._maps_shared(i, k, a0, [keys[g] for g in gs], np.repeat(bits[lead[gs]], dyw, axis=1))))
-            maps = np.concatenate([store["maps"].reshape(-1, *new[0][1].shape[1:])] + [m for _, m in new])
-            base = len(index)
-            for gs, _ in new:
+                m = self._maps_shared(i, k, a0, [keys[g] for g in gs], np.repeat(bits[lead[gs]], dyw, axis=1))
+                _append_maps(store, m.transpose(0, 2, 1))  # stored as (d_x + w d_y, d_x + d_z): the product's right factor
                 for g in gs:
-                    index[keys[g]] = base
-                    base += 1
-            store["maps"] = maps
+                    index[keys[g]] = len(index)
         which = np.array([index[key] for key in keys])
+        # rows sorted by pattern, in slabs of _STEP_SLAB rows of one pattern (zero rows pad a pattern's last slab)
         sizes = np.diff(np.append(starts, n * R))
         nslab = -(-sizes // _STEP_SLAB)
         pos = np.arange(n * R) - starts[gid]
-        vid = (np.cumsum(nslab) - nslab)[gid] + pos // _STEP_SLAB
-        slot = pos % _STEP_SLAB
+        padrow = ((np.cumsum(nslab) - nslab)[gid] + pos // _STEP_SLAB) * _STEP_SLAB + pos % _STEP_SLAB
         dx = self.sys.dx
-        pad = np.zeros((int(nslab.sum()), _STEP_SLAB, dx + w * dyt))
-        pad[vid, slot, :dx] = self.x[order]
-        Yw = self.Y[:, a0 : k + 1].reshape(R, w * dyt)
-        pad[vid, slot, dx:] = np.where(np.repeat(bits[order], np.tile(self.dy, w), axis=1), Yw[order % R], 0.0)
+        pad = np.zeros((int(nslab.sum()) * _STEP_SLAB, dx + w * dyt))
+        pad[padrow, :dx] = self.x[order]
+        # y(a0 : k) whole: a map's columns of the measurements outside its pattern H are exact zeros, so
+        # 0 * y adds nothing (y is finite); masking them would cost a pass over every row
+        pad[padrow, dx:] = self.Y[order % R, a0 : k + 1].reshape(n * R, w * dyt)
         Ms = store["maps"][np.repeat(which, nslab)]
-        out = np.empty((n * R, Ms.shape[1]))
-        out[order] = np.matmul(pad, Ms.transpose(0, 2, 1))[vid, slot]
-        dx = self.sys.dx
+        res = np.matmul(pad.reshape(-1, _STEP_SLAB, pad.shape[1]), Ms).reshape(pad.shape[0], -1)
+        out = np.empty((n * R, Ms.shape[2]))
+        out[order] = res[padrow]
         self.x = out[:, :dx]
         return out[:, dx:].reshape(n, R, -1).transpose(1, 0, 2).reshape(R, -1)  # type: ignore[no-any-return]
 
