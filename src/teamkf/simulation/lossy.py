@@ -153,34 +153,32 @@ def count_links(out: LinkOutcomes, stats: Any) -> None:
 
 
 def relay_arrivals(out: LinkOutcomes, n: int, T: int, max_jitter: int) -> np.ndarray:
-    """t[r, i, j, s]: the step at which agent i first holds y_j(s) in run r (T: never), stage 2."""
+    """t[r, i, j, s]: the step at which agent i first holds y_j(s) in run r (T: never), stage 2.
+
+    Step by step (every arrival is later than its sending step, so what is learnt at k is final when
+    step k is processed); at step k every agent forwards at once what it learnt at k, on all its edges:
+    one candidate array per step for all edges, reduced per target edge group by a minimum.
+    """
     R = out.lost.shape[0]
-    t = np.full((R, n, n, T), T, dtype=np.int32)
+    t = np.full((T, n, n, R), T, dtype=np.int32)  # t[s, i, j, r] while computing: a step's window is one slice, runs innermost
     for i in range(n):
-        t[:, i, i, :] = np.arange(T)
-    if not out.edges:
-        return t
-    horizon = (n - 1) * (max(d for (_, _, d) in out.edges) + max_jitter)  # a packet's latency when it arrives
-    ok = out.delivered
-    by_src: dict[int, list[int]] = {}
-    for q, (a, _, _) in enumerate(out.edges):
-        by_src.setdefault(a, []).append(q)
-    arrive = out.arrive.astype(np.int32)
-    for k in range(T):
-        lo = max(0, k - horizon)
-        for m, qs in by_src.items():
-            qs_k = [q for q in qs if out.sent[k, q] and ok[:, k, q].any()]
-            if not qs_k:
+        t[:, i, i, :] = np.arange(T)[:, None]
+    if out.edges:
+        horizon = (n - 1) * (max(d for (_, _, d) in out.edges) + max_jitter)  # a packet's latency when it arrives
+        ok = out.delivered.transpose(1, 2, 0)  # (T, E, R)
+        arrive = np.ascontiguousarray(np.where(ok, out.arrive.transpose(1, 2, 0), T), dtype=np.int32)  # T: not delivered
+        any_ok = ok.any(axis=2)  # (T, E)
+        for k in range(T):
+            qs = np.flatnonzero(any_ok[k]).tolist()
+            if not qs:
                 continue
-            new = t[:, m, :, lo : k + 1] == k  # what m learns at k, and forwards at k
-            if not new.any():
-                continue
-            for q in qs_k:
-                b = out.edges[q][1]
-                cand = np.where(new & ok[:, k, q, None, None], arrive[:, k, q, None, None], T)
-                dst = t[:, b, :, lo : k + 1]
-                np.minimum(dst, cand, out=dst)
-    return t
+            win = t[max(0, k - horizon) : k + 1]  # (w, n, n, R)
+            new = win == k  # what each agent learns at k, and forwards at k on all its edges
+            for q in qs:
+                a, b, _ = out.edges[q]
+                dst = win[:, b]
+                np.minimum(dst, arrive[k, q], out=dst, where=new[:, a])
+    return t.transpose(3, 1, 2, 0)  # type: ignore[no-any-return]
 
 
 # ---------------------------------------------------------------------------
@@ -429,56 +427,82 @@ class _TeamStep:
         return np.concatenate([X, Z], axis=1)
 
     def _pre(self, i: int, k: int, a0: int, mask: np.ndarray) -> tuple[FloatArray, FloatArray | None, int]:
-        """x̂(a') and the local innovation with the rule applied, as maps of u, for each pattern (row of ``mask``)."""
+        """x̂(a') and the local innovation with the rule applied, as maps of u, for each pattern (row of ``mask``).
+
+        ỹ(s) = y(s) - C(s) Φ(s, a) x̂(a) is Sel(a) - CΦ(a) X with Sel, CΦ the same for every pattern and X the map
+        of x̂(a): before the fold X = [I 0] (no pattern), after it X = A X₀ + A K E(H). So the products with the
+        pattern-independent factors are single matrix products over all patterns (``_lmul``), and only the fill
+        G(H) ỹ of the local part is a batched product (with its small inner dimension d_x through CΦ).
+        """
         sys, d, n = self.sys, self.d, self.n
         dx, dyt = sys.dx, sys.dy_total
         w = k - a0 + 1
         P, D = mask.shape[0], dx + w * dyt
-        X = np.zeros((P, dx, D))
-        X[:, :, :dx] = np.eye(dx)
+        X0 = np.zeros((dx, D))
+        X0[:, :dx] = np.eye(dx)
 
-        def ytil(a: int, Xa: FloatArray) -> FloatArray:  # (P, w' d_y, D): y(s) - C(s) Φ(s, a) x̂(a), s = a..k
+        def sel_cphi(a: int) -> tuple[FloatArray, FloatArray]:  # Sel (w' d_y, D) and CΦ (w' d_y, d_x), s = a..k
+            m = (k - a + 1) * dyt
+            sel = np.zeros((m, D))
+            sel[:, dx + (a - a0) * dyt :] = np.eye(m)
             rows, Phi = [], np.eye(dx)
             for s in range(a, k + 1):
-                sel = np.zeros((dyt, D))
-                sel[:, dx + (s - a0) * dyt + np.arange(dyt)] = np.eye(dyt)
-                rows.append(sel[None] - np.matmul(self._C(s) @ Phi, Xa))
+                rows.append(self._C(s) @ Phi)
                 Phi = sys.A_at(s) @ Phi
-            return np.concatenate(rows, axis=1)
+            return sel, np.concatenate(rows, axis=0)
 
         a = a0
+        X: FloatArray = np.broadcast_to(X0, (P, dx, D))
         if k >= self.c:  # fold y(a0) with the rule
-            Yt = ytil(a0, X)
+            sel, cphi = sel_cphi(a0)
+            Yt0 = sel - cphi @ X0  # the same for every pattern
             targets = [(j, a0) for j in range(n)]
-            E = Yt[:, :dyt].copy()
-            self._apply_rule(E, Yt, mask, targets, a0, k, i)
-            X = np.matmul(sys.A_at(a0), X + np.matmul(d.K_at(a0), E))
+            E = np.broadcast_to(Yt0[:dyt], (P, dyt, D))
+            G = self._rule_gains(mask, targets, a0, k, i)
+            if G is not None:
+                lost, Gm = G
+                fill = (Gm.reshape(-1, Gm.shape[2]) @ Yt0).reshape(P, -1, D)
+                E = np.where(lost[:, :, None], fill, E)
+            A = sys.A_at(a0)
+            X = _lmul(A @ d.K_at(a0), E) + (A @ X0)[None]
             a = a0 + 1
         pairs = d.structure.local_pairs(i, k)
         if not pairs:
-            return X, None, a
-        Yt = ytil(a, X)
-        sub = mask[:, (a - a0) * dyt :]
-        cols = [(s - a) * dyt + self.off[j] + np.arange(self.dy[j]) for (j, s) in pairs]
-        innov = Yt[:, np.concatenate(cols)]
-        self._apply_rule(innov, Yt, sub, pairs, a, k, i)
-        return X, innov, a
+            return np.ascontiguousarray(X), None, a
+        sel, cphi = sel_cphi(a)
+        cols = np.concatenate([(s - a) * dyt + self.off[j] + np.arange(self.dy[j]) for (j, s) in pairs])
+        innov = sel[cols][None] - _lmul(cphi[cols], X)
+        G = self._rule_gains(mask[:, (a - a0) * dyt :], pairs, a, k, i)
+        if G is not None:
+            lost, Gm = G
+            fill = np.zeros((P, Gm.shape[1], D))
+            fill[:, :, dx + (a - a0) * dyt :] = Gm  # G Sel
+            fill -= np.matmul(_lmul(cphi.T, Gm.transpose(0, 2, 1)).transpose(0, 2, 1), X)  # - (G CΦ) X
+            innov = np.where(lost[:, :, None], fill, innov)
+        return np.ascontiguousarray(X), innov, a
 
-    def _apply_rule(self, E: FloatArray, Yt: FloatArray, mask: np.ndarray, targets: list[tuple[int, int]], a: int, k: int, i: int) -> None:
-        """Rows of lost targets in E (P, Σ d_target, D) := G(H) Ỹ_H (the conditional expectation of their innovation)."""
+    def _rule_gains(self, mask: np.ndarray, targets: list[tuple[int, int]], a: int, k: int, i: int) -> tuple[np.ndarray, FloatArray] | None:
+        """(lost (P, Σ d_target), G(H) (P, Σ d_target, w' d_y)) for the rule's fill of the lost targets, or None when none is lost.
+
+        The fill of a lost target is its conditional expectation G(H) ỹ_H (G is zero outside H: only held
+        measurements enter)."""
         dyt = self.sys.dy_total
         tpos = np.concatenate([(s - a) * dyt + self.off[j] + np.arange(self.dy[j]) for (j, s) in targets]).astype(int)
         lost = ~mask[:, tpos]  # (P, Σ d_target)
         if not lost.any():
-            return
+            return None
         reach = [(s - a) * dyt + self.off[j] + np.arange(self.dy[j]) for s in range(a, k + 1) for j in range(self.n) if s + self.ell[j][i] <= k]
         ui = np.concatenate(reach).astype(int) if reach else np.zeros(0, dtype=int)
-        G = _fill_gains(self.d, self.cache, a, k, mask, targets, ui)  # (P, Σ d_target, w' d_y), zero columns outside H
-        fill = np.matmul(G, Yt)  # G is zero outside H: only held measurements enter
-        E[:] = np.where(lost[:, :, None], fill, E)
+        return lost, _fill_gains(self.d, self.cache, a, k, mask, targets, ui)
 
     def _C(self, s: int) -> FloatArray:
         return self.sys.C_stack(s)
+
+
+def _lmul(M: FloatArray, X: FloatArray) -> FloatArray:
+    """M @ X[p] for every p, (P, m, D), as one matrix product (M: (m, d), X: (P, d, D))."""
+    P, d, D = X.shape
+    return (M @ X.transpose(1, 0, 2).reshape(d, P * D)).reshape(M.shape[0], P, D).transpose(1, 0, 2)  # type: ignore[no-any-return]
 
 
 def _is_team_relay(ag: Any) -> bool:
