@@ -232,16 +232,22 @@ def _slots(system: LinearGaussianSystem, arr: ArrivalModel, Sigma: FloatArray, T
     if fill:
         own_rows = [np.concatenate([s_ * dyt + int(off[i]) + np.arange(system.dy[i]) for s_ in range(T)]).astype(int) for i in range(n)]
         chol = [sla.cholesky(Sigma[np.ix_(o, o)], lower=True) if o.size else None for o in own_rows]
-        starts = np.concatenate([[0], np.cumsum(dys)]).astype(int)
-        for a in range(len(lst)):
-            i, j = agent[a], src[a]
-            if i == j or chol[i] is None:
+        # H rows of agent i: Σ[o_m, r]ᵀ Σ[o_m, o_m]⁻¹ with o_m its own innovations up to the slot's due step. One
+        # forward substitution serves every slot of the agent (the leading block's solve is the leading part of
+        # the full one), then one back substitution per group of slots with the same due step.
+        for i in range(n):
+            if chol[i] is None:
                 continue
-            m = (due[a] + 1) * system.dy[i]  # own innovations ν_i(0 : k0)
-            Lc = chol[i][:m, :m]  # type: ignore[index]
-            o = own_rows[i][:m]
-            here = np.arange(starts[a], starts[a + 1])
-            H[np.ix_(here, o)] = sla.cho_solve((Lc, True), Sigma[np.ix_(o, rows[here])], check_finite=False).T
+            here = np.flatnonzero((agent[row_slot] == i) & (src[row_slot] != i))
+            if not here.size:
+                continue
+            o, Lc = own_rows[i], chol[i]
+            Z = sla.solve_triangular(Lc, Sigma[np.ix_(o, rows[here])], lower=True, check_finite=False)
+            ms = (due[row_slot[here]] + 1) * system.dy[i]  # own innovations ν_i(0 : k0)
+            for m in np.unique(ms).tolist():
+                g = np.flatnonzero(ms == m)
+                Hg = sla.solve_triangular(Lc[:m, :m], Z[:m, g], lower=True, trans="T", check_finite=False)
+                H[np.ix_(here[g], o[:m])] = Hg.T
     own_all = [np.concatenate([s_ * dyt + int(off[i]) + np.arange(system.dy[i]) for s_ in range(T)]).astype(int) for i in range(n)]
     return _Slots(agent, src, step, due, row_slot, rows, owner, q, H, arr, Sigma, fill, own_all)
 
@@ -265,28 +271,50 @@ def _second_moment(sl: _Slots, idx: np.ndarray) -> FloatArray:
                 if u is not None and u != t:
                     M[t, u] += c
     loc = np.array([where[int(a)] for a in sl.row_slot[idx]], dtype=int)
-    M11 = M[np.ix_(loc, loc)]
+    M11 = M if np.array_equal(loc, np.arange(len(slots))) else M[np.ix_(loc, loc)]  # one row per slot: no copy
+    del M
     rows = sl.rows[idx]
-    X = Sigma[np.ix_(rows, rows)] * M11
-    if sl.fill:  # agent by agent: the fill of agent i's rows acts on its own innovations only
-        q = sl.q[idx]
-        owners = sl.owner[idx]
-        blocks = [np.flatnonzero(owners == i) for i in range(len(sl.own_rows))]
-        Hs = [sl.H[idx[b]][:, sl.own_rows[i]] for i, b in enumerate(blocks)]
-        HS = [Hs[i] @ Sigma[sl.own_rows[i]] for i in range(len(blocks))]  # H_i Σ, (rows_i, N)
-        for i, bi in enumerate(blocks):
-            if not bi.size:
-                continue
-            for l, bl in enumerate(blocks):
-                if not bl.size:
-                    continue
-                m11 = M11[np.ix_(bi, bl)]
-                t10 = HS[l][:, rows[bi]].T  # P Σ H_l'
-                t01 = HS[i][:, rows[bl]]  # H_i Σ P'
-                t00 = HS[i][:, sl.own_rows[l]] @ Hs[l].T  # H_i Σ H_l'
-                qi, ql = q[bi][:, None], q[bl][None, :]
-                X[np.ix_(bi, bl)] += t10 * (qi - m11) + t01 * (ql - m11) + t00 * (1.0 - qi - ql + m11)
-    return 0.5 * (X + X.T)
+    X = Sigma[np.ix_(rows, rows)]
+    if not sl.fill:
+        X *= M11
+        return 0.5 * (X + X.T)  # type: ignore[no-any-return]
+    # E[f_a f_b] = M11 Σ_ab + (q_a - M11) (Σ Hᵀ)_ab + (q_b - M11) (H Σ)_ab + (1 - q_a - q_b + M11) (H Σ Hᵀ)_ab
+    #            = M11 (Σ - A - Aᵀ + B)_ab + q_a (Aᵀ - B)_ab + q_b (A - B)_ab + B_ab,   A = H Σ Pᵀ, B = H Σ Hᵀ
+    # with the rows of the fill H of agent i acting on its own innovations only (whole-matrix products, in place)
+    q = sl.q[idx]
+    owners = sl.owner[idx]
+    R = idx.size
+    HS = np.zeros((R, Sigma.shape[0]))
+    Hs = []
+    for i, o in enumerate(sl.own_rows):
+        b_i = np.flatnonzero(owners == i)
+        Hi = sl.H[np.ix_(idx[b_i], o)]
+        Hs.append((b_i, o, Hi))
+        if b_i.size:
+            HS[b_i] = Hi @ Sigma[o]  # H_i Σ
+    A = HS[:, rows]  # (H Σ)[a, rows[b]]
+    B = np.zeros((R, R))
+    for b_l, o, Hl in Hs:
+        if b_l.size:
+            B[:, b_l] = HS[:, o] @ Hl.T  # H Σ H_lᵀ
+    del HS
+    X -= A
+    X -= A.T
+    X += B
+    X *= M11
+    del M11
+    W = np.subtract(A.T, B)
+    W *= q[:, None]
+    X += W
+    np.subtract(A, B, out=W)
+    W *= q[None, :]
+    X += W
+    del W, A
+    X += B
+    del B
+    X += X.T  # symmetric part (round-off)
+    X *= 0.5
+    return X
 
 
 def _solve_all(
@@ -323,7 +351,8 @@ def _solve_all(
         Nk = W.shape[1]
         cols = sl.rows[live_rows]
         V1 = W[:, cols]
-        V2 = W @ sl.H[live_rows][:, :Nk].T
+        prefix_rows = live_rows.size == 0 or (live_rows[0] == 0 and live_rows[-1] == live_rows.size - 1)
+        V2 = W @ (sl.H[: live_rows.size, :Nk] if prefix_rows else sl.H[live_rows, :Nk]).T
         zr = zidx[u]
         rk = rr[u]
         qk = sl.q[rk]
@@ -358,7 +387,7 @@ def _solve_all(
             Ik_list.append([(int(sl.src[a]), int(sl.step[a])) for a in slots_i])
             gi = g.reshape(-1, dz)[mine].T if u.size else np.zeros((dz, 0))
             Gk_list.append(gi)
-            Fk_list.append(sl.H[live_rows[mine]][:, _own_cols(system, i, k)])
+            Fk_list.append(sl.H[np.ix_(live_rows[mine], _own_cols(system, i, k))])
         gains.append(Gk_list)
         fills.append(Fk_list)
         items.append(Ik_list)
