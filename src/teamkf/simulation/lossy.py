@@ -521,6 +521,8 @@ def _is_team_relay(ag: Any) -> bool:
 
 #: the link events of the last block (its designs share them: same streams, graph and links)
 _LAST: list[Any] = []
+#: the uniforms of the last block's link events (shared by designs whose outcomes differ, e.g. an omniscient bound)
+_DRAWS: list[Any] = []
 
 
 def _events(streams: Sequence[Any], T: int, edges: list, links: Any, omni: tuple, n: int, relays: bool) -> tuple[LinkOutcomes, np.ndarray | None]:
@@ -530,7 +532,11 @@ def _events(streams: Sequence[Any], T: int, edges: list, links: Any, omni: tuple
         if relays and t is None:
             t = _LAST[4] = relay_arrivals(out, n, T, links.max_jitter)
         return out, t
-    u, jit = draw_link_events(streams, T, len(edges))
+    if _DRAWS and _DRAWS[0] is streams and _DRAWS[1] == (T, len(edges)):  # another design kind on the same runs
+        u, jit = _DRAWS[2], _DRAWS[3]
+    else:
+        u, jit = draw_link_events(streams, T, len(edges))
+        _DRAWS[:] = [streams, (T, len(edges)), u, jit]
     out = link_outcomes(links, edges, u, jit, omni)
     t = relay_arrivals(out, n, T, links.max_jitter) if relays else None
     _LAST[:] = [streams, (T, tuple(edges), omni), links, out, t]  # holds ``streams``: its id cannot be reused meanwhile
