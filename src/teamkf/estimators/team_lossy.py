@@ -317,6 +317,14 @@ def _second_moment(sl: _Slots, idx: np.ndarray) -> FloatArray:
     return X
 
 
+def _dtrtrs(a: FloatArray, b: FloatArray, **kw: Any) -> tuple[FloatArray, int]:
+    """LAPACK dtrtrs on the leading ``a.shape[1]`` square block of the Fortran-ordered ``a`` (its leading dimension
+    is ``a.shape[0]``: a column slice of a factor is solved with in place, not copied)."""
+    from scipy.linalg import lapack
+
+    return lapack.dtrtrs(a, b, lda=a.shape[0], **kw)  # type: ignore[no-any-return]
+
+
 def _solve_all(
     system: LinearGaussianSystem, cost: TeamCost, arr: ArrivalModel, mom: LocalMoments, T: int, memory: int | None, fill: bool, progress: bool | None
 ) -> tuple[list[list[list[tuple[int, int]]]], list[list[FloatArray]], list[list[FloatArray]], np.ndarray, np.ndarray]:
@@ -368,11 +376,17 @@ def _solve_all(
                         G_all[ra] *= S[a][sl.owner][None, :]
                 else:
                     G_all = G_all[np.ix_(rr, rr)] * S[np.ix_(zidx, zidx)]
-                chol = sla.cholesky(G_all, lower=True, check_finite=False, overwrite_a=True)
+                # Γ is symmetric: its transpose is the same matrix in Fortran order, factored in place (no copy)
+                chol = np.asfortranarray(sla.cholesky(G_all.T, lower=True, check_finite=False, overwrite_a=True))
                 del G_all
             if prefix:
-                Lk = chol[: u.size, : u.size]  # type: ignore[index]
-                g = sla.cho_solve((Lk, True), eta, check_finite=False)
+                # the leading u x u block of the factor, read in place (leading dimension R): two triangular solves
+                Lk = chol[:, : u.size]  # type: ignore[index]
+                z, info = _dtrtrs(Lk, eta[:, None], lower=1, trans=0)
+                g, info2 = _dtrtrs(Lk, z, lower=1, trans=1, overwrite_b=1)
+                if info or info2:  # pragma: no cover - a positive definite factor has a nonzero diagonal
+                    raise np.linalg.LinAlgError(f"mtmse_lossy: triangular solve failed at step {k} (info {info or info2})")
+                g = g[:, 0]
             else:
                 Gk = _second_moment(sl, live_rows)[np.ix_(pos, pos)] * S[np.ix_(zr, zr)]
                 g = sla.cho_solve(sla.cho_factor(Gk, lower=True, check_finite=False), eta, check_finite=False)
