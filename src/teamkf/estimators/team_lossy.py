@@ -298,22 +298,25 @@ def _second_moment(sl: _Slots, idx: np.ndarray) -> FloatArray:
         if b_l.size:
             B[:, b_l] = HS[:, o] @ Hl.T  # H Σ H_lᵀ
     del HS
-    X -= A
-    X -= A.T
-    X += B
-    X *= M11
-    del M11
-    W = np.subtract(A.T, B)
-    W *= q[:, None]
-    X += W
-    np.subtract(A, B, out=W)
-    W *= q[None, :]
-    X += W
-    del W, A
-    X += B
-    del B
-    X += X.T  # symmetric part (round-off)
-    X *= 0.5
+    blk = max(1, min(R, 2**21 // max(R, 1)))  # rows per block: the block's temporaries stay a few MB
+    for r0 in range(0, R, blk):
+        b = slice(r0, min(R, r0 + blk))
+        Ab, At, Bb, Xb = A[b], A[:, b].T, B[b], X[b]
+        Xb -= Ab
+        Xb -= At
+        Xb += Bb
+        Xb *= M11[b]
+        Xb += q[b, None] * (At - Bb)
+        Xb += q[None, :] * (Ab - Bb)
+        Xb += Bb
+    del A, B, M11
+    for r0 in range(0, R, blk):  # symmetric part (round-off), block by block: no R x R temporary
+        b = slice(r0, min(R, r0 + blk))
+        for c0 in range(r0, R, blk):
+            c = slice(c0, min(R, c0 + blk))
+            avg = 0.5 * (X[b, c] + X[c, b].T)
+            X[b, c] = avg
+            X[c, b] = avg.T
     return X
 
 
