@@ -362,8 +362,15 @@ def _solve_all(
         Nk = W.shape[1]
         cols = sl.rows[live_rows]
         V1 = W[:, cols]
-        prefix_rows = live_rows.size == 0 or (live_rows[0] == 0 and live_rows[-1] == live_rows.size - 1)
-        V2 = W @ (sl.H[: live_rows.size, :Nk] if prefix_rows else sl.H[live_rows, :Nk]).T
+        # V2 = W Hᵀ over the live rows; the fill of agent i's rows acts on its own innovations ν_i(0:k) only
+        owner_live = sl.owner[live_rows]
+        mines = [np.flatnonzero(owner_live == i) for i in range(n)]
+        owns = [_own_cols(system, i, k) for i in range(n)]
+        Fk_all = [sl.H[np.ix_(live_rows[mines[i]], owns[i])] for i in range(n)]
+        V2 = np.zeros((W.shape[0], live_rows.size))
+        for i in range(n):
+            if mines[i].size:
+                V2[:, mines[i]] = W[:, owns[i]] @ Fk_all[i].T
         zr = zidx[u]
         rk = rr[u]
         qk = sl.q[rk]
@@ -399,12 +406,12 @@ def _solve_all(
         locs[k] = c0
         Gk_list, Fk_list, Ik_list = [], [], []
         for i in range(n):
-            mine = np.flatnonzero(sl.owner[live_rows] == i)
+            mine = mines[i]
             slots_i = list(dict.fromkeys(sl.row_slot[live_rows[mine]].tolist()))
             Ik_list.append([(int(sl.src[a]), int(sl.step[a])) for a in slots_i])
             gi = g.reshape(-1, dz)[mine].T if u.size else np.zeros((dz, 0))
             Gk_list.append(gi)
-            Fk_list.append(sl.H[np.ix_(live_rows[mine], _own_cols(system, i, k))])
+            Fk_list.append(Fk_all[i])
         gains.append(Gk_list)
         fills.append(Fk_list)
         items.append(Ik_list)
