@@ -236,12 +236,13 @@ def _slots(system: LinearGaussianSystem, arr: ArrivalModel, Sigma: FloatArray, T
         # forward substitution serves every slot of the agent (the leading block's solve is the leading part of
         # the full one), then one back substitution per group of slots with the same due step.
         for i in range(n):
-            if chol[i] is None:
+            Lc = chol[i]
+            if Lc is None:
                 continue
             here = np.flatnonzero((agent[row_slot] == i) & (src[row_slot] != i))
             if not here.size:
                 continue
-            o, Lc = own_rows[i], chol[i]
+            o = own_rows[i]
             Z = sla.solve_triangular(Lc, Sigma[np.ix_(o, rows[here])], lower=True, check_finite=False)
             ms = (due[row_slot[here]] + 1) * system.dy[i]  # own innovations ν_i(0 : k0)
             for m in np.unique(ms).tolist():
@@ -300,23 +301,23 @@ def _second_moment(sl: _Slots, idx: np.ndarray) -> FloatArray:
     del HS
     blk = max(1, min(R, 2**21 // max(R, 1)))  # rows per block: the block's temporaries stay a few MB
     for r0 in range(0, R, blk):
-        b = slice(r0, min(R, r0 + blk))
-        Ab, At, Bb, Xb = A[b], A[:, b].T, B[b], X[b]
+        rb = slice(r0, min(R, r0 + blk))
+        Ab, At, Bb, Xb = A[rb], A[:, rb].T, B[rb], X[rb]
         Xb -= Ab
         Xb -= At
         Xb += Bb
-        Xb *= M11[b]
-        Xb += q[b, None] * (At - Bb)
+        Xb *= M11[rb]
+        Xb += q[rb, None] * (At - Bb)
         Xb += q[None, :] * (Ab - Bb)
         Xb += Bb
     del A, B, M11
     for r0 in range(0, R, blk):  # symmetric part (round-off), block by block: no R x R temporary
-        b = slice(r0, min(R, r0 + blk))
+        rb = slice(r0, min(R, r0 + blk))
         for c0 in range(r0, R, blk):
-            c = slice(c0, min(R, c0 + blk))
-            avg = 0.5 * (X[b, c] + X[c, b].T)
-            X[b, c] = avg
-            X[c, b] = avg.T
+            cb = slice(c0, min(R, c0 + blk))
+            avg = 0.5 * (X[rb, cb] + X[cb, rb].T)
+            X[rb, cb] = avg
+            X[cb, rb] = avg.T
     return X
 
 
@@ -359,7 +360,6 @@ def _solve_all(
             live_rows = live_rows[sl.step[sl.row_slot[live_rows]] >= k - memory + 1]
         u = (live_rows[:, None] * dz + np.arange(dz)[None, :]).ravel()  # unknowns of step k
         W = S @ Lb @ mom.Theta[k]  # (n dz, N_k): row block i is Σ_j S_ij L_j Θ_j
-        Nk = W.shape[1]
         cols = sl.rows[live_rows]
         V1 = W[:, cols]
         # V2 = W Hᵀ over the live rows; the fill of agent i's rows acts on its own innovations ν_i(0:k) only

@@ -167,7 +167,7 @@ def relay_arrivals(out: LinkOutcomes, n: int, T: int, max_jitter: int) -> np.nda
         horizon = (n - 1) * (max(d for (_, _, d) in out.edges) + max_jitter)  # a packet's latency when it arrives
         ok = out.delivered.transpose(1, 2, 0)  # (T, E, R)
         arrive = np.ascontiguousarray(np.where(ok, out.arrive.transpose(1, 2, 0), T), dtype=np.int32)  # T: not delivered
-        any_ok = ok.any(axis=2)  # (T, E)
+        any_ok = np.asarray(ok.any(axis=2))  # (T, E)
         for k in range(T):
             qs = np.flatnonzero(any_ok[k]).tolist()
             if not qs:
@@ -279,7 +279,7 @@ def _append_maps(store: dict, new: FloatArray) -> None:
     buf = store.get("buf")
     if buf is None or size + len(new) > len(buf):
         grown = np.empty((max(2 * (size + len(new)), 16), *new.shape[1:]))
-        if size:
+        if size and buf is not None:
             grown[:size] = buf[:size]
         buf = store["buf"] = grown
     buf[size : size + len(new)] = new
