@@ -221,7 +221,7 @@ def _design_cache(design: Any) -> dict:
     if c is None:
         if len(_CACHES) >= 8:  # a few models at a time (a sweep moves on)
             _CACHES.pop(next(iter(_CACHES)))
-        c = _CACHES[fp] = {"sigma": {}, "fill": {}}
+        c = _CACHES[fp] = {"sigma": {}, "fill": {}, "sel": {}, "rule": {}}
     if c.get("n_fill", 0) > _CACHE_MAX:  # bounded: patterns of lossy runs repeat, but need not
         c["fill"].clear()
         c["n_fill"] = 0
@@ -324,6 +324,7 @@ class _TeamStep:
         self.cache = _design_cache(design)
         self.mats = _step_maps(design)
         self.ell = ell  # ell[j][i]: y_j(s) reaches agent i at s + ell[j][i] at the earliest
+        self.ell_key = tuple(tuple(int(v) for v in row) for row in ell)
         self.dy = [int(v) for v in self.sys.dy]
         self.off = np.asarray(self.sys.offsets, dtype=int)
 
@@ -449,6 +450,9 @@ class _TeamStep:
         X0[:, :dx] = np.eye(dx)
 
         def sel_cphi(a: int) -> tuple[FloatArray, FloatArray]:  # Sel (w' d_y, D) and CΦ (w' d_y, d_x), s = a..k
+            got = self.cache["sel"].get((a0, a, k))
+            if got is not None:
+                return got  # type: ignore[no-any-return]
             m = (k - a + 1) * dyt
             sel = np.zeros((m, D))
             sel[:, dx + (a - a0) * dyt :] = np.eye(m)
@@ -456,7 +460,8 @@ class _TeamStep:
             for s in range(a, k + 1):
                 rows.append(self._C(s) @ Phi)
                 Phi = sys.A_at(s) @ Phi
-            return sel, np.concatenate(rows, axis=0)
+            got = self.cache["sel"][(a0, a, k)] = (sel, np.concatenate(rows, axis=0))
+            return got  # type: ignore[no-any-return]
 
         a = a0
         X: FloatArray = np.broadcast_to(X0, (P, dx, D))
@@ -494,12 +499,17 @@ class _TeamStep:
         The fill of a lost target is its conditional expectation G(H) ỹ_H (G is zero outside H: only held
         measurements enter)."""
         dyt = self.sys.dy_total
-        tpos = np.concatenate([(s - a) * dyt + self.off[j] + np.arange(self.dy[j]) for (j, s) in targets]).astype(int)
+        key = (i, a, k, len(targets), self.ell_key)
+        got = self.cache["rule"].get(key)
+        if got is None:
+            tpos = np.concatenate([(s - a) * dyt + self.off[j] + np.arange(self.dy[j]) for (j, s) in targets]).astype(int)
+            reach = [(s - a) * dyt + self.off[j] + np.arange(self.dy[j]) for s in range(a, k + 1) for j in range(self.n) if s + self.ell[j][i] <= k]
+            ui = np.concatenate(reach).astype(int) if reach else np.zeros(0, dtype=int)
+            got = self.cache["rule"][key] = (tpos, ui)
+        tpos, ui = got
         lost = ~mask[:, tpos]  # (P, Σ d_target)
         if not lost.any():
             return None
-        reach = [(s - a) * dyt + self.off[j] + np.arange(self.dy[j]) for s in range(a, k + 1) for j in range(self.n) if s + self.ell[j][i] <= k]
-        ui = np.concatenate(reach).astype(int) if reach else np.zeros(0, dtype=int)
         return lost, _fill_gains(self.d, self.cache, a, k, mask, targets, ui)
 
     def _C(self, s: int) -> FloatArray:
