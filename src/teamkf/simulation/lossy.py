@@ -40,8 +40,9 @@ r"""The lossy runtime batched over runs: link events as arrays, relays and packe
    .. math::  [\hat x(a0 + 1);\ z_i(k)] = M_{i,k}(H)\, u .
 
    The map depends on the run only through (i, H), so the rows (agent, run) are sorted by
-   (agent, pattern) at each step, M is built once per pattern (all new patterns of a step in one
-   batched solve, then cached on the design: patterns repeat across blocks), and all rows are
+   (agent, pattern) at each step, M is built once per pattern (all new patterns of a step and agent
+   together: batched solves on the held coordinates, single products with the pattern-independent
+   factors; then cached on the design: patterns repeat across blocks), and all rows are
    stepped by one batched matrix product. The estimates are those of the agents' own online step
    to round-off (checked in ``tests/unit/test_lossy_mc.py``), with the same miss counts.
 
@@ -233,8 +234,8 @@ def _fill_gains(design: Any, cache: dict, a: int, k: int, mask: np.ndarray, targ
 
     Σ_W is the covariance of the window innovations y(a : k) - C Φ x̂(a) under the nominal predictor
     covariance P(a) (:func:`~teamkf.estimators.team.window_covariances`), as in
-    :meth:`~teamkf.estimators.team.TeamAgent.expected_measurements`. Solved as one batched system:
-    M = Σ_W on H x H and the identity elsewhere, M X = 1_H Σ_W[:, targets].
+    :meth:`~teamkf.estimators.team.TeamAgent.expected_measurements`. Solved on H only, Σ_W[H, H] X =
+    Σ_W[H, targets], one batched solve per group of patterns holding the same number of coordinates.
     """
     sys = design.system
     dyt, off, dy = sys.dy_total, np.asarray(sys.offsets, dtype=int), [int(v) for v in sys.dy]
