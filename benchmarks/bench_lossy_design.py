@@ -3,6 +3,7 @@
     PYTHONPATH=src python3 benchmarks/bench_lossy_design.py                 # both, p in {0.1, 0.5}
     PYTHONPATH=src python3 benchmarks/bench_lossy_design.py --only platoon  # one of them
     PYTHONPATH=src python3 benchmarks/bench_lossy_design.py --memory 10     # the UAV with memory 10 (default: none)
+    PYTHONPATH=src python3 benchmarks/bench_lossy_design.py --only platoon --platoon-horizons 50 --p 0.5
 
 platoon  the packaged platoon-4 scenario (line graph, unit delays, λ = 100), T = 50 and T = 100,
          the exact class (memory none): one Cholesky factorization of Γ serves every step.
@@ -26,6 +27,8 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--only", choices=("platoon", "uav"), default=None)
     ap.add_argument("--memory", type=int, default=0, help="memory of the UAV design (steps; 0: none, the exact class)")
+    ap.add_argument("--platoon-horizons", default="50,100", help="horizons of the platoon cases (comma-separated)")
+    ap.add_argument("--p", default="0.1,0.5", help="drop probabilities (comma-separated)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     from teamkf.estimators.team import design_mtmse
@@ -35,7 +38,7 @@ def main() -> None:
     print(f"load average {os.getloadavg()}")
     cases = []
     if args.only in (None, "platoon"):
-        cases += [("platoon-4", T, None) for T in (50, 100)]
+        cases += [("platoon-4", int(T), None) for T in args.platoon_horizons.split(",")]
     if args.only in (None, "uav"):
         cases += [("uav-10", 100, args.memory or None)]
     rows = []
@@ -44,7 +47,7 @@ def main() -> None:
         t0 = time.perf_counter()
         ref = design_mtmse(sc.system, sc.cost, sc.graph, T)
         t_ref = time.perf_counter() - t0
-        for p in (0.1, 0.5):
+        for p in map(float, args.p.split(",")):
             t0, c0 = time.perf_counter(), time.process_time()
             d = design_mtmse_lossy(sc.system, sc.cost, sc.graph, T, p_drop=p, memory=mem, bound=False)
             dt = time.perf_counter() - t0

@@ -177,3 +177,28 @@ def test_lossy_monte_carlo_serial_equals_dask_processes(platoon):
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, Client(cluster) as client:
         dask = _lossy_mc(ds, sc, batch=8, chunk=16, scheduler=client)
     _same(serial, dask)
+
+
+@pytest.mark.parametrize("lm", LINKS[:3], ids=["p05", "p03-j2", "per-edge"])
+def test_step_maps_ignore_the_measurements_outside_the_pattern(platoon, lm):
+    """A step map M_{i,k}(H) has exact zero columns for the window measurements outside H: the batched step
+    multiplies the whole window y(a0 : k) without masking it, which is right only because of this."""
+    sc, ds = platoon
+    p = sample_paths(sc.system, T, 40, rng=6)
+    checked = outside = 0
+    for name in ("mtmse", "mmse"):
+        d = ds[name]
+        ys = _batched([a.inner for a in graph_agents(d)], p.y)
+        pass_messages_lossy(graph_agents(d), sc.graph, ys, lm, link_streams(11, 40), LinkStats())
+        n, dx, dy = d.system.n_agents, d.system.dx, list(d.system.dy)
+        for k, store in lossy._step_maps(d).items():
+            w = min(k, d.structure.common_lag) + 1
+            for key, idx in store["index"].items():
+                bits = ((key & ((1 << 56) - 1)) >> np.arange(w * n)) & 1  # window order: step, then agent
+                held = np.repeat(bits.astype(bool), np.tile(dy, w))
+                M = store["maps"][idx]  # (d_x + w d_y, d_x + d_z): the right factor of the step's product
+                assert M.shape[0] == dx + held.size
+                assert np.all(M[dx:][~held] == 0.0), (name, k, key)
+                checked += 1
+                outside += int((~held).sum())
+    assert checked > 100 and outside > 1000

@@ -232,16 +232,23 @@ def _slots(system: LinearGaussianSystem, arr: ArrivalModel, Sigma: FloatArray, T
     if fill:
         own_rows = [np.concatenate([s_ * dyt + int(off[i]) + np.arange(system.dy[i]) for s_ in range(T)]).astype(int) for i in range(n)]
         chol = [sla.cholesky(Sigma[np.ix_(o, o)], lower=True) if o.size else None for o in own_rows]
-        starts = np.concatenate([[0], np.cumsum(dys)]).astype(int)
-        for a in range(len(lst)):
-            i, j = agent[a], src[a]
-            if i == j or chol[i] is None:
+        # H rows of agent i: Σ[o_m, r]ᵀ Σ[o_m, o_m]⁻¹ with o_m its own innovations up to the slot's due step. One
+        # forward substitution serves every slot of the agent (the leading block's solve is the leading part of
+        # the full one), then one back substitution per group of slots with the same due step.
+        for i in range(n):
+            Lc = chol[i]
+            if Lc is None:
                 continue
-            m = (due[a] + 1) * system.dy[i]  # own innovations ν_i(0 : k0)
-            Lc = chol[i][:m, :m]  # type: ignore[index]
-            o = own_rows[i][:m]
-            here = np.arange(starts[a], starts[a + 1])
-            H[np.ix_(here, o)] = sla.cho_solve((Lc, True), Sigma[np.ix_(o, rows[here])], check_finite=False).T
+            here = np.flatnonzero((agent[row_slot] == i) & (src[row_slot] != i))
+            if not here.size:
+                continue
+            o = own_rows[i]
+            Z = sla.solve_triangular(Lc, Sigma[np.ix_(o, rows[here])], lower=True, check_finite=False)
+            ms = (due[row_slot[here]] + 1) * system.dy[i]  # own innovations ν_i(0 : k0)
+            for m in np.unique(ms).tolist():
+                g = np.flatnonzero(ms == m)
+                Hg = sla.solve_triangular(Lc[:m, :m], Z[:m, g], lower=True, trans="T", check_finite=False)
+                H[np.ix_(here[g], o[:m])] = Hg.T
     own_all = [np.concatenate([s_ * dyt + int(off[i]) + np.arange(system.dy[i]) for s_ in range(T)]).astype(int) for i in range(n)]
     return _Slots(agent, src, step, due, row_slot, rows, owner, q, H, arr, Sigma, fill, own_all)
 
@@ -265,28 +272,61 @@ def _second_moment(sl: _Slots, idx: np.ndarray) -> FloatArray:
                 if u is not None and u != t:
                     M[t, u] += c
     loc = np.array([where[int(a)] for a in sl.row_slot[idx]], dtype=int)
-    M11 = M[np.ix_(loc, loc)]
+    M11 = M if np.array_equal(loc, np.arange(len(slots))) else M[np.ix_(loc, loc)]  # one row per slot: no copy
+    del M
     rows = sl.rows[idx]
-    X = Sigma[np.ix_(rows, rows)] * M11
-    if sl.fill:  # agent by agent: the fill of agent i's rows acts on its own innovations only
-        q = sl.q[idx]
-        owners = sl.owner[idx]
-        blocks = [np.flatnonzero(owners == i) for i in range(len(sl.own_rows))]
-        Hs = [sl.H[idx[b]][:, sl.own_rows[i]] for i, b in enumerate(blocks)]
-        HS = [Hs[i] @ Sigma[sl.own_rows[i]] for i in range(len(blocks))]  # H_i Σ, (rows_i, N)
-        for i, bi in enumerate(blocks):
-            if not bi.size:
-                continue
-            for l, bl in enumerate(blocks):
-                if not bl.size:
-                    continue
-                m11 = M11[np.ix_(bi, bl)]
-                t10 = HS[l][:, rows[bi]].T  # P Σ H_l'
-                t01 = HS[i][:, rows[bl]]  # H_i Σ P'
-                t00 = HS[i][:, sl.own_rows[l]] @ Hs[l].T  # H_i Σ H_l'
-                qi, ql = q[bi][:, None], q[bl][None, :]
-                X[np.ix_(bi, bl)] += t10 * (qi - m11) + t01 * (ql - m11) + t00 * (1.0 - qi - ql + m11)
-    return 0.5 * (X + X.T)
+    X = Sigma[np.ix_(rows, rows)]
+    if not sl.fill:
+        X *= M11
+        return 0.5 * (X + X.T)  # type: ignore[no-any-return]
+    # E[f_a f_b] = M11 Σ_ab + (q_a - M11) (Σ Hᵀ)_ab + (q_b - M11) (H Σ)_ab + (1 - q_a - q_b + M11) (H Σ Hᵀ)_ab
+    #            = M11 (Σ - A - Aᵀ + B)_ab + q_a (Aᵀ - B)_ab + q_b (A - B)_ab + B_ab,   A = H Σ Pᵀ, B = H Σ Hᵀ
+    # with the rows of the fill H of agent i acting on its own innovations only (whole-matrix products, in place)
+    q = sl.q[idx]
+    owners = sl.owner[idx]
+    R = idx.size
+    HS = np.zeros((R, Sigma.shape[0]))
+    Hs = []
+    for i, o in enumerate(sl.own_rows):
+        b_i = np.flatnonzero(owners == i)
+        Hi = sl.H[np.ix_(idx[b_i], o)]
+        Hs.append((b_i, o, Hi))
+        if b_i.size:
+            HS[b_i] = Hi @ Sigma[o]  # H_i Σ
+    A = HS[:, rows]  # (H Σ)[a, rows[b]]
+    B = np.zeros((R, R))
+    for b_l, o, Hl in Hs:
+        if b_l.size:
+            B[:, b_l] = HS[:, o] @ Hl.T  # H Σ H_lᵀ
+    del HS
+    blk = max(1, min(R, 2**21 // max(R, 1)))  # rows per block: the block's temporaries stay a few MB
+    for r0 in range(0, R, blk):
+        rb = slice(r0, min(R, r0 + blk))
+        Ab, At, Bb, Xb = A[rb], A[:, rb].T, B[rb], X[rb]
+        Xb -= Ab
+        Xb -= At
+        Xb += Bb
+        Xb *= M11[rb]
+        Xb += q[rb, None] * (At - Bb)
+        Xb += q[None, :] * (Ab - Bb)
+        Xb += Bb
+    del A, B, M11
+    for r0 in range(0, R, blk):  # symmetric part (round-off), block by block: no R x R temporary
+        rb = slice(r0, min(R, r0 + blk))
+        for c0 in range(r0, R, blk):
+            cb = slice(c0, min(R, c0 + blk))
+            avg = 0.5 * (X[rb, cb] + X[cb, rb].T)
+            X[rb, cb] = avg
+            X[cb, rb] = avg.T
+    return X
+
+
+def _dtrtrs(a: FloatArray, b: FloatArray, **kw: Any) -> tuple[FloatArray, int]:
+    """LAPACK dtrtrs on the leading ``a.shape[1]`` square block of the Fortran-ordered ``a`` (its leading dimension
+    is ``a.shape[0]``: a column slice of a factor is solved with in place, not copied)."""
+    from scipy.linalg import lapack
+
+    return lapack.dtrtrs(a, b, lda=a.shape[0], **kw)  # type: ignore[no-any-return]
 
 
 def _solve_all(
@@ -320,10 +360,17 @@ def _solve_all(
             live_rows = live_rows[sl.step[sl.row_slot[live_rows]] >= k - memory + 1]
         u = (live_rows[:, None] * dz + np.arange(dz)[None, :]).ravel()  # unknowns of step k
         W = S @ Lb @ mom.Theta[k]  # (n dz, N_k): row block i is Σ_j S_ij L_j Θ_j
-        Nk = W.shape[1]
         cols = sl.rows[live_rows]
         V1 = W[:, cols]
-        V2 = W @ sl.H[live_rows][:, :Nk].T
+        # V2 = W Hᵀ over the live rows; the fill of agent i's rows acts on its own innovations ν_i(0:k) only
+        owner_live = sl.owner[live_rows]
+        mines = [np.flatnonzero(owner_live == i) for i in range(n)]
+        owns = [_own_cols(system, i, k) for i in range(n)]
+        Fk_all = [sl.H[np.ix_(live_rows[mines[i]], owns[i])] for i in range(n)]
+        V2 = np.zeros((W.shape[0], live_rows.size))
+        for i in range(n):
+            if mines[i].size:
+                V2[:, mines[i]] = W[:, owns[i]] @ Fk_all[i].T
         zr = zidx[u]
         rk = rr[u]
         qk = sl.q[rk]
@@ -339,11 +386,17 @@ def _solve_all(
                         G_all[ra] *= S[a][sl.owner][None, :]
                 else:
                     G_all = G_all[np.ix_(rr, rr)] * S[np.ix_(zidx, zidx)]
-                chol = sla.cholesky(G_all, lower=True, check_finite=False, overwrite_a=True)
+                # Γ is symmetric: its transpose is the same matrix in Fortran order, factored in place (no copy)
+                chol = np.asfortranarray(sla.cholesky(G_all.T, lower=True, check_finite=False, overwrite_a=True))
                 del G_all
             if prefix:
-                Lk = chol[: u.size, : u.size]  # type: ignore[index]
-                g = sla.cho_solve((Lk, True), eta, check_finite=False)
+                # the leading u x u block of the factor, read in place (leading dimension R): two triangular solves
+                Lk = chol[:, : u.size]  # type: ignore[index]
+                z, info = _dtrtrs(Lk, eta[:, None], lower=1, trans=0)
+                g, info2 = _dtrtrs(Lk, z, lower=1, trans=1, overwrite_b=1)
+                if info or info2:  # pragma: no cover - a positive definite factor has a nonzero diagonal
+                    raise np.linalg.LinAlgError(f"mtmse_lossy: triangular solve failed at step {k} (info {info or info2})")
+                g = g[:, 0]
             else:
                 Gk = _second_moment(sl, live_rows)[np.ix_(pos, pos)] * S[np.ix_(zr, zr)]
                 g = sla.cho_solve(sla.cho_factor(Gk, lower=True, check_finite=False), eta, check_finite=False)
@@ -353,12 +406,12 @@ def _solve_all(
         locs[k] = c0
         Gk_list, Fk_list, Ik_list = [], [], []
         for i in range(n):
-            mine = np.flatnonzero(sl.owner[live_rows] == i)
+            mine = mines[i]
             slots_i = list(dict.fromkeys(sl.row_slot[live_rows[mine]].tolist()))
             Ik_list.append([(int(sl.src[a]), int(sl.step[a])) for a in slots_i])
             gi = g.reshape(-1, dz)[mine].T if u.size else np.zeros((dz, 0))
             Gk_list.append(gi)
-            Fk_list.append(sl.H[live_rows[mine]][:, _own_cols(system, i, k)])
+            Fk_list.append(Fk_all[i])
         gains.append(Gk_list)
         fills.append(Fk_list)
         items.append(Ik_list)

@@ -40,8 +40,9 @@ r"""The lossy runtime batched over runs: link events as arrays, relays and packe
    .. math::  [\hat x(a0 + 1);\ z_i(k)] = M_{i,k}(H)\, u .
 
    The map depends on the run only through (i, H), so the rows (agent, run) are sorted by
-   (agent, pattern) at each step, M is built once per pattern (all new patterns of a step in one
-   batched solve, then cached on the design: patterns repeat across blocks), and all rows are
+   (agent, pattern) at each step, M is built once per pattern (all new patterns of a step and agent
+   together: batched solves on the held coordinates, single products with the pattern-independent
+   factors; then cached on the design: patterns repeat across blocks), and all rows are
    stepped by one batched matrix product. The estimates are those of the agents' own online step
    to round-off (checked in ``tests/unit/test_lossy_mc.py``), with the same miss counts.
 
@@ -153,34 +154,32 @@ def count_links(out: LinkOutcomes, stats: Any) -> None:
 
 
 def relay_arrivals(out: LinkOutcomes, n: int, T: int, max_jitter: int) -> np.ndarray:
-    """t[r, i, j, s]: the step at which agent i first holds y_j(s) in run r (T: never), stage 2."""
+    """t[r, i, j, s]: the step at which agent i first holds y_j(s) in run r (T: never), stage 2.
+
+    Step by step (every arrival is later than its sending step, so what is learnt at k is final when
+    step k is processed); at step k every agent forwards at once what it learnt at k, on all its edges:
+    one candidate array per step for all edges, reduced per target edge group by a minimum.
+    """
     R = out.lost.shape[0]
-    t = np.full((R, n, n, T), T, dtype=np.int32)
+    t = np.full((T, n, n, R), T, dtype=np.int32)  # t[s, i, j, r] while computing: a step's window is one slice, runs innermost
     for i in range(n):
-        t[:, i, i, :] = np.arange(T)
-    if not out.edges:
-        return t
-    horizon = (n - 1) * (max(d for (_, _, d) in out.edges) + max_jitter)  # a packet's latency when it arrives
-    ok = out.delivered
-    by_src: dict[int, list[int]] = {}
-    for q, (a, _, _) in enumerate(out.edges):
-        by_src.setdefault(a, []).append(q)
-    arrive = out.arrive.astype(np.int32)
-    for k in range(T):
-        lo = max(0, k - horizon)
-        for m, qs in by_src.items():
-            qs_k = [q for q in qs if out.sent[k, q] and ok[:, k, q].any()]
-            if not qs_k:
+        t[:, i, i, :] = np.arange(T)[:, None]
+    if out.edges:
+        horizon = (n - 1) * (max(d for (_, _, d) in out.edges) + max_jitter)  # a packet's latency when it arrives
+        ok = out.delivered.transpose(1, 2, 0)  # (T, E, R)
+        arrive = np.ascontiguousarray(np.where(ok, out.arrive.transpose(1, 2, 0), T), dtype=np.int32)  # T: not delivered
+        any_ok = np.asarray(ok.any(axis=2))  # (T, E)
+        for k in range(T):
+            qs = np.flatnonzero(any_ok[k]).tolist()
+            if not qs:
                 continue
-            new = t[:, m, :, lo : k + 1] == k  # what m learns at k, and forwards at k
-            if not new.any():
-                continue
-            for q in qs_k:
-                b = out.edges[q][1]
-                cand = np.where(new & ok[:, k, q, None, None], arrive[:, k, q, None, None], T)
-                dst = t[:, b, :, lo : k + 1]
-                np.minimum(dst, cand, out=dst)
-    return t
+            win = t[max(0, k - horizon) : k + 1]  # (w, n, n, R)
+            new = win == k  # what each agent learns at k, and forwards at k on all its edges
+            for q in qs:
+                a, b, _ = out.edges[q]
+                dst = win[:, b]
+                np.minimum(dst, arrive[k, q], out=dst, where=new[:, a])
+    return t.transpose(3, 1, 2, 0)  # type: ignore[no-any-return]
 
 
 # ---------------------------------------------------------------------------
@@ -223,7 +222,7 @@ def _design_cache(design: Any) -> dict:
     if c is None:
         if len(_CACHES) >= 8:  # a few models at a time (a sweep moves on)
             _CACHES.pop(next(iter(_CACHES)))
-        c = _CACHES[fp] = {"sigma": {}, "fill": {}}
+        c = _CACHES[fp] = {"sigma": {}, "fill": {}, "sel": {}, "rule": {}}
     if c.get("n_fill", 0) > _CACHE_MAX:  # bounded: patterns of lossy runs repeat, but need not
         c["fill"].clear()
         c["n_fill"] = 0
@@ -235,8 +234,8 @@ def _fill_gains(design: Any, cache: dict, a: int, k: int, mask: np.ndarray, targ
 
     Σ_W is the covariance of the window innovations y(a : k) - C Φ x̂(a) under the nominal predictor
     covariance P(a) (:func:`~teamkf.estimators.team.window_covariances`), as in
-    :meth:`~teamkf.estimators.team.TeamAgent.expected_measurements`. Solved as one batched system:
-    M = Σ_W on H x H and the identity elsewhere, M X = 1_H Σ_W[:, targets].
+    :meth:`~teamkf.estimators.team.TeamAgent.expected_measurements`. Solved on H only, Σ_W[H, H] X =
+    Σ_W[H, targets], one batched solve per group of patterns holding the same number of coordinates.
     """
     sys = design.system
     dyt, off, dy = sys.dy_total, np.asarray(sys.offsets, dtype=int), [int(v) for v in sys.dy]
@@ -250,14 +249,21 @@ def _fill_gains(design: Any, cache: dict, a: int, k: int, mask: np.ndarray, targ
     # ui: the coordinates that can be held at all (a fixed set, so a pattern's gain does not depend on the
     # other patterns solved with it); the others are identity rows
     mk = mask[:, ui]
-    S = Sigma_W[np.ix_(ui, ui)]
-    M = np.where(mk[:, :, None] & mk[:, None, :], S[None], 0.0)
-    d = np.arange(ui.size)
-    M[:, d, d] = np.where(mk, M[:, d, d], 1.0)
-    B = np.where(mk[:, :, None], Sigma_W[np.ix_(ui, tpos)][None], 0.0)
-    X = np.linalg.solve(M, B)  # (P, |ui|, Σ d_target); zero rows outside H
     out = np.zeros((mask.shape[0], tpos.size, mask.shape[1]))
-    out[:, :, ui] = np.where(mk[:, None, :], X.transpose(0, 2, 1), 0.0)
+    # patterns grouped by how many coordinates they hold: each group one batched solve on its held coordinates
+    # only (Σ_W[H, H] X = Σ_W[H, targets]; the same numbers as with identity rows outside H, at a fraction of the work)
+    cnt = mk.sum(axis=1)
+    order = np.argsort(cnt, kind="stable")
+    bounds = np.flatnonzero(np.diff(cnt[order])) + 1
+    Su = Sigma_W[np.ix_(ui, ui)]
+    St = Sigma_W[np.ix_(ui, tpos)]
+    for grp in np.split(order, bounds):
+        m = int(cnt[grp[0]])
+        if m == 0:
+            continue
+        idx = np.nonzero(mk[grp])[1].reshape(grp.size, m)  # held positions (in ui) of each pattern, ascending
+        Xg = np.linalg.solve(Su[idx[:, :, None], idx[:, None, :]], St[idx])  # (P_g, m, Σ d_target)
+        out[grp[:, None], :, ui[idx]] = Xg  # advanced indices first: (P_g, m, Σ d_target)
     return out
 
 
@@ -266,6 +272,20 @@ _MAPS: "weakref.WeakKeyDictionary[Any, dict]" = weakref.WeakKeyDictionary()
 _PRE: dict[tuple, tuple] = {}
 _PRE_BYTES = [0]
 _PRE_MAX_BYTES = 128 * 2**20
+
+
+def _append_maps(store: dict, new: FloatArray) -> None:
+    """Append maps to a step's store (capacity doubled when full, so a block adding a few patterns copies nothing)."""
+    size = store.get("size", 0)
+    buf = store.get("buf")
+    if buf is None or size + len(new) > len(buf):
+        grown = np.empty((max(2 * (size + len(new)), 16), *new.shape[1:]))
+        if size and buf is not None:
+            grown[:size] = buf[:size]
+        buf = store["buf"] = grown
+    buf[size : size + len(new)] = new
+    store["size"] = size + len(new)
+    store["maps"] = buf[: size + len(new)]
 
 
 def _step_maps(design: Any) -> dict:
@@ -298,11 +318,14 @@ class _TeamStep:
         self.n, self.c = self.sys.n_agents, design.structure.common_lag
         self.Y = np.concatenate(ys, axis=2)  # (R, T, Σ d_y)
         self.t = t  # (R, n, n, T)
+        self.tt = np.ascontiguousarray(t.transpose(1, 0, 3, 2))  # (i, r, s, j): a step's window is one slice
         self.R, self.T = ys[0].shape[:2]
         self.x = np.zeros((self.n * self.R, self.sys.dx))  # row i R + r: agent i, run r
+        self.agent = np.repeat(np.arange(self.n, dtype=np.int64), self.R)
         self.cache = _design_cache(design)
         self.mats = _step_maps(design)
         self.ell = ell  # ell[j][i]: y_j(s) reaches agent i at s + ell[j][i] at the earliest
+        self.ell_key = tuple(tuple(int(v) for v in row) for row in ell)
         self.dy = [int(v) for v in self.sys.dy]
         self.off = np.asarray(self.sys.offsets, dtype=int)
 
@@ -311,9 +334,8 @@ class _TeamStep:
         n, R, dyt = self.n, self.R, self.sys.dy_total
         a0 = max(0, k - self.c)
         w = k - a0 + 1
-        held = self.t[:, :, :, a0 : k + 1] <= k  # (R, i, j, w)
-        bits = held.transpose(1, 0, 3, 2).reshape(n * R, w * n)  # row (i, r); window order: step, then agent
-        agent = np.repeat(np.arange(n, dtype=np.int64), R)
+        bits = (self.tt[:, :, a0 : k + 1] <= k).reshape(n * R, w * n)  # row (i, r); window order: step, then agent
+        agent = self.agent
         if w * n <= 55:
             codes = (bits @ (np.int64(1) << np.arange(w * n, dtype=np.int64))) + (agent << 56)
         else:  # long windows: patterns as bytes (sorted through their rank in this block)
@@ -321,14 +343,16 @@ class _TeamStep:
             codes = np.unique(packed, axis=0, return_inverse=True)[1].ravel()
         order = np.argsort(codes, kind="stable")  # rows grouped by (agent, pattern)
         cs = codes[order]
-        first = np.concatenate([[True], cs[1:] != cs[:-1]])
+        first = np.empty(cs.size, dtype=bool)
+        first[0] = True
+        np.not_equal(cs[1:], cs[:-1], out=first[1:])
         starts = np.flatnonzero(first)
         gid = np.cumsum(first) - 1
         lead = order[starts]  # a row of each pattern
         keys = codes[lead].tolist() if w * n <= 55 else [bytes(packed[r]) for r in lead.tolist()]
         store = self.mats.get(k)
         if store is None:
-            store = self.mats[k] = {"index": {}, "maps": np.zeros((0, 0, 0))}
+            store = self.mats[k] = {"index": {}, "maps": None}
         index = store["index"]
         todo = [g for g, key in enumerate(keys) if key not in index]
         if todo:
@@ -336,31 +360,27 @@ class _TeamStep:
             by_agent: dict[int, list[int]] = {}
             for g in todo:
                 by_agent.setdefault(int(agent[lead[g]]), []).append(g)
-            new = []
             for i, gs in by_agent.items():
-                new.append((gs, self._maps_shared(i, k, a0, [keys[g] for g in gs], np.repeat(bits[lead[gs]], dyw, axis=1))))
-            maps = np.concatenate([store["maps"].reshape(-1, *new[0][1].shape[1:])] + [m for _, m in new])
-            base = len(index)
-            for gs, _ in new:
+                m = self._maps_shared(i, k, a0, [keys[g] for g in gs], np.repeat(bits[lead[gs]], dyw, axis=1))
+                _append_maps(store, m.transpose(0, 2, 1))  # stored as (d_x + w d_y, d_x + d_z): the product's right factor
                 for g in gs:
-                    index[keys[g]] = base
-                    base += 1
-            store["maps"] = maps
+                    index[keys[g]] = len(index)
         which = np.array([index[key] for key in keys])
+        # rows sorted by pattern, in slabs of _STEP_SLAB rows of one pattern (zero rows pad a pattern's last slab)
         sizes = np.diff(np.append(starts, n * R))
         nslab = -(-sizes // _STEP_SLAB)
         pos = np.arange(n * R) - starts[gid]
-        vid = (np.cumsum(nslab) - nslab)[gid] + pos // _STEP_SLAB
-        slot = pos % _STEP_SLAB
+        padrow = ((np.cumsum(nslab) - nslab)[gid] + pos // _STEP_SLAB) * _STEP_SLAB + pos % _STEP_SLAB
         dx = self.sys.dx
-        pad = np.zeros((int(nslab.sum()), _STEP_SLAB, dx + w * dyt))
-        pad[vid, slot, :dx] = self.x[order]
-        Yw = self.Y[:, a0 : k + 1].reshape(R, w * dyt)
-        pad[vid, slot, dx:] = np.where(np.repeat(bits[order], np.tile(self.dy, w), axis=1), Yw[order % R], 0.0)
+        pad = np.zeros((int(nslab.sum()) * _STEP_SLAB, dx + w * dyt))
+        pad[padrow, :dx] = self.x[order]
+        # y(a0 : k) whole: a map's columns of the measurements outside its pattern H are exact zeros, so
+        # 0 * y adds nothing (y is finite); masking them would cost a pass over every row
+        pad[padrow, dx:] = self.Y[order % R, a0 : k + 1].reshape(n * R, w * dyt)
         Ms = store["maps"][np.repeat(which, nslab)]
-        out = np.empty((n * R, Ms.shape[1]))
-        out[order] = np.matmul(pad, Ms.transpose(0, 2, 1))[vid, slot]
-        dx = self.sys.dx
+        res = np.matmul(pad.reshape(-1, _STEP_SLAB, pad.shape[1]), Ms).reshape(pad.shape[0], -1)
+        out = np.empty((n * R, Ms.shape[2]))
+        out[order] = res[padrow]
         self.x = out[:, :dx]
         return out[:, dx:].reshape(n, R, -1).transpose(1, 0, 2).reshape(R, -1)  # type: ignore[no-any-return]
 
@@ -416,56 +436,91 @@ class _TeamStep:
         return np.concatenate([X, Z], axis=1)
 
     def _pre(self, i: int, k: int, a0: int, mask: np.ndarray) -> tuple[FloatArray, FloatArray | None, int]:
-        """x̂(a') and the local innovation with the rule applied, as maps of u, for each pattern (row of ``mask``)."""
+        """x̂(a') and the local innovation with the rule applied, as maps of u, for each pattern (row of ``mask``).
+
+        ỹ(s) = y(s) - C(s) Φ(s, a) x̂(a) is Sel(a) - CΦ(a) X with Sel, CΦ the same for every pattern and X the map
+        of x̂(a): before the fold X = [I 0] (no pattern), after it X = A X₀ + A K E(H). So the products with the
+        pattern-independent factors are single matrix products over all patterns (``_lmul``), and only the fill
+        G(H) ỹ of the local part is a batched product (with its small inner dimension d_x through CΦ).
+        """
         sys, d, n = self.sys, self.d, self.n
         dx, dyt = sys.dx, sys.dy_total
         w = k - a0 + 1
         P, D = mask.shape[0], dx + w * dyt
-        X = np.zeros((P, dx, D))
-        X[:, :, :dx] = np.eye(dx)
+        X0 = np.zeros((dx, D))
+        X0[:, :dx] = np.eye(dx)
 
-        def ytil(a: int, Xa: FloatArray) -> FloatArray:  # (P, w' d_y, D): y(s) - C(s) Φ(s, a) x̂(a), s = a..k
+        def sel_cphi(a: int) -> tuple[FloatArray, FloatArray]:  # Sel (w' d_y, D) and CΦ (w' d_y, d_x), s = a..k
+            got = self.cache["sel"].get((a0, a, k))
+            if got is not None:
+                return got  # type: ignore[no-any-return]
+            m = (k - a + 1) * dyt
+            sel = np.zeros((m, D))
+            sel[:, dx + (a - a0) * dyt :] = np.eye(m)
             rows, Phi = [], np.eye(dx)
             for s in range(a, k + 1):
-                sel = np.zeros((dyt, D))
-                sel[:, dx + (s - a0) * dyt + np.arange(dyt)] = np.eye(dyt)
-                rows.append(sel[None] - np.matmul(self._C(s) @ Phi, Xa))
+                rows.append(self._C(s) @ Phi)
                 Phi = sys.A_at(s) @ Phi
-            return np.concatenate(rows, axis=1)
+            got = self.cache["sel"][(a0, a, k)] = (sel, np.concatenate(rows, axis=0))
+            return got  # type: ignore[no-any-return]
 
         a = a0
+        X: FloatArray = np.broadcast_to(X0, (P, dx, D))
         if k >= self.c:  # fold y(a0) with the rule
-            Yt = ytil(a0, X)
+            sel, cphi = sel_cphi(a0)
+            Yt0 = sel - cphi @ X0  # the same for every pattern
             targets = [(j, a0) for j in range(n)]
-            E = Yt[:, :dyt].copy()
-            self._apply_rule(E, Yt, mask, targets, a0, k, i)
-            X = np.matmul(sys.A_at(a0), X + np.matmul(d.K_at(a0), E))
+            E = np.broadcast_to(Yt0[:dyt], (P, dyt, D))
+            G = self._rule_gains(mask, targets, a0, k, i)
+            if G is not None:
+                lost, Gm = G
+                fill = (Gm.reshape(-1, Gm.shape[2]) @ Yt0).reshape(P, -1, D)
+                E = np.where(lost[:, :, None], fill, E)
+            A = sys.A_at(a0)
+            X = _lmul(A @ d.K_at(a0), E) + (A @ X0)[None]
             a = a0 + 1
         pairs = d.structure.local_pairs(i, k)
         if not pairs:
-            return X, None, a
-        Yt = ytil(a, X)
-        sub = mask[:, (a - a0) * dyt :]
-        cols = [(s - a) * dyt + self.off[j] + np.arange(self.dy[j]) for (j, s) in pairs]
-        innov = Yt[:, np.concatenate(cols)]
-        self._apply_rule(innov, Yt, sub, pairs, a, k, i)
-        return X, innov, a
+            return np.ascontiguousarray(X), None, a
+        sel, cphi = sel_cphi(a)
+        cols = np.concatenate([(s - a) * dyt + self.off[j] + np.arange(self.dy[j]) for (j, s) in pairs])
+        innov = sel[cols][None] - _lmul(cphi[cols], X)
+        G = self._rule_gains(mask[:, (a - a0) * dyt :], pairs, a, k, i)
+        if G is not None:
+            lost, Gm = G
+            fill = np.zeros((P, Gm.shape[1], D))
+            fill[:, :, dx + (a - a0) * dyt :] = Gm  # G Sel
+            fill -= np.matmul(_lmul(cphi.T, Gm.transpose(0, 2, 1)).transpose(0, 2, 1), X)  # - (G CΦ) X
+            innov = np.where(lost[:, :, None], fill, innov)
+        return np.ascontiguousarray(X), innov, a
 
-    def _apply_rule(self, E: FloatArray, Yt: FloatArray, mask: np.ndarray, targets: list[tuple[int, int]], a: int, k: int, i: int) -> None:
-        """Rows of lost targets in E (P, Σ d_target, D) := G(H) Ỹ_H (the conditional expectation of their innovation)."""
+    def _rule_gains(self, mask: np.ndarray, targets: list[tuple[int, int]], a: int, k: int, i: int) -> tuple[np.ndarray, FloatArray] | None:
+        """(lost (P, Σ d_target), G(H) (P, Σ d_target, w' d_y)) for the rule's fill of the lost targets, or None when none is lost.
+
+        The fill of a lost target is its conditional expectation G(H) ỹ_H (G is zero outside H: only held
+        measurements enter)."""
         dyt = self.sys.dy_total
-        tpos = np.concatenate([(s - a) * dyt + self.off[j] + np.arange(self.dy[j]) for (j, s) in targets]).astype(int)
+        key = (i, a, k, len(targets), self.ell_key)
+        got = self.cache["rule"].get(key)
+        if got is None:
+            tpos = np.concatenate([(s - a) * dyt + self.off[j] + np.arange(self.dy[j]) for (j, s) in targets]).astype(int)
+            reach = [(s - a) * dyt + self.off[j] + np.arange(self.dy[j]) for s in range(a, k + 1) for j in range(self.n) if s + self.ell[j][i] <= k]
+            ui = np.concatenate(reach).astype(int) if reach else np.zeros(0, dtype=int)
+            got = self.cache["rule"][key] = (tpos, ui)
+        tpos, ui = got
         lost = ~mask[:, tpos]  # (P, Σ d_target)
         if not lost.any():
-            return
-        reach = [(s - a) * dyt + self.off[j] + np.arange(self.dy[j]) for s in range(a, k + 1) for j in range(self.n) if s + self.ell[j][i] <= k]
-        ui = np.concatenate(reach).astype(int) if reach else np.zeros(0, dtype=int)
-        G = _fill_gains(self.d, self.cache, a, k, mask, targets, ui)  # (P, Σ d_target, w' d_y), zero columns outside H
-        fill = np.matmul(G, Yt)  # G is zero outside H: only held measurements enter
-        E[:] = np.where(lost[:, :, None], fill, E)
+            return None
+        return lost, _fill_gains(self.d, self.cache, a, k, mask, targets, ui)
 
     def _C(self, s: int) -> FloatArray:
         return self.sys.C_stack(s)
+
+
+def _lmul(M: FloatArray, X: FloatArray) -> FloatArray:
+    """M @ X[p] for every p, (P, m, D), as one matrix product (M: (m, d), X: (P, d, D))."""
+    P, d, D = X.shape
+    return (M @ X.transpose(1, 0, 2).reshape(d, P * D)).reshape(M.shape[0], P, D).transpose(1, 0, 2)  # type: ignore[no-any-return]
 
 
 def _is_team_relay(ag: Any) -> bool:
@@ -477,6 +532,8 @@ def _is_team_relay(ag: Any) -> bool:
 
 #: the link events of the last block (its designs share them: same streams, graph and links)
 _LAST: list[Any] = []
+#: the uniforms of the last block's link events (shared by designs whose outcomes differ, e.g. an omniscient bound)
+_DRAWS: list[Any] = []
 
 
 def _events(streams: Sequence[Any], T: int, edges: list, links: Any, omni: tuple, n: int, relays: bool) -> tuple[LinkOutcomes, np.ndarray | None]:
@@ -486,7 +543,11 @@ def _events(streams: Sequence[Any], T: int, edges: list, links: Any, omni: tuple
         if relays and t is None:
             t = _LAST[4] = relay_arrivals(out, n, T, links.max_jitter)
         return out, t
-    u, jit = draw_link_events(streams, T, len(edges))
+    if _DRAWS and _DRAWS[0] is streams and _DRAWS[1] == (T, len(edges)):  # another design kind on the same runs
+        u, jit = _DRAWS[2], _DRAWS[3]
+    else:
+        u, jit = draw_link_events(streams, T, len(edges))
+        _DRAWS[:] = [streams, (T, len(edges)), u, jit]
     out = link_outcomes(links, edges, u, jit, omni)
     t = relay_arrivals(out, n, T, links.max_jitter) if relays else None
     _LAST[:] = [streams, (T, tuple(edges), omni), links, out, t]  # holds ``streams``: its id cannot be reused meanwhile
