@@ -13,14 +13,14 @@ without importing an estimator.
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg as sla
 from numpy.typing import ArrayLike
 
 from . import _validation as V
+from ._lazy import scipy_linalg as sla  # SciPy loads on first use
 from ._validation import FloatArray
 from .exceptions import DetectabilityError, ShapeError
 
-__all__ = ["unstable_unobservable_modes", "is_detectable", "is_stabilizable", "check_detectable", "check_stabilizable"]
+__all__ = ["block_diag", "unstable_unobservable_modes", "is_detectable", "is_stabilizable", "check_detectable", "check_stabilizable"]
 
 #: relative tolerance of the PBH rank test (scaled by max(||A||_F, ||C||_F))
 PBH_RTOL = 1e-8
@@ -32,6 +32,32 @@ _CLUSTER_RTOL = 1e-6
 #: above this many unstable eigenvalues, simple eigenvalues are tested with
 #: their eigenvectors (O(k^3) in all) instead of one k x k SVD each (O(k^4))
 _SVD_MAX_K = 96
+
+
+def block_diag(*blocks: ArrayLike) -> FloatArray:
+    """The block-diagonal matrix diag(B_1, ..., B_m) of 2-D blocks (0-D and 1-D blocks are read as rows).
+
+    The same matrix as :func:`scipy.linalg.block_diag` (bit for bit: it only copies), without its per-call
+    overhead, which dominated the small per-step stacks of the designs (34 000 calls of about 0.5 ms each in
+    one quick demo).
+
+    Examples
+    --------
+    >>> block_diag(np.eye(1), 2 * np.eye(2)).tolist()
+    [[1.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 2.0]]
+    """
+    mats = [np.atleast_2d(np.asarray(b)) for b in blocks]
+    if any(m.ndim != 2 for m in mats):
+        raise ShapeError(f"block_diag: every block must be at most 2-D; found shapes {[m.shape for m in mats]}")
+    rows = sum(m.shape[0] for m in mats)
+    cols = sum(m.shape[1] for m in mats)
+    out = np.zeros((rows, cols), dtype=np.result_type(float, *mats) if mats else float)
+    r = c = 0
+    for m in mats:
+        out[r : r + m.shape[0], c : c + m.shape[1]] = m
+        r += m.shape[0]
+        c += m.shape[1]
+    return out
 
 
 def _square(x: ArrayLike, name: str) -> FloatArray:

@@ -31,12 +31,13 @@ import numpy as np
 from .. import _validation as V
 from .._lazy import scipy_linalg as sla  # SciPy loads on first use
 from .._lazy import scipy_optimize as sopt
+from .._linalg import block_diag
 from .._validation import FloatArray
 from ..exceptions import ArgumentError, NotPositiveDefiniteError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
 from ._kalman_common import kalman_step
-from .linear_team import Algorithm, _block_diag, delivered, freshest, process_noise
+from .linear_team import Algorithm, delivered, freshest, process_noise
 
 __all__ = [
     "VARIANTS",
@@ -231,7 +232,7 @@ class DiffusionAlgorithm(Algorithm):
                     self.gain[(i, k, lnode, s)] = (G, Y)
                     Cs.append(Ct)
                     Rs.append(Rt)
-                _, Pf = kalman_step(P[i], np.vstack(Cs), _block_diag(Rs))  # (P^-1 + S)^-1, Joseph form
+                _, Pf = kalman_step(P[i], np.vstack(Cs), block_diag(*Rs))  # (P^-1 + S)^-1, Joseph form
                 self.P_filt[i, k] = Pf
             for i in range(n):
                 Pnext = self.P_filt[i, k]

@@ -91,6 +91,7 @@ import numpy as np
 
 from .. import _validation as V
 from .._lazy import scipy_linalg as sla  # SciPy / networkx load on first use
+from .._linalg import block_diag
 from .._validation import FloatArray
 from ..exceptions import ArgumentError, InformationStructureError, ShapeError
 from ..models import LinearGaussianSystem, TeamCost
@@ -553,7 +554,7 @@ def kcf_schedules(
         for k in _progress(range(T), total=T, desc=f"kcf design, agent {i}"):  # stderr after 2 s, terminals only
             fused = [(i, k), *sources[i][k]]
             Ct = np.vstack([system.C_at(j, s) for (j, s) in fused])
-            Rt = sla.block_diag(*[system.R_at(j, s) for (j, s) in fused])
+            Rt = block_diag(*[system.R_at(j, s) for (j, s) in fused])
             _, Mk = kalman_step(P[i, k], Ct, Rt)  # (P^-1 + S)^-1 in Joseph form, P may be singular
             M[i, k] = Mk
             Sk = np.zeros((dx, dx))
@@ -629,7 +630,7 @@ class KCFAlgorithm(Algorithm):
                     Cs.append(Ct)
                     Rs.append(Rt)
                     S = S + Y
-                _, M = kalman_step(P, np.vstack(Cs), sla.block_diag(*Rs))  # (P^-1 + S)^-1 in Joseph form
+                _, M = kalman_step(P, np.vstack(Cs), block_diag(*Rs))  # (P^-1 + S)^-1 in Joseph form
                 self.M[i, k], self.S[i, k] = M, S
                 self.gamma[i, k] = epsilon / (1.0 + np.linalg.norm(M, "fro"))
                 if k + 1 < T:

@@ -43,6 +43,7 @@ import numpy as np
 
 from .._blas import single_thread_blas
 from .._lazy import scipy_linalg as sla  # SciPy / networkx load on first use
+from .._linalg import block_diag
 from .._validation import FloatArray
 from ..exceptions import DivergenceError, ShapeError, TeamkfError, UnsupportedOperationError
 from ..models import LinearGaussianSystem, TeamCost
@@ -201,21 +202,8 @@ class Algorithm:
             Rs.append(Rt)
             term = G @ y - Y @ xbar
             r = term if r is None else r + term
-        _, P_post = kalman_step(P, np.vstack(Cs), _block_diag(Rs))
+        _, P_post = kalman_step(P, np.vstack(Cs), block_diag(*Rs))
         return r, P_post
-
-
-def _block_diag(blocks: Sequence[FloatArray]) -> FloatArray:
-    """Block-diagonal matrix of 2-D blocks (scipy's ``block_diag`` without its per-call overhead)."""
-    rows = sum(b.shape[0] for b in blocks)
-    cols = sum(b.shape[1] for b in blocks)
-    out = np.zeros((rows, cols))
-    r = c = 0
-    for b in blocks:
-        out[r : r + b.shape[0], c : c + b.shape[1]] = b
-        r += b.shape[0]
-        c += b.shape[1]
-    return out
 
 
 def _target(system: LinearGaussianSystem, slot: Slot) -> FloatArray:

@@ -44,6 +44,7 @@ import numpy as np
 
 from .. import _validation as V
 from .._lazy import scipy_linalg as sla  # SciPy / networkx load on first use
+from .._linalg import block_diag
 from .._validation import FloatArray
 from ..exceptions import InformationStructureError, UnsupportedOperationError
 from ..models import LinearGaussianSystem, TeamCost
@@ -236,7 +237,7 @@ class TeamDesign(Design):
         a, P = self.P_anchor(k)
         Ci, Wi, pi = self._local_maps(i, k)
         Cj, Wj, pj = self._local_maps(j, k)
-        Qbig = sla.block_diag(*[sys.Q_at(r) for r in range(a, k)]) if k > a else np.zeros((0, 0))
+        Qbig = block_diag(*[sys.Q_at(r) for r in range(a, k)]) if k > a else np.zeros((0, 0))
         P_w = Wi @ Qbig @ Wj.T
         oi = np.concatenate([[0], np.cumsum([sys.dy[m] for m, _ in pi])]).astype(int)
         oj = np.concatenate([[0], np.cumsum([sys.dy[m] for m, _ in pj])]).astype(int)
@@ -258,7 +259,7 @@ class TeamDesign(Design):
         a, P = self.P_anchor(k)
         C_loc, W_loc, _ = self._local_maps(i, k)
         dx = sys.dx
-        Qbig = sla.block_diag(*[sys.Q_at(r) for r in range(a, k)]) if k > a else np.zeros((0, 0))
+        Qbig = block_diag(*[sys.Q_at(r) for r in range(a, k)]) if k > a else np.zeros((0, 0))
         Wx = np.hstack([sys.transition(k, r + 1) for r in range(a, k)]) if k > a else np.zeros((dx, 0))
         Psig = Wx @ Qbig @ W_loc.T  # cov(w^(c-1)(0, k), w_i^loc)
         Sw = Wx @ Qbig @ Wx.T

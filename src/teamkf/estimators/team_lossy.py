@@ -81,6 +81,7 @@ import numpy as np
 from .. import _validation as V
 from .._blas import blas_threads
 from .._lazy import scipy_linalg as sla  # SciPy loads on first use
+from .._linalg import block_diag
 from .._validation import FloatArray
 from ..exceptions import ArgumentError, ShapeError
 from ..models import LinearGaussianSystem, TeamCost
@@ -138,9 +139,9 @@ def local_filter_moments(system: LinearGaussianSystem, T: int) -> LocalMoments:
                 Kj = np.zeros((dx, 0))
             K.append(Kj)
         Ks.append(K)
-        U = sla.block_diag(*[np.eye(dx) - K[j] @ Cs[j] for j in range(n)])
-        Kb = sla.block_diag(*K) if dyt else np.zeros((n * dx, 0))
-        Cb = sla.block_diag(*Cs) if dyt else np.zeros((0, n * dx))
+        U = block_diag(*[np.eye(dx) - K[j] @ Cs[j] for j in range(n)])
+        Kb = block_diag(*K) if dyt else np.zeros((n * dx, 0))
+        Cb = block_diag(*Cs) if dyt else np.zeros((0, n * dx))
         R = system.R_stack(k)
         blk = slice(k * dyt, (k + 1) * dyt)
         Sigma[blk, : k * dyt] = Cb @ Z
@@ -353,7 +354,7 @@ def _solve_all(
     items: list[list[list[tuple[int, int]]]] = []
     for k in _progress(range(T), total=T, desc="mtmse_lossy design", enabled=progress):
         S, L = cost.S_at(k), cost.L_at(k)
-        Lb = sla.block_diag(*[L[i * dz : (i + 1) * dz] for i in range(n)])
+        Lb = block_diag(*[L[i * dz : (i + 1) * dz] for i in range(n)])
         c0 = float(np.trace(S @ Lb @ mom.Pe[k] @ Lb.T))
         live_rows = np.flatnonzero(sl.due[sl.row_slot] <= k)
         if memory is not None:

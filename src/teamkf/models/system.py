@@ -213,9 +213,9 @@ class LinearGaussianSystem:
 
     def R_stack(self, k: int) -> FloatArray:
         """R(k) = diag(R_1(k), ..., R_n(k))."""
-        from scipy.linalg import block_diag
+        from .._linalg import block_diag
 
-        return np.asarray(block_diag(*[self.R_at(i, k) for i in range(self.n_agents)]))
+        return block_diag(*[self.R_at(i, k) for i in range(self.n_agents)])
 
     def transition(self, k_to: int, k_from: int) -> FloatArray:
         """Phi(k_to, k_from) = A(k_to - 1) ... A(k_from), identity when equal."""

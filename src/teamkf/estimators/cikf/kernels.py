@@ -13,7 +13,7 @@ from typing import Any, Literal, Sequence
 
 import numpy as np
 
-from ..._lazy import scipy_linalg as sla  # SciPy / networkx load on first use
+from ..._linalg import block_diag
 from ..._validation import FloatArray
 
 __all__ = ["Form", "Method"]
@@ -263,7 +263,7 @@ class _Dense(_Structured):
     def _bd(self, B: FloatArray) -> FloatArray:
         if B.ndim == 2:
             return np.asarray(np.kron(np.eye(self.N), B), dtype=float)
-        return sla.block_diag(*B)  # type: ignore[no-any-return]
+        return block_diag(*B)  # type: ignore[no-any-return]
 
     def m_right(self, X: FloatArray, rows: Sequence[FloatArray]) -> FloatArray:
         return X @ self._m(rows).T  # type: ignore[no-any-return]

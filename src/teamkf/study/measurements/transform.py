@@ -17,6 +17,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from ... import _validation as V
+from ..._linalg import block_diag
 from ..._validation import FloatArray
 from ...models import LinearGaussianSystem
 from .format import MeasurementFileError, MeasurementLog
@@ -239,7 +240,7 @@ def _innovation_steps(system: LinearGaussianSystem, yc: list[Any], pres: Any, x:
     for t in range(T):
         C = np.vstack([system.C_at(i, t)[pres[i][t]] for i in range(n)])
         blocks = [system.R_at(i, t)[np.ix_(pres[i][t], pres[i][t])] for i in range(n)]
-        R = sla.block_diag(*blocks)
+        R = block_diag(*blocks)
         y = np.concatenate([yc[i][t][pres[i][t]] for i in range(n)])
         if y.size:
             S = C @ P @ C.T + R
