@@ -78,7 +78,9 @@ Columns: one per grid key, then ``point_id``, ``point_index``, ``estimator``,
 state), ``ci95_low``, ``ci95_high`` (null for analytic values), with Monte
 Carlo runs ``mc_cost``, ``mc_ci95_low``, ``mc_ci95_high`` (the simulated cost
 of the analytic estimators), then ``runs``, ``seed`` (the point's seed),
-``sweep_seed`` (the sweep file's) and ``teamkf_version``.
+``diverged``, ``non_finite`` (null, or a JSON object naming each column whose
+number is not finite, ``{"total_cost": "inf"}``, as ``teamkf evaluate --json``
+marks them), ``sweep_seed`` (the sweep file's) and ``teamkf_version``.
 
 Schedulers
 ----------
@@ -122,6 +124,7 @@ import errno
 import hashlib
 import itertools
 import json
+import math
 import os
 import time
 import uuid
@@ -799,6 +802,7 @@ class _Writer:
             pa.field("runs", pa.int64()),
             pa.field("seed", pa.int64()),
             pa.field("diverged", pa.bool_()),
+            pa.field("non_finite", pa.string()),  # JSON {column: "inf" | "-inf" | "nan"} naming the non-finite numbers; null when all are finite
             pa.field("sweep_seed", pa.int64()),
             pa.field("teamkf_version", pa.string()),
         ]
@@ -846,6 +850,8 @@ class _Writer:
             for name in self.schema.names:
                 if name in r and name not in base and name not in ("point_id", "point_index"):
                     rec[name] = r[name]
+            bad = {k: str(float(v)) for k, v in rec.items() if isinstance(v, (float, np.floating)) and not math.isfinite(v)}
+            rec["non_finite"] = json.dumps(bad, sort_keys=True) if bad else None  # as teamkf evaluate --json and sweep --json mark them
             rec.setdefault("runs", spec.runs)
             rec["seed"] = p.seed  # the point's seed: teamkf evaluate --seed <it> repeats the point
             rec["sweep_seed"] = spec.seed
