@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 from .exceptions import ResourceError
 
@@ -38,6 +40,8 @@ __all__ = [
     "check_work",
     "format_bytes",
     "format_seconds",
+    "hours_argument",
+    "max_hours",
     "work_limit_s",
 ]
 
@@ -100,6 +104,39 @@ def work_limit_s() -> float:
     except ValueError:
         hours = DEFAULT_MAX_HOURS
     return (hours if math.isfinite(hours) and hours > 0 else DEFAULT_MAX_HOURS) * 3600.0
+
+
+def hours_argument(text: str) -> float:
+    """The ``--max-hours`` argument of the ``teamkf`` command: a finite number of hours > 0 (argparse type)."""
+    import argparse
+
+    try:
+        hours = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of hours > 0 (e.g. 24), found {text!r}") from None
+    if not (math.isfinite(hours) and hours > 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number of hours > 0 (e.g. 24), found {text!r}")
+    return hours
+
+
+@contextmanager
+def max_hours(hours: float | None) -> Iterator[None]:
+    """``with max_hours(24): ...`` raises the work limit of :func:`check_work` to ``hours`` inside the block (None: unchanged).
+
+    It sets ``TEAMKF_MAX_HOURS`` for the block (so that worker processes started inside inherit it) and restores it after.
+    """
+    if hours is None:
+        yield
+        return
+    old = os.environ.get("TEAMKF_MAX_HOURS")
+    os.environ["TEAMKF_MAX_HOURS"] = repr(float(hours))
+    try:
+        yield
+    finally:
+        if old is None:
+            os.environ.pop("TEAMKF_MAX_HOURS", None)
+        else:
+            os.environ["TEAMKF_MAX_HOURS"] = old
 
 
 def check_memory(estimate: float, what: str, *, argument: str, fix: str, available: int | None = None) -> None:
@@ -166,7 +203,7 @@ def check_work(flops: float, what: str, *, argument: str, fix: str, loops: float
     if t > limit:
         raise ResourceError(
             f"{argument}: {what} needs at least {format_seconds(t)} of computing (about {float(flops) + float(loops):.2g} operations), "
-            f"over the limit of {format_seconds(limit)}; {fix} (or raise the limit with TEAMKF_MAX_HOURS)",
+            f"over the limit of {format_seconds(limit)}; {fix} (or raise the limit: teamkf --max-hours H, or TEAMKF_MAX_HOURS=H)",
             argument=argument,
         )
     return t

@@ -29,6 +29,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from . import _budget
 from ._version import __version__
 from .exceptions import ArgumentError, ScenarioError, TeamkfError
 
@@ -535,11 +536,8 @@ def _add_filter_parser(add: Any) -> None:
     p.add_argument(
         "--chunk-rows", type=_positive_int, default=400_000, metavar="N", help="steady-state scenarios are streamed N rows at a time (default 400000)"
     )
-    p.add_argument(
-        "--drops",
-        metavar="DROPS",
-        help="replay a deployment in-process from its drop record (teamkf deploy --record): the same estimates, bit for bit",
-    )
+    drops_help = "replay a deployment in-process from its drop record (teamkf deploy --record): the same estimates, bit for bit"
+    p.add_argument("--drops", metavar="DROPS", help=drops_help)
     p.set_defaults(func=_cmd_filter)
 
 
@@ -688,6 +686,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--plugin", action="append", default=[], metavar="MODULE", help=plugin_help)
     quiet_help = "no progress bars (they appear only on a terminal, after 2 s; TEAMKF_PROGRESS=0 also silences them)"
     parser.add_argument("--quiet", action="store_true", help=quiet_help)
+    hours_help = "refuse a job whose estimated computing time exceeds H hours (default 2, or TEAMKF_MAX_HOURS); raise it to run a longer one"
+    parser.add_argument("--max-hours", type=_budget.hours_argument, metavar="H", help=hours_help)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 
@@ -697,6 +697,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--quiet", action="store_true", default=argparse.SUPPRESS, help=quiet_help)
         p.add_argument("--no-progress", dest="quiet", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)  # 0.2 name
         p.add_argument("--plugin", action="append", default=argparse.SUPPRESS, metavar="MODULE", help=plugin_help)
+        p.add_argument("--max-hours", type=_budget.hours_argument, default=argparse.SUPPRESS, metavar="H", help=hours_help)
         return p
 
     p = add("evaluate", "design every estimator of a scenario and compare their team costs")
@@ -866,11 +867,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _error(str(exc))
     import warnings
 
+    from ._budget import max_hours as _max_hours
     from ._progress import quiet
 
     try:
         # numpy's RuntimeWarnings: one summary line, never raw; --quiet holds for this command only
-        with warnings.catch_warnings(record=True) as caught, quiet(getattr(args, "quiet", False)):
+        with warnings.catch_warnings(record=True) as caught, quiet(getattr(args, "quiet", False)), _max_hours(getattr(args, "max_hours", None)):
             warnings.simplefilter("always", RuntimeWarning)
             rc = int(args.func(args))
         _report_warnings(caught)

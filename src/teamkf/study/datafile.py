@@ -7,7 +7,6 @@ one :class:`~teamkf.exceptions.ScenarioError` naming the file (and the line and 
 from __future__ import annotations
 
 import json
-import re
 import tomllib
 from pathlib import Path
 from typing import Any, Mapping
