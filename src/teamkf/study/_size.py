@@ -88,7 +88,7 @@ def check_team_size(raw: Mapping[str, Any], horizon: int | None, families: Mappi
         Naming ``agents``, with the estimate and what to change.
     """
     agents = raw.get("agents")
-    if not isinstance(agents, list) or len(agents) <= SMALL_TEAM:
+    if not isinstance(agents, list) or not agents:
         return
     n = len(agents)
     pairs = float(n) * float(n)
@@ -96,7 +96,8 @@ def check_team_size(raw: Mapping[str, Any], horizon: int | None, families: Mappi
         "use fewer agents (reading a team grows like n^2 and its team designs faster), a reduced [information] table, "
         "or a [population] scenario for very large teams"
     )
-    _budget.check_memory(
+    big = n > SMALL_TEAM
+    big and _budget.check_memory(
         pairs * PAIR_BYTES,
         f"reading a team of {n:,} agents ({PAIR_BYTES:.0f} bytes for each of its n^2 = {pairs:.3g} agent pairs: edges, delays, windows)",
         argument="agents",
@@ -110,13 +111,17 @@ def check_team_size(raw: Mapping[str, Any], horizon: int | None, families: Mappi
     if teams:
         dy = sum(_rows(a) for a in agents)
         w = min(c, T)
+        argument = "agents" if big else ("information.common_lag" if isinstance(raw.get("information"), Mapping) else "graph.delay")
+        fix = fix if big else f"use a smaller {argument} (the window of a team design is the common lag: {c:,} steps here) or a finite horizon"
         _budget.check_memory(
             24.0 * float(w * dy) ** 2,
             f"the {teams[0]} design of a team of {n:,} agents (its window of {w:,} steps x {dy:,} measurements: a {w * dy:,} x {w * dy:,} "
             "innovation covariance and its solve)",
-            argument="agents",
+            argument=argument,
             fix=fix,
         )
+    if not big:
+        return
     seconds = pairs * (PAIR_SECONDS + T * len(teams) * PAIR_STEP_SECONDS)
     what = f"reading a team of {n:,} agents ({pairs:.3g} agent pairs)" + (f" and {len(teams)} team design(s) over {T:,} steps" if teams else "")
     _budget.check_work(0.0, what, argument="agents", fix=fix, loops=seconds * _budget.LOOPS)
