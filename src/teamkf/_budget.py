@@ -31,6 +31,9 @@ from .exceptions import ResourceError
 __all__ = [
     "BATCHED_OPS",
     "FLOPS",
+    "STEP_LOOPS",
+    "announce",
+    "check_steps",
     "LOOPS",
     "MEMORY_FRACTION",
     "available_memory",
@@ -218,6 +221,50 @@ def check_size(n: float, argument: str, *, maximum: float, what: str, fix: str) 
     """
     if n > maximum:
         raise ResourceError(f"{argument}: {what} {n:,.0f} exceeds the largest this computation can hold ({maximum:,.0f}); {fix}", argument=argument)
+
+
+#: loop iterations one step of a recursion over the horizon costs at least (a handful of numpy calls: 10 us and more)
+STEP_LOOPS = 100
+#: a computation estimated longer than this many seconds says so on a terminal before it starts
+ANNOUNCE_S = 30.0
+
+
+def announce(seconds: float, what: str) -> None:
+    """On a terminal (where progress bars are shown), say once that ``what`` will take about ``seconds`` or more, and that Ctrl-C stops it."""
+    if seconds > ANNOUNCE_S:
+        import sys
+
+        from ._progress import progress_enabled
+
+        if progress_enabled():
+            print(f"teamkf: {what}: about {format_seconds(seconds)} or more of computing; Ctrl-C stops it", file=sys.stderr)
+
+
+def check_steps(n_steps: int, n_agents: int = 1, *, what: str = "a recursion", argument: str = "horizon") -> float:
+    r"""Refuse a recursion over ``n_steps`` steps whose Python-level loop alone exceeds the work limit; announce a long one.
+
+    Every design and simulation of teamkf steps through the horizon in Python, each step costing at least
+    :data:`STEP_LOOPS` loop iterations, so :math:`t \ge T \cdot` ``STEP_LOOPS`` :math:`/ L` (:data:`LOOPS`).
+
+    Returns
+    -------
+    float
+        The estimate in seconds.
+
+    Raises
+    ------
+    teamkf.exceptions.ResourceError
+        Naming ``argument``.
+    """
+    t = check_work(
+        0.0,
+        f"{what} over T = {n_steps:,} steps",
+        argument=argument,
+        fix="use a shorter horizon (or omit it for a steady-state design)",
+        loops=float(n_steps) * STEP_LOOPS,
+    )
+    announce(t, f"{what} over T = {n_steps:,} steps")
+    return t
 
 
 #: loop iterations a sweep's grid point costs besides its Monte Carlo (reading its scenario, designing, writing its Parquet part): ~10 ms

@@ -417,7 +417,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     try:
         res = run_sweep(spec, out, scheduler=scheduler, resume=args.resume, progress=True, n_workers=args.workers)
     except KeyboardInterrupt:
-        print(f"teamkf: interrupted; the finished points are kept in {out}; run the same command with --resume to continue", file=sys.stderr)
+        kept = f"the finished points are kept in {out}; run the same command with --resume to continue" if out.exists() else "nothing was written"
+        print(f"teamkf: interrupted; {kept}", file=sys.stderr)
         return 130
     key = res.cost_key
     if args.json:

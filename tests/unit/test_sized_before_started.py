@@ -158,7 +158,7 @@ def test_ctrl_c_stops_a_long_monte_carlo_in_one_line(tmp_path: Path) -> None:
 def test_announcement_on_a_terminal_only(monkeypatch: Any, capsys: Any) -> None:
     """A team whose reading is estimated over ANNOUNCE_S says so on a terminal (Ctrl-C stops it), and is silent elsewhere."""
     monkeypatch.setattr(_budget, "available_memory", lambda: 10**6 * GIB)
-    monkeypatch.setattr(_size, "ANNOUNCE_S", 0.0)
+    monkeypatch.setattr(_budget, "ANNOUNCE_S", 0.0)
     _size.check_team_size(_team(300), 10, {})
     assert capsys.readouterr().err == ""  # not a terminal
     import teamkf._progress as P

@@ -27,7 +27,6 @@ A request that passes but takes long announces its estimate on a terminal (Ctrl-
 
 from __future__ import annotations
 
-import sys
 from typing import Any, Mapping
 
 from .. import _budget
@@ -42,8 +41,6 @@ PAIR_SECONDS = 2e-5
 PAIR_STEP_SECONDS = 1e-6
 #: teams up to this size are not sized (they read in well under a second)
 SMALL_TEAM = 200
-#: a request estimated to read and design for longer than this many seconds is announced on a terminal
-ANNOUNCE_S = 30.0
 
 
 def _rows(agent: Any) -> int:
@@ -125,8 +122,4 @@ def check_team_size(raw: Mapping[str, Any], horizon: int | None, families: Mappi
     seconds = pairs * (PAIR_SECONDS + T * len(teams) * PAIR_STEP_SECONDS)
     what = f"reading a team of {n:,} agents ({pairs:.3g} agent pairs)" + (f" and {len(teams)} team design(s) over {T:,} steps" if teams else "")
     _budget.check_work(0.0, what, argument="agents", fix=fix, loops=seconds * _budget.LOOPS)
-    if seconds > ANNOUNCE_S:
-        from .._progress import progress_enabled
-
-        if progress_enabled():
-            print(f"teamkf: {what}: about {_budget.format_seconds(seconds)} or more of computing; Ctrl-C stops it", file=sys.stderr)
+    _budget.announce(seconds, what)

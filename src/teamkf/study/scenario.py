@@ -791,6 +791,8 @@ def _check_horizon(system: LinearGaussianSystem, cost: TeamCost, horizon: int | 
             system.require_horizon(horizon)
             cost.require_horizon(horizon)
     except TeamkfError as exc:
+        if exc.argument == "horizon":  # sized (teamkf._budget): already named after the scenario key
+            raise
         raise _rekey(exc, "horizon", _SYSTEM_RULES + _COST_RULES) from exc
 
 

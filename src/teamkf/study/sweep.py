@@ -618,6 +618,7 @@ def run_sweep(
         n_workers = V.positive_int(n_workers, "n_workers")
 
     done = _check_out(spec, out, resume)
+    created = not out.exists()  # a folder this run makes is removed again when it ends with no point in it
     points = spec.points
     todo = [p for p in points if p.point_id not in done]
     writer = _Writer(spec, out, pa)
@@ -642,6 +643,8 @@ def run_sweep(
     def failed(p: SweepPoint, exc: BaseException) -> SweepError:
         what = str(exc) if isinstance(exc, TeamkfError) else f"{type(exc).__name__}: {exc}"
         n_kept = len(points) - len(todo) + n_ok
+        if n_kept == 0 and created:
+            return SweepError(f"grid point {p.index} ({p.describe()}) failed: {what}; nothing was written")
         return SweepError(
             f"grid point {p.index} ({p.describe()}) failed: {what}; the {n_kept} finished points are kept in "
             f"{out}; fix the problem and run again with --resume (resume=True)"
@@ -700,11 +703,26 @@ def run_sweep(
                         obj.close()
                     except Exception:  # pragma: no cover - best effort on shutdown
                         pass
+    except BaseException:  # a failure or Ctrl-C before the first point: no empty results folder left behind
+        if created and n_ok == 0:
+            _remove_empty(out)
+        raise
     finally:
         bar.close()
 
     res = load_results(out) if out.exists() else SweepResult((), spec.grid_keys, path=out)
     return SweepResult(res.rows, res.grid_keys, path=out, n_computed=n_ok, n_resumed=len(points) - len(todo), info=res.info)
+
+
+def _remove_empty(out: Path) -> None:
+    """Remove a results folder that holds nothing but its manifest and temporary parts (what an interrupted first point leaves)."""
+    if not out.is_dir():
+        return
+    entries = list(out.iterdir())
+    if all(e.name == MANIFEST_NAME or e.name.startswith(".") for e in entries) and all(e.is_file() for e in entries):
+        for e in entries:
+            e.unlink(missing_ok=True)
+        out.rmdir()
 
 
 def run_point(fn: PointFunction, scenario: Scenario, estimators: Sequence[str], runs: int, seed: int) -> list[dict[str, Any]]:
