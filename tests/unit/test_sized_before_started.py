@@ -55,7 +55,9 @@ def test_ten_thousand_agents_refused_from_the_raw_tables_at_once(monkeypatch: An
 def test_a_ring_team_design_refused_by_its_window_whatever_the_machine(monkeypatch: Any) -> None:
     """A ring of 2000 agents: the MTMSE window (lag n/2 = 1000 steps x 2000 rows) is a 2e6 x 2e6 covariance (96 TB)."""
     monkeypatch.setattr(_budget, "available_memory", lambda: 1024 * GIB)
-    with pytest.raises(ResourceError, match=r"agents: the mtmse design of a team of 2,000 agents \(its window of 1,000 steps x 2,000 measurements") as info:
+    with pytest.raises(
+        ResourceError, match=r"agents: the mtmse design of a team of 2,000 agents \(its window of 1,000 steps x 2,000 measurements"
+    ) as info:
         scenario_from_dict(_team(2000, "ring", horizon=None))
     w = 1000 * 2000
     assert _budget.format_bytes(24.0 * w * w) in str(info.value)
