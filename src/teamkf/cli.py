@@ -175,7 +175,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     from .study.evaluation import check_capabilities, evaluate
 
     sc = _apply_network_flags(_load(args.scenario), args)
-    plot_to = _check_output(args.plot, "--plot", _PLOT_SUFFIXES, inputs=[args.scenario]) if args.plot else None
+    plot_to = _check_output(args.plot, "--plot", _PLOT_SUFFIXES, inputs=[args.scenario]) if args.plot is not None else None
     if args.scheduler is not None:  # checked even when nothing ends up simulated: a typo must not pass silently
         _check_scheduler(args.scheduler)
     if not sc.simulates:  # a [population] scenario: exact statistics, nothing simulated
@@ -346,7 +346,7 @@ def _plot_stage_costs(designs: Mapping[str, Any], mc: Mapping[str, Any], sc: Any
 # ---------------------------------------------------------------------------
 def _cmd_design(args: argparse.Namespace) -> int:
     sc = _load(args.scenario)
-    out_path = _check_output(args.out, "--out", "npz", inputs=[args.scenario]) if args.out else None
+    out_path = _check_output(args.out, "--out", "npz", inputs=[args.scenario]) if args.out is not None else None
     if not sc.simulates:  # a [population] scenario: its gains are exact statistics
         if out_path is not None:
             res = sc.evaluate()
@@ -408,8 +408,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     from .study.sweep import load_sweep, run_sweep
 
     spec = load_sweep(args.sweep)  # everything is checked before anything is written
-    out = Path(args.out) if args.out else Path(f"{Path(args.sweep).stem}.parquet")
-    _check_output_dir(str(out), "--out" if args.out else "--out (default)", inputs=[args.sweep, spec.scenario])
+    out = _check_output_dir(args.out, "--out") if args.out is not None else Path(f"{Path(args.sweep).stem}.parquet")
+    _check_output_dir(str(out), "--out" if args.out is not None else "--out (default)", inputs=[args.sweep, spec.scenario])
     scheduler = args.scheduler or "local"
     _check_scheduler(scheduler)
     if args.workers is not None and scheduler != "local":
@@ -574,7 +574,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
             print(f"{name:14s} {experiments.get(name).title}")
         return 0
     experiments.get(args.name)  # an unknown name fails before any work
-    if args.out:
+    if args.out is not None:
         _check_output_dir(args.out, "--out")
     if args.scheduler not in (None, "serial"):
         _check_scheduler(args.scheduler)

@@ -376,6 +376,8 @@ def unregister_family(name: str) -> None:
     >>> "mtmse" in teamkf.families()
     True
     """
+    if not isinstance(name, str):
+        raise ArgumentError(f"name: expected a family name (a string), found {type(name).__name__}; e.g. unregister_family('my_filter')", argument="name")
     _REGISTRY.pop(name, None)
 
 
@@ -554,9 +556,9 @@ def _exec_plugin(name: str, path: str, source: str) -> Any:
         exec(compile(source, path, "exec"), module.__dict__)
     except BaseException as exc:
         sys.modules.pop(name, None)
-        if isinstance(exc, (KeyboardInterrupt, SystemExit, TeamkfError)):
+        if isinstance(exc, (KeyboardInterrupt, TeamkfError)):
             raise
-        raise _plugin_error(path, "importing", exc) from exc
+        raise _plugin_error(path, "importing", exc) from exc  # SystemExit too: a plug-in's sys.exit() must not end teamkf silently
     try:
         import cloudpickle
 
