@@ -377,7 +377,9 @@ def unregister_family(name: str) -> None:
     True
     """
     if not isinstance(name, str):
-        raise ArgumentError(f"name: expected a family name (a string), found {type(name).__name__}; e.g. unregister_family('my_filter')", argument="name")
+        raise ArgumentError(
+            f"name: expected a family name (a string), found {type(name).__name__}; e.g. unregister_family('my_filter')", argument="name"
+        )
     _REGISTRY.pop(name, None)
 
 

@@ -13,8 +13,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from . import measurements as M
 from ..exceptions import ArgumentError
+from . import measurements as M
 from .outputs import write_atomic
 
 __all__ = ["FilterRun", "filter_to_files"]
