@@ -277,6 +277,10 @@ class Family:
             self.check_graph(graph)
         third = {"structure": structure, "graph": graph, "none": None}[self.uses]
         opts = self.check_options(options or {})
+        if isinstance(horizon, int) and horizon > 10**5 and getattr(self.design, "__module__", "").startswith("teamkf."):
+            from .._budget import DESIGN_STEP_LOOPS, check_steps
+
+            check_steps(horizon, what=f"the {self.name} design", per_step=DESIGN_STEP_LOOPS)  # teamkf's designs step through T in Python
         return self.design(system, cost, third, horizon, **opts)
 
     def describe(self) -> dict[str, Any]:
