@@ -548,7 +548,10 @@ def load_plugins_into(plugins: Sequence[tuple[str, str | None, str | None]]) -> 
 
 def _plugin_error(spec: str, what: str, exc: BaseException) -> ArgumentError:
     text = " ".join(str(exc).split()) or type(exc).__name__
-    return ArgumentError(f"plugin: {spec!r} raised {type(exc).__name__} while {what}: {text} (--debug shows the traceback)", argument="plugin")
+    return ArgumentError(
+        f"plugin: {spec!r} raised {type(exc).__name__} while {what}: {text}; fix the plug-in or drop it (--debug shows the traceback)",
+        argument="plugin",
+    )
 
 
 def _exec_plugin(name: str, path: str, source: str) -> Any:
