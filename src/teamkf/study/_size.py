@@ -94,12 +94,13 @@ def check_team_size(raw: Mapping[str, Any], horizon: int | None, families: Mappi
         "or a [population] scenario for very large teams"
     )
     big = n > SMALL_TEAM
-    big and _budget.check_memory(
-        pairs * PAIR_BYTES,
-        f"reading a team of {n:,} agents ({PAIR_BYTES:.0f} bytes for each of its n^2 = {pairs:.3g} agent pairs: edges, delays, windows)",
-        argument="agents",
-        fix=fix,
-    )
+    if big:
+        _budget.check_memory(
+            pairs * PAIR_BYTES,
+            f"reading a team of {n:,} agents ({PAIR_BYTES:.0f} bytes for each of its n^2 = {pairs:.3g} agent pairs: edges, delays, windows)",
+            argument="agents",
+            fix=fix,
+        )
     names = raw.get("estimators")
     names = [e for e in names if isinstance(e, str)] if isinstance(names, list) else []
     teams = [e for e in names if getattr(families.get(e), "uses", None) == "structure"]
