@@ -48,8 +48,18 @@ def test_ten_thousand_agents_refused_from_the_raw_tables_at_once(monkeypatch: An
         scenario_from_dict(data)
     assert time.process_time() - t0 < 1.0
     assert info.value.argument == "agents"
-    # the estimate is n^2 pairs x PAIR_BYTES, exactly
-    assert f"{_budget.format_bytes(1e8 * _size.PAIR_BYTES)}" in str(info.value)
+    # the estimate is n^2 pairs x the bytes per pair of a complete graph, exactly
+    assert f"{_budget.format_bytes(1e8 * _size.PAIR_BYTES_BY_KIND['complete'])}" in str(info.value)
+
+
+def test_bytes_per_pair_by_graph_kind_never_premature(monkeypatch: Any) -> None:
+    """A star (26 bytes per pair measured) or an edge list is counted at 24 bytes per pair: 10^4 agents fit in 16 GiB."""
+    monkeypatch.setattr(_budget, "available_memory", lambda: 16 * GIB)
+    _size.check_team_size(_team(10**4, "star", estimators=("local",)), 10, {})
+    edges = {**_team(10**4, "line", estimators=("local",)), "graph": {"edges": [[i, (i + 1) % 10**4, 1] for i in range(10**4)]}}
+    _size.check_team_size(edges, 10, {})
+    with pytest.raises(ResourceError, match="150 bytes for each"):
+        _size.check_team_size(_team(15_000, "line", estimators=("local",)), 10, {})
 
 
 def test_a_ring_team_design_refused_by_its_window_whatever_the_machine(monkeypatch: Any) -> None:

@@ -9,7 +9,7 @@ delay, the horizon and the estimators), in :math:`O(n)`, and refuses with one
 :class:`~teamkf.exceptions.ResourceError` naming ``agents`` when
 
 * the memory of reading the scenario, :math:`m_{\\text{read}} = \\beta\\, n^2` bytes
-  (:data:`PAIR_BYTES` per agent pair), exceeds what the machine has;
+  (:data:`PAIR_BYTES_BY_KIND` per agent pair, :data:`PAIR_BYTES` for an edge list), exceeds what the machine has;
 * the window innovation covariance of a team design (``mtmse``, ``mmse``),
   :math:`m_{\\text{win}} = 24\\,(w\\, d_y)^2` bytes with :math:`w = \\min(c, T)` the window of
   :math:`c` (the common lag) steps and :math:`d_y` all agents' measurement rows, exceeds it;
@@ -31,12 +31,15 @@ from typing import Any, Mapping
 
 from .. import _budget
 
-__all__ = ["check_team_size", "PAIR_BYTES", "PAIR_SECONDS", "PAIR_STEP_SECONDS", "SMALL_TEAM"]
+__all__ = ["check_team_size", "PAIR_BYTES", "PAIR_BYTES_BY_KIND", "PAIR_SECONDS", "PAIR_STEP_SECONDS", "SMALL_TEAM"]
 
-#: bytes per agent pair while a scenario is read (graph edges, geodesic delays, windows): 95 to 860 measured at peak
-PAIR_BYTES = 200.0
-#: CPU seconds per agent pair to build and check the graph and the information structure (25 to 50 us measured)
-PAIR_SECONDS = 2e-5
+#: bytes per agent pair while a scenario is read, at peak (graph edges, geodesic delays, windows), by graph kind; measured
+#: at n = 300: line 199, ring 166, complete 226, star 26; an edge list counts as 24 (three 8-byte all-pairs arrays)
+PAIR_BYTES_BY_KIND = {"line": 150.0, "ring": 150.0, "complete": 200.0, "star": 24.0}
+#: bytes per agent pair of an edge list or an unknown kind (a lower bound)
+PAIR_BYTES = 24.0
+#: CPU seconds per agent pair to build and check the graph and the information structure (measured 10 to 15 us at n = 300)
+PAIR_SECONDS = 5e-6
 #: CPU seconds per agent pair and step of a team design (1.4 us on a complete graph to 60 us on a ring, measured)
 PAIR_STEP_SECONDS = 1e-6
 #: teams up to this size are not sized (they read in well under a second)
@@ -95,9 +98,12 @@ def check_team_size(raw: Mapping[str, Any], horizon: int | None, families: Mappi
     )
     big = n > SMALL_TEAM
     if big:
+        g = raw.get("graph")
+        kind = g.get("kind") if isinstance(g, Mapping) and "edges" not in g else None
+        per_pair = PAIR_BYTES_BY_KIND.get(kind, PAIR_BYTES) if isinstance(kind, str) else PAIR_BYTES
         _budget.check_memory(
-            pairs * PAIR_BYTES,
-            f"reading a team of {n:,} agents ({PAIR_BYTES:.0f} bytes for each of its n^2 = {pairs:.3g} agent pairs: edges, delays, windows)",
+            pairs * per_pair,
+            f"reading a team of {n:,} agents ({per_pair:.0f} bytes for each of its n^2 = {pairs:.3g} agent pairs: edges, delays, windows)",
             argument="agents",
             fix=fix,
         )
