@@ -23,12 +23,18 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 from .exceptions import ResourceError
 
 __all__ = [
     "BATCHED_OPS",
+    "DESIGN_STEP_LOOPS",
     "FLOPS",
+    "STEP_LOOPS",
+    "announce",
+    "check_steps",
     "LOOPS",
     "MEMORY_FRACTION",
     "available_memory",
@@ -38,6 +44,8 @@ __all__ = [
     "check_work",
     "format_bytes",
     "format_seconds",
+    "hours_argument",
+    "max_hours",
     "work_limit_s",
 ]
 
@@ -100,6 +108,39 @@ def work_limit_s() -> float:
     except ValueError:
         hours = DEFAULT_MAX_HOURS
     return (hours if math.isfinite(hours) and hours > 0 else DEFAULT_MAX_HOURS) * 3600.0
+
+
+def hours_argument(text: str) -> float:
+    """The ``--max-hours`` argument of the ``teamkf`` command: a finite number of hours > 0 (argparse type)."""
+    import argparse
+
+    try:
+        hours = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of hours > 0 (e.g. 24), found {text!r}") from None
+    if not (math.isfinite(hours) and hours > 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number of hours > 0 (e.g. 24), found {text!r}")
+    return hours
+
+
+@contextmanager
+def max_hours(hours: float | None) -> Iterator[None]:
+    """``with max_hours(24): ...`` raises the work limit of :func:`check_work` to ``hours`` inside the block (None: unchanged).
+
+    It sets ``TEAMKF_MAX_HOURS`` for the block (so that worker processes started inside inherit it) and restores it after.
+    """
+    if hours is None:
+        yield
+        return
+    old = os.environ.get("TEAMKF_MAX_HOURS")
+    os.environ["TEAMKF_MAX_HOURS"] = repr(float(hours))
+    try:
+        yield
+    finally:
+        if old is None:
+            os.environ.pop("TEAMKF_MAX_HOURS", None)
+        else:
+            os.environ["TEAMKF_MAX_HOURS"] = old
 
 
 def check_memory(estimate: float, what: str, *, argument: str, fix: str, available: int | None = None) -> None:
@@ -166,7 +207,7 @@ def check_work(flops: float, what: str, *, argument: str, fix: str, loops: float
     if t > limit:
         raise ResourceError(
             f"{argument}: {what} needs at least {format_seconds(t)} of computing (about {float(flops) + float(loops):.2g} operations), "
-            f"over the limit of {format_seconds(limit)}; {fix} (or raise the limit with TEAMKF_MAX_HOURS)",
+            f"over the limit of {format_seconds(limit)}; {fix} (or raise the limit: teamkf --max-hours H, or TEAMKF_MAX_HOURS=H)",
             argument=argument,
         )
     return t
@@ -181,6 +222,54 @@ def check_size(n: float, argument: str, *, maximum: float, what: str, fix: str) 
     """
     if n > maximum:
         raise ResourceError(f"{argument}: {what} {n:,.0f} exceeds the largest this computation can hold ({maximum:,.0f}); {fix}", argument=argument)
+
+
+#: loop iterations one step of any recursion over the horizon costs at least (a few numpy calls: 10 us at :data:`LOOPS`)
+STEP_LOOPS = 100
+#: loop iterations one step of a built-in design costs at least: 0.1 ms (measured on one core: 0.38 ms per step of the
+#: centralized Kalman recursion of 2 agents, 1.0 ms of MTMSE, 1.6 ms of KCF)
+DESIGN_STEP_LOOPS = 1000
+#: a computation estimated longer than this many seconds says so on a terminal before it starts
+ANNOUNCE_S = 30.0
+
+
+def announce(seconds: float, what: str) -> None:
+    """On a terminal (where progress bars are shown), say once that ``what`` will take about ``seconds`` or more, and that Ctrl-C stops it."""
+    if seconds > ANNOUNCE_S:
+        import sys
+
+        from ._progress import progress_enabled
+
+        if progress_enabled():
+            print(f"teamkf: {what}: about {format_seconds(seconds)} or more of computing; Ctrl-C stops it", file=sys.stderr)
+
+
+def check_steps(n_steps: int, n_agents: int = 1, *, what: str = "a recursion", argument: str = "horizon", per_step: float = STEP_LOOPS) -> float:
+    r"""Refuse a recursion over ``n_steps`` steps whose Python-level loop alone exceeds the work limit; announce a long one.
+
+    Every design and simulation of teamkf steps through the horizon in Python, each step costing at least
+    ``per_step`` loop iterations (:data:`STEP_LOOPS`; :data:`DESIGN_STEP_LOOPS` for a built-in design), so
+    :math:`t \ge T \cdot` ``per_step`` :math:`/ L` (:data:`LOOPS`).
+
+    Returns
+    -------
+    float
+        The estimate in seconds.
+
+    Raises
+    ------
+    teamkf.exceptions.ResourceError
+        Naming ``argument``.
+    """
+    t = check_work(
+        0.0,
+        f"{what} over T = {n_steps:,} steps",
+        argument=argument,
+        fix="use a shorter horizon (or omit it for a steady-state design)",
+        loops=float(n_steps) * per_step,
+    )
+    announce(t, f"{what} over T = {n_steps:,} steps")
+    return t
 
 
 #: loop iterations a sweep's grid point costs besides its Monte Carlo (reading its scenario, designing, writing its Parquet part): ~10 ms

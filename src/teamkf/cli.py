@@ -27,6 +27,7 @@ import traceback
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
+from . import _budget
 from ._lazy import lazy_module
 from ._version import __version__
 from .exceptions import ArgumentError, ScenarioError, TeamkfError
@@ -178,7 +179,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     from .study.evaluation import check_capabilities, evaluate
 
     sc = _apply_network_flags(_load(args.scenario), args)
-    plot_to = _check_output(args.plot, "--plot", _PLOT_SUFFIXES, inputs=[args.scenario]) if args.plot else None
+    plot_to = _check_output(args.plot, "--plot", _PLOT_SUFFIXES, inputs=[args.scenario]) if args.plot is not None else None
     if args.scheduler is not None:  # checked even when nothing ends up simulated: a typo must not pass silently
         _check_scheduler(args.scheduler)
     if not sc.simulates:  # a [population] scenario: exact statistics, nothing simulated
@@ -349,7 +350,7 @@ def _plot_stage_costs(designs: Mapping[str, Any], mc: Mapping[str, Any], sc: Any
 # ---------------------------------------------------------------------------
 def _cmd_design(args: argparse.Namespace) -> int:
     sc = _load(args.scenario)
-    out_path = _check_output(args.out, "--out", "npz", inputs=[args.scenario]) if args.out else None
+    out_path = _check_output(args.out, "--out", "npz", inputs=[args.scenario]) if args.out is not None else None
     if not sc.simulates:  # a [population] scenario: its gains are exact statistics
         if out_path is not None:
             res = sc.evaluate()
@@ -411,8 +412,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     from .study.sweep import load_sweep, run_sweep
 
     spec = load_sweep(args.sweep)  # everything is checked before anything is written
-    out = Path(args.out) if args.out else Path(f"{Path(args.sweep).stem}.parquet")
-    _check_output_dir(str(out), "--out" if args.out else "--out (default)", inputs=[args.sweep, spec.scenario])
+    out = _check_output_dir(args.out, "--out") if args.out is not None else Path(f"{Path(args.sweep).stem}.parquet")
+    _check_output_dir(str(out), "--out" if args.out is not None else "--out (default)", inputs=[args.sweep, spec.scenario])
     scheduler = args.scheduler or "local"
     _check_scheduler(scheduler)
     if args.workers is not None and scheduler != "local":
@@ -420,7 +421,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     try:
         res = run_sweep(spec, out, scheduler=scheduler, resume=args.resume, progress=True, n_workers=args.workers)
     except KeyboardInterrupt:
-        print(f"teamkf: interrupted; the finished points are kept in {out}; run the same command with --resume to continue", file=sys.stderr)
+        kept = f"the finished points are kept in {out}; run the same command with --resume to continue" if out.exists() else "nothing was written"
+        print(f"teamkf: interrupted; {kept}", file=sys.stderr)
         return 130
     key = res.cost_key
     if args.json:
@@ -539,11 +541,8 @@ def _add_filter_parser(add: Any) -> None:
     p.add_argument(
         "--chunk-rows", type=_positive_int, default=400_000, metavar="N", help="steady-state scenarios are streamed N rows at a time (default 400000)"
     )
-    p.add_argument(
-        "--drops",
-        metavar="DROPS",
-        help="replay a deployment in-process from its drop record (teamkf deploy --record): the same estimates, bit for bit",
-    )
+    drops_help = "replay a deployment in-process from its drop record (teamkf deploy --record): the same estimates, bit for bit"
+    p.add_argument("--drops", metavar="DROPS", help=drops_help)
     p.set_defaults(func=_cmd_filter)
 
 
@@ -579,7 +578,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
             print(f"{name:14s} {experiments.get(name).title}")
         return 0
     experiments.get(args.name)  # an unknown name fails before any work
-    if args.out:
+    if args.out is not None:
         _check_output_dir(args.out, "--out")
     if args.scheduler not in (None, "serial"):
         _check_scheduler(args.scheduler)
@@ -691,8 +690,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--plugin", action="append", default=[], metavar="MODULE", help=plugin_help)
     quiet_help = "no progress bars (they appear only on a terminal, after 2 s; TEAMKF_PROGRESS=0 also silences them)"
     parser.add_argument("--quiet", action="store_true", help=quiet_help)
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    sub.required = True
+    hours_help = "refuse a job whose estimated computing time exceeds H hours (default 2, or TEAMKF_MAX_HOURS); raise it to run a longer one"
+    parser.add_argument("--max-hours", type=_budget.hours_argument, metavar="H", help=hours_help)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
     def add(name: str, help: str) -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=help, description=help)
@@ -700,6 +700,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--quiet", action="store_true", default=argparse.SUPPRESS, help=quiet_help)
         p.add_argument("--no-progress", dest="quiet", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)  # 0.2 name
         p.add_argument("--plugin", action="append", default=argparse.SUPPRESS, metavar="MODULE", help=plugin_help)
+        p.add_argument("--max-hours", type=_budget.hours_argument, default=argparse.SUPPRESS, metavar="H", help=hours_help)
         return p
 
     p = add("evaluate", "design every estimator of a scenario and compare their team costs")
@@ -869,11 +870,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _error(str(exc))
     import warnings
 
+    from ._budget import max_hours as _max_hours
     from ._progress import quiet
 
     try:
         # numpy's RuntimeWarnings: one summary line, never raw; --quiet holds for this command only
-        with warnings.catch_warnings(record=True) as caught, quiet(getattr(args, "quiet", False)):
+        with warnings.catch_warnings(record=True) as caught, quiet(getattr(args, "quiet", False)), _max_hours(getattr(args, "max_hours", None)):
             warnings.simplefilter("always", RuntimeWarning)
             rc = int(args.func(args))
         _report_warnings(caught)

@@ -1,4 +1,4 @@
-"""The bad-input campaign (issues 9, 10 and 25), as one table-driven test.
+"""The bad-input campaign (issues 9, 10 and 25, rounds 1 to 3), as one table-driven test.
 
 Every row is a bad input given as a new user would: through the ``teamkf``
 command (in-process ``teamkf.cli.main([...])``, a few through a subprocess) or
@@ -223,6 +223,11 @@ SCENARIO_ROWS: list[tuple[str, Any, str]] = [
     ("steady-common-lag-huge", M(M(BASE, "horizon", DROP), "information", {"common_lag": 300_000, "local": [[], []]}), "information.common_lag"),
     ("icf-iterations-huge", M(M(BASE, "estimators", ["icf"]), "icf", {"iterations": 10**8, "variant": "ideal"}), "icf.iterations"),
     ("hcmci-iterations-huge", M(M(BASE, "estimators", ["hcmci"]), "hcmci", {"iterations": 5 * 10**6}), "hcmci.iterations"),
+    # round 3: sized from the raw tables before the n^2 graph, and every horizon sized before its loop
+    ("agents-600-ring-window-huge", M(M(M(BASE, "agents", [{"C": [[1.0, 0.0]], "R": 0.5}] * 600), "graph.kind", "ring"), "horizon", DROP), "agents"),
+    ("steady-graph-delay-huge", M(M(BASE, "horizon", DROP), "graph.delay", 10**9), "graph.delay"),
+    ("kcf-horizon-huge", M(M(BASE, "estimators", ["kcf"]), "horizon", 10**9), "horizon"),
+    ("centralized-horizon-huge", M(M(BASE, "estimators", ["centralized"]), "horizon", 2 * 10**8), "horizon"),
 ]
 
 TEXT_ROWS: list[tuple[str, str, Any, str]] = [  # (name, file suffix, text or bytes, key)
@@ -376,6 +381,20 @@ CLI_ROWS: list[tuple[str, list[str], str, str | None]] = [
     # issue 25: sized before started (one line, at once)
     ("mc-huge-runs", ["evaluate", "{S}", "--monte-carlo", str(10**15)], "--monte-carlo", None),
     ("scheduler-garbage-without-monte-carlo", ["evaluate", "{S}", "--scheduler", "nowhere:::"], "--scheduler", None),
+    # round 3: empty output paths, duplicate names, the work-limit override, a plug-in that exits
+    ("plot-empty-path", ["evaluate", "{S}", "--plot", ""], "--plot", None),
+    ("design-out-empty-path", ["design", "{S}", "--out", ""], "--out", None),
+    ("sweep-out-empty-path", ["sweep", "{W}", "--scheduler", "serial", "--out", ""], "--out", None),
+    (
+        "filter-estimators-duplicate",
+        ["filter", "{S}", "--measurements", "{T}/meas.csv", "--out", "{T}/e5.csv", "--estimators", "mtmse", "mtmse"],
+        "estimators",
+        "{T}/e5.csv",
+    ),
+    ("max-hours-zero", ["--max-hours", "0", "evaluate", "{S}"], "--max-hours", None),
+    ("max-hours-not-a-number", ["evaluate", "{S}", "--max-hours", "nan"], "--max-hours", None),
+    ("mc-over-max-hours", ["evaluate", "{S}", "--monte-carlo", "1000000", "--max-hours", "1e-4"], "--monte-carlo", None),
+    ("plugin-exits-on-import", ["--plugin", "{T}/exitplug.py", "families"], "plugin", None),
 ]
 
 SWEEP_BASE: dict[str, Any] = {"name": "sw", "scenario": "platoon-4", "grid": {"cost.lambda": [1.0, 10.0]}}
@@ -401,6 +420,7 @@ SWEEP_ROWS: list[tuple[str, Any, str]] = [
     ("sweep-population-estimators", {"scenario": "interference", "estimators": ["mtmse"], "grid": {"population.a": [2.0]}}, "estimators"),
     ("sweep-population-bad-grid", {"scenario": "interference", "grid": {"population.n_agents": [0]}}, "population.n_agents"),
     ("sweep-grid-huge", M(SWEEP_BASE, "grid", {"cost.lambda": [1.0 + k for k in range(1000)], "graph.delay": list(range(1, 1001))}), "grid"),
+    ("sweep-grid-horizon-huge", M(SWEEP_BASE, "grid", {"horizon": [10**9]}), "horizon"),
     ("sweep-runs-huge", M(SWEEP_BASE, "runs", 10**13), "runs"),
     ("sweep-runs-beyond-int64", M(SWEEP_BASE, "runs", 2**70), "runs"),
     ("sweep-name-control-character", M(SWEEP_BASE, "name", "a\nb"), "name"),
@@ -505,6 +525,9 @@ def _api_rows() -> list[tuple[str, Callable[[], Any], str]]:
         ("sample-huge", lambda: teamkf.sample(good, 10**6, 10**7, rng=1), "n_runs"),
         ("pop-fm-memory-huge", lambda: finite_memory_filter(PopulationModel(n_agents=10, a=2.5, f=2.0), 10, 10**9), "memory"),
         ("mc-huge-work", lambda: teamkf.monte_carlo({"c": teamkf.design_centralized(good, cost, horizon=4)}, 4, 10**15, rng=1), "n_runs"),
+        ("kalman-covariances-huge", lambda: teamkf.kalman_covariances(good, 10**10), "horizon"),
+        ("kcf-horizon-huge-api", lambda: teamkf.design_kcf(good, cost, graph, horizon=10**9), "horizon"),
+        ("unregister-family-number", lambda: teamkf.unregister_family(3), "name"),
     ]
     # per family: the design function, its designs' filter and Monte Carlo
     structure = teamkf.InformationStructure.from_graph(graph) if hasattr(teamkf.InformationStructure, "from_graph") else graph
@@ -585,6 +608,7 @@ def workdir(tmp_path: Path) -> Path:
     res.mkdir()
     (res / "_sweep.json").write_text(json.dumps({"fingerprint": {}}))
     (res / "notes.txt").write_text("my notes")
+    (tmp_path / "exitplug.py").write_text("import sys\nsys.exit(3)\n")
     (tmp_path / "dupsweep.json").write_text('{"scenario": "platoon-4", "grid": {"cost.lambda": [1.0]}, "runs": 0, "runs": 5}')
     yield tmp_path
     ro.chmod(0o700)
@@ -706,7 +730,15 @@ def test_bad_python_input(row: tuple[str, Callable[[], Any], str]) -> None:
 
 
 #: the API rows that must end in a ResourceError (sized before started)
-RESOURCE_ROWS = {"graph-complete-huge", "graph-ring-huge", "sample-huge", "pop-fm-memory-huge", "mc-huge-work"}
+RESOURCE_ROWS = {
+    "graph-complete-huge",
+    "graph-ring-huge",
+    "sample-huge",
+    "pop-fm-memory-huge",
+    "mc-huge-work",
+    "kalman-covariances-huge",
+    "kcf-horizon-huge-api",
+}
 
 
 SUBPROCESS_ROWS = [

@@ -34,6 +34,7 @@ HEAVY = ("numpy", "scipy", "matplotlib", "dask", "distributed", "networkx", "pan
 ALLOWED = {
     "teamkf",
     "teamkf.__main__",
+    "teamkf._budget",  # the --max-hours argument type (math and os only)
     "teamkf._lazy",
     "teamkf._version",
     "teamkf.cli",

@@ -66,8 +66,16 @@ def kalman_covariances(system: LinearGaussianSystem, n_steps: int) -> tuple[Floa
     True
     """
     T = V.positive_int(n_steps, "n_steps")
-    system.require_horizon(T)
     dx, dy = system.dx, system.dy_total
+    from .._budget import check_memory
+
+    check_memory(
+        8.0 * T * (2 * dx * dx + dx * dy),
+        f"the Kalman covariances and gains of T = {T:,} steps (d_x = {dx}, d_y = {dy})",
+        argument="horizon",
+        fix="use a shorter horizon, or omit it for the steady-state design",
+    )
+    system.require_horizon(T)
     P_pred = np.empty((T, dx, dx))
     K = np.empty((T, dx, dy))
     P_filt = np.empty((T, dx, dx))

@@ -292,6 +292,10 @@ class Family:
             self.check_graph(graph)
         third = {"structure": structure, "graph": graph, "none": None}[self.uses]
         opts = self.check_options(options or {})
+        if isinstance(horizon, int) and horizon > 10**5 and getattr(self.design, "__module__", "").startswith("teamkf."):
+            from .._budget import DESIGN_STEP_LOOPS, check_steps
+
+            check_steps(horizon, what=f"the {self.name} design", per_step=DESIGN_STEP_LOOPS)  # teamkf's designs step through T in Python
         return self.design(system, cost, third, horizon, **opts)
 
     def describe(self) -> dict[str, Any]:
@@ -391,6 +395,10 @@ def unregister_family(name: str) -> None:
     >>> "mtmse" in teamkf.families()
     True
     """
+    if not isinstance(name, str):
+        raise ArgumentError(
+            f"name: expected a family name (a string), found {type(name).__name__}; e.g. unregister_family('my_filter')", argument="name"
+        )
     _REGISTRY.pop(name, None)
 
 
@@ -591,7 +599,10 @@ def load_plugins_into(plugins: Sequence[tuple[str, str | None, str | None]]) -> 
 
 def _plugin_error(spec: str, what: str, exc: BaseException) -> ArgumentError:
     text = " ".join(str(exc).split()) or type(exc).__name__
-    return ArgumentError(f"plugin: {spec!r} raised {type(exc).__name__} while {what}: {text} (--debug shows the traceback)", argument="plugin")
+    return ArgumentError(
+        f"plugin: {spec!r} raised {type(exc).__name__} while {what}: {text}; fix the plug-in or drop it (--debug shows the traceback)",
+        argument="plugin",
+    )
 
 
 def _exec_plugin(name: str, path: str, source: str) -> Any:
@@ -605,9 +616,9 @@ def _exec_plugin(name: str, path: str, source: str) -> Any:
         exec(compile(source, path, "exec"), module.__dict__)
     except BaseException as exc:
         sys.modules.pop(name, None)
-        if isinstance(exc, (KeyboardInterrupt, SystemExit, TeamkfError)):
+        if isinstance(exc, (KeyboardInterrupt, TeamkfError)):
             raise
-        raise _plugin_error(path, "importing", exc) from exc
+        raise _plugin_error(path, "importing", exc) from exc  # SystemExit too: a plug-in's sys.exit() must not end teamkf silently
     try:
         import cloudpickle
 

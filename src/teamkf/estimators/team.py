@@ -439,7 +439,8 @@ def _design(
     from .._resources import progress as _progress
 
     dx, dy = system.dx, system.dy_total
-    per_step = 8.0 * (3 * dx * dx + dx * dy + dz * sum(info["local_dims"])) + 120.0 * (n + 4)  # arrays + object headers
+    held = min(sum(info["local_dims"]), n * T * dy)  # a local vector never holds more than the T steps measured so far
+    per_step = 8.0 * (3 * dx * dx + dx * dy + dz * held) + 120.0 * (n + 4)  # arrays + object headers
     check_memory(
         T * per_step,
         f"the {kind.upper()} design over T = {T} steps (gains and covariances of every step are kept)",

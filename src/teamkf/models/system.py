@@ -185,6 +185,10 @@ class LinearGaussianSystem:
             for name, m in ((f"C[{i}]", self.C[i]), (f"R[{i}]", self.R[i])):
                 if m.shape[0] > 1 and m.shape[0] < n_steps:
                     raise ShapeError(f"{name}: a horizon of {n_steps} steps needs {n_steps} matrices, found {m.shape[0]}")
+        if n_steps > 10**5:  # every design and simulation steps through the horizon in Python: sized before it starts
+            from .._budget import check_steps
+
+            check_steps(int(n_steps), self.n_agents, what="a design or simulation")
 
     def require_time_invariant(self, what: str = "a steady-state design") -> None:
         if self.is_time_varying:

@@ -161,7 +161,7 @@ class InformationStructure:
         Ordered by step, then source: the order of agent i's local vector
         I_i^loc(k) and of the columns of its gain F_i(k).
         """
-        pairs = [(k - lag, j) for (j, lag) in self.local_lags(i) if k - lag >= 0]
+        pairs = [(k - lag, j) for (j, a, b) in self.local[i] for lag in range(a, min(b, k) + 1)]  # s = k - lag >= 0: O(held), not O(window)
         pairs.sort()
         return [(j, s) for (s, j) in pairs]
 
@@ -172,7 +172,7 @@ class InformationStructure:
 
     def local_dims(self, dy: Sequence[int]) -> tuple[int, ...]:
         """Steady-state dimension of each agent's local vector I_i^loc."""
-        return tuple(int(sum(dy[j] for j, _ in self.local_lags(i))) for i in range(self.n_agents))
+        return tuple(int(sum(dy[j] * (b - a + 1) for j, a, b in self.local[i])) for i in range(self.n_agents))  # closed form: no loop over the lags
 
     def arrival_lag(self, i: int, j: int) -> int:
         """Smallest lag at which agent i uses y_j(s): it must have it by step s + lag."""

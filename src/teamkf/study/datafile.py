@@ -7,7 +7,6 @@ one :class:`~teamkf.exceptions.ScenarioError` naming the file (and the line and 
 from __future__ import annotations
 
 import json
-import re
 import tomllib
 from pathlib import Path
 from typing import Any, Mapping
@@ -79,18 +78,27 @@ MAX_DEPTH = 32
 
 
 def check_depth(data: Any, source: str = "scenario") -> None:
-    """Refuse data nested deeper than :data:`MAX_DEPTH` (iteratively: no recursion), naming the key where it happens."""
+    """Refuse data nested deeper than :data:`MAX_DEPTH` (iteratively: no recursion), naming the key where it happens.
+
+    Linear in the size of ``data``: only the top-level key is carried along (the message names it).
+    """
     stack: list[tuple[Any, int, str]] = [(data, 0, "")]
+    pop, push = stack.pop, stack.append
     while stack:
-        node, depth, where = stack.pop()
+        node, depth, top = pop()
         if depth > MAX_DEPTH:
-            top = re.split(r"[.\[]", where, maxsplit=1)[0] or source
+            top = top or source
             raise ScenarioError(
                 f"{top}: expected at most {MAX_DEPTH} levels of nested lists and tables, found more (in {source}); "
                 "no scenario key is nested that deep: check the brackets",
                 argument=top,
             )
-        if isinstance(node, Mapping):
-            stack.extend((v, depth + 1, f"{where}.{k}" if where else str(k)) for k, v in node.items())
-        elif isinstance(node, list):
-            stack.extend((v, depth + 1, f"{where}[{i}]") for i, v in enumerate(node) if isinstance(v, (list, Mapping)))
+        kind = type(node)
+        if kind is dict or (kind is not list and isinstance(node, Mapping)):
+            for k, v in node.items():
+                if type(v) in (list, dict) or isinstance(v, Mapping):
+                    push((v, depth + 1, top or str(k)))
+        elif kind is list:
+            for v in node:
+                if type(v) in (list, dict) or isinstance(v, Mapping):
+                    push((v, depth + 1, top))

@@ -13,6 +13,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ..exceptions import ArgumentError
 from . import measurements as M
 from .outputs import write_atomic
 
@@ -41,6 +42,9 @@ def filter_to_files(
     """Filter ``measurements`` with every estimator, write the estimates to ``out`` (and, with ``truth``, the
     per-step realized team costs to ``cost_out``), each through a temporary file renamed at the end."""
     names = list(estimators)
+    for k, name in enumerate(names):
+        if name in names[:k]:  # two columns of estimates under one name would be silently merged
+            raise ArgumentError(f"estimators: {name!r} is listed twice (--estimators); list each estimator once", argument="estimators")
     fmt = out.suffix.lower()
     head = {"scenario": scenario.name, "measurements": str(measurements), "out": str(out)}
     if cost_out is not None:

@@ -348,6 +348,14 @@ def scenario_from_dict(d: Mapping[str, Any], source: str = "<dict>", *, families
     if not isinstance(d, Mapping):
         raise ScenarioError(f"scenario: expected a table of keys, found {type(d).__name__}")
     check_depth(d)
+    if "population" not in d:  # sized from the raw tables, before copying them or building the n^2 graph and information structure
+        from ._size import check_team_size
+
+        try:
+            h = _horizon(d.get("horizon"))
+        except TeamkfError:
+            h = None  # reported below, in the order of the checks
+        check_team_size(d, h, {**_families(), **(families or {})})
     raw = copy.deepcopy(dict(d))
     if "population" in raw:  # an interference-coupled population (the bulk-filter paper)
         from .population import population_from_dict
@@ -783,6 +791,8 @@ def _check_horizon(system: LinearGaussianSystem, cost: TeamCost, horizon: int | 
             system.require_horizon(horizon)
             cost.require_horizon(horizon)
     except TeamkfError as exc:
+        if exc.argument == "horizon":  # sized (teamkf._budget): already named after the scenario key
+            raise
         raise _rekey(exc, "horizon", _SYSTEM_RULES + _COST_RULES) from exc
 
 

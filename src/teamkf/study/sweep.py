@@ -78,7 +78,9 @@ Columns: one per grid key, then ``point_id``, ``point_index``, ``estimator``,
 state), ``ci95_low``, ``ci95_high`` (null for analytic values), with Monte
 Carlo runs ``mc_cost``, ``mc_ci95_low``, ``mc_ci95_high`` (the simulated cost
 of the analytic estimators), then ``runs``, ``seed`` (the point's seed),
-``sweep_seed`` (the sweep file's) and ``teamkf_version``.
+``diverged``, ``non_finite`` (null, or a JSON object naming each column whose
+number is not finite, ``{"total_cost": "inf"}``, as ``teamkf evaluate --json``
+marks them), ``sweep_seed`` (the sweep file's) and ``teamkf_version``.
 
 Schedulers
 ----------
@@ -122,6 +124,7 @@ import errno
 import hashlib
 import itertools
 import json
+import math
 import os
 import time
 import uuid
@@ -615,6 +618,7 @@ def run_sweep(
         n_workers = V.positive_int(n_workers, "n_workers")
 
     done = _check_out(spec, out, resume)
+    created = not out.exists()  # a folder this run makes is removed again when it ends with no point in it
     points = spec.points
     todo = [p for p in points if p.point_id not in done]
     writer = _Writer(spec, out, pa)
@@ -639,6 +643,8 @@ def run_sweep(
     def failed(p: SweepPoint, exc: BaseException) -> SweepError:
         what = str(exc) if isinstance(exc, TeamkfError) else f"{type(exc).__name__}: {exc}"
         n_kept = len(points) - len(todo) + n_ok
+        if n_kept == 0 and created:
+            return SweepError(f"grid point {p.index} ({p.describe()}) failed: {what}; nothing was written")
         return SweepError(
             f"grid point {p.index} ({p.describe()}) failed: {what}; the {n_kept} finished points are kept in "
             f"{out}; fix the problem and run again with --resume (resume=True)"
@@ -697,11 +703,26 @@ def run_sweep(
                         obj.close()
                     except Exception:  # pragma: no cover - best effort on shutdown
                         pass
+    except BaseException:  # a failure or Ctrl-C before the first point: no empty results folder left behind
+        if created and n_ok == 0:
+            _remove_empty(out)
+        raise
     finally:
         bar.close()
 
     res = load_results(out) if out.exists() else SweepResult((), spec.grid_keys, path=out)
     return SweepResult(res.rows, res.grid_keys, path=out, n_computed=n_ok, n_resumed=len(points) - len(todo), info=res.info)
+
+
+def _remove_empty(out: Path) -> None:
+    """Remove a results folder that holds nothing but its manifest and temporary parts (what an interrupted first point leaves)."""
+    if not out.is_dir():
+        return
+    entries = list(out.iterdir())
+    if all(e.name == MANIFEST_NAME or e.name.startswith(".") for e in entries) and all(e.is_file() for e in entries):
+        for e in entries:
+            e.unlink(missing_ok=True)
+        out.rmdir()
 
 
 def run_point(fn: PointFunction, scenario: Scenario, estimators: Sequence[str], runs: int, seed: int) -> list[dict[str, Any]]:
@@ -799,6 +820,7 @@ class _Writer:
             pa.field("runs", pa.int64()),
             pa.field("seed", pa.int64()),
             pa.field("diverged", pa.bool_()),
+            pa.field("non_finite", pa.string()),  # JSON {column: "inf" | "-inf" | "nan"} naming the non-finite numbers; null when all are finite
             pa.field("sweep_seed", pa.int64()),
             pa.field("teamkf_version", pa.string()),
         ]
@@ -846,6 +868,8 @@ class _Writer:
             for name in self.schema.names:
                 if name in r and name not in base and name not in ("point_id", "point_index"):
                     rec[name] = r[name]
+            bad = {k: str(float(v)) for k, v in rec.items() if isinstance(v, (float, np.floating)) and not math.isfinite(v)}
+            rec["non_finite"] = json.dumps(bad, sort_keys=True) if bad else None  # as teamkf evaluate --json and sweep --json mark them
             rec.setdefault("runs", spec.runs)
             rec["seed"] = p.seed  # the point's seed: teamkf evaluate --seed <it> repeats the point
             rec["sweep_seed"] = spec.seed

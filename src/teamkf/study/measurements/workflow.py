@@ -15,7 +15,7 @@ import numpy as np
 
 from ... import _validation as V
 from ..._validation import FloatArray
-from ...exceptions import TeamkfError, UnsupportedOperationError
+from ...exceptions import ArgumentError, TeamkfError, UnsupportedOperationError
 from ...simulation.monte_carlo import runtime_estimates, team_stage_costs
 from .format import MeasurementFileError, MeasurementLog, estimates_frame
 from .transform import Innovations, KnownInputs, innovations, known_inputs, masked_system
@@ -149,6 +149,9 @@ def filter_log(
     if not isinstance(log, MeasurementLog):
         log = MeasurementLog.from_arrays(log, scenario.system, scenario.horizon)
     names = list(scenario.estimators if estimators is None else estimators)
+    for k, name in enumerate(names):
+        if name in names[:k]:  # two columns of estimates under one name would be silently merged
+            raise ArgumentError(f"estimators: {name!r} is listed twice (--estimators); list each estimator once", argument="estimators")
     known = known_inputs(scenario) if inputs == "scenario" else inputs
     T, n = log.n_steps, scenario.system.n_agents
     if known is None and (log.b is not None or log.d is not None):
