@@ -4,7 +4,7 @@ VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv test test-latest constraints test-fast lint demo bench typecheck docs docs-clean clean
+.PHONY: venv test test-slow test-latest constraints test-fast lint demo bench typecheck docs docs-clean clean
 
 # Installs are pinned by constraints.txt (the versions CI tests), updated on purpose with `make constraints`.
 # `make test-latest` runs the same checks in .venv-latest against the newest releases.
@@ -29,12 +29,17 @@ $(DOCS_STAMP): pyproject.toml constraints.txt
 	@test -f $(STAMP) || { $(PYTHON) -m venv $(VENV) && $(BIN)/python -m pip install --quiet --upgrade pip && $(BIN)/python -m pip install --quiet $(CONSTRAINTS) -e '.[docs]'; }
 	touch $@
 
-# The suite runs on every core (pytest-xdist; PYTEST_ARGS="-n 0" runs it in one process). It builds the
-# documentation site once (tests/test_docs.py runs the command of `make docs` and then opens every page in
-# headless Chromium), so `make test` does not build it again.
+# The suite runs on every core (pytest-xdist; PYTEST_ARGS="-n 0" runs it in one process), without the tests
+# marked `slow` (long reproductions, T = 10^5 horizons, the documentation site built and opened in Chromium):
+# `make test-slow` runs those, and CI (.ci/run) runs both. --dist loadgroup keeps the tests that share the built
+# site on one worker, so it is built once.
+XDIST := -n auto --dist loadgroup
 test: $(STAMP) lint
-	$(BIN)/python -m pytest -q -n auto $(PYTEST_ARGS)
+	$(BIN)/python -m pytest -q $(XDIST) -m "not slow" $(PYTEST_ARGS)
 	$(BIN)/python -m mypy
+
+test-slow: $(STAMP)
+	$(BIN)/python -m pytest -q $(XDIST) -m slow $(PYTEST_ARGS)
 
 # The suite against the newest releases of every dependency (no constraints), in its own venv.
 test-latest:

@@ -29,6 +29,9 @@ OUT = DOCS / "_build" / "html"
 GALLERY = DOCS / "gallery"
 EXAMPLES = sorted((ROOT / "examples").glob("*.py"))
 
+#: one pytest-xdist worker runs this module (`--dist loadgroup`): the built site is a module fixture, built once
+pytestmark = pytest.mark.xdist_group("docs-site")
+
 
 def gallery_script(name: str) -> Path:
     """The gallery page of ``teamkf reproduce NAME``: ``docs/gallery/plot_<name with _>.py``."""
