@@ -623,6 +623,8 @@ def _plot(rows: list[dict[str, Any]], out_dir: Path, figures: list[str], name: s
         bars = ax.barh(y, [v - 1.0 for v in shown], left=1.0, color=colors, edgecolor="k", linewidth=0.4)  # from MTMSE (1) to J/J*
         for b, h, r in zip(bars, hatches, grp):
             b.set_hatch(h)
+            if h and family_color(r["estimator"]) in ("#000000", "black"):  # the hatch is drawn in the edge colour: grey on the black bound
+                b.set_edgecolor("0.6")
             seen.setdefault(r["estimator"], b)
         ax.axvline(1.0, color="k", lw=0.8)
         ax.plot([1.0] * sum(r["estimator"] == "mtmse" for r in grp), [a for a, r in enumerate(grp) if r["estimator"] == "mtmse"], "ko", ms=4)
