@@ -8,7 +8,8 @@ for what the graph delivers) and beside the centralized bound. ``honest`` varian
 graph's edges and delays and delay-compensate what they receive; ``ideal`` ones exchange within the step, as
 their papers assume, and can therefore go below MTMSE. No honest filter can: a property test checks it.
 
-This page runs ``teamkf reproduce leaderboard --quick``: fewer and smaller networks.
+This page runs ``teamkf reproduce leaderboard --quick``: fewer and smaller networks. Under packet drops:
+``teamkf reproduce leaderboard-drops``.
 """
 
 # %%

@@ -20,16 +20,17 @@ def board(tmp_path_factory):
     try:
         res = run("leaderboard", out, quick=True)
         again = run("leaderboard", out / "again", quick=True)  # every part from the cache
+        drops = run("leaderboard-drops", out / "drops", quick=True)  # its exact parts from the cache
     finally:
         if old is None:
             os.environ.pop("TEAMKF_CACHE_DIR")
         else:
             os.environ["TEAMKF_CACHE_DIR"] = old
-    return out, res, again
+    return out, res, again, drops
 
 
 def test_leaderboard_quick_ranked_and_bounded(board):
-    out, res, _ = board
+    out, res, _, _ = board
     assert (out / "leaderboard.csv").exists() and (out / "leaderboard.json").exists() and (out / "leaderboard.png").exists()
     exact = [r for r in res.rows if r["p_drop"] == 0]
     assert len({r["network"] for r in exact}) == 3
@@ -63,8 +64,12 @@ def test_leaderboard_quick_ranked_and_bounded(board):
 
 
 def test_leaderboard_ranks_under_packet_drops(board):
-    _, res, _ = board
-    lossy = [r for r in res.rows if r["p_drop"] > 0]
+    out, res, _, drops = board
+    assert not [r for r in res.rows if r["p_drop"] > 0]  # the exact leaderboard; the drops are their own command
+    assert (out / "drops" / "leaderboard-drops.json").exists() and (out / "drops" / "leaderboard-drops.png").exists()
+    assert "Parts from the cache: 2 of 4" in drops.notes  # the exact rankings of the two networks were cached by the leaderboard
+    lossy = drops.rows
+    assert lossy and all(r["p_drop"] > 0 for r in lossy)
     assert {r["p_drop"] for r in lossy} == set(P_DROPS)
     for p in P_DROPS:
         for net in {r["network"] for r in lossy}:
@@ -75,8 +80,8 @@ def test_leaderboard_ranks_under_packet_drops(board):
 
 
 def test_leaderboard_cache_returns_the_same_rows_and_strict_json(board):
-    out, res, again = board
-    assert "Parts from the cache: 5 of 5" in again.notes and "Parts from the cache: 0 of 5" in res.notes
+    out, res, again, drops = board
+    assert "Networks from the cache: 3 of 3" in again.notes and "Networks from the cache: 0 of 3" in res.notes
     strip = lambda rows: [{k: v for k, v in r.items() if k != "seconds"} for r in rows]  # noqa: E731
     assert strip(again.rows) == strip(res.rows)
 
@@ -111,3 +116,24 @@ def test_a_registered_drop_aware_design_is_ranked_under_drops():
     assert len(mine) == len(P_DROPS) and all(r["form"] == "drop-aware design" for r in mine)
     ref = {r["p_drop"]: r["J_T"] for r in rows if r["estimator"] == "mtmse"}
     assert all(r["J_T"] == ref[r["p_drop"]] for r in mine)  # the stand-in is MTMSE: the same runs, the same cost
+
+
+def test_the_drop_aware_design_is_designed_for_each_p_drop(board):
+    """``mtmse_lossy`` is designed for the p of its ranking: its Monte Carlo cost covers its exact expected cost at that p.
+
+    A design for reliable links (p = 0) run under drops would cost more than its nominal cost and the
+    exact expected costs at p = 0.1 and 0.5 would coincide; both are refuted here.
+    """
+    _, res, _, drops = board
+    mine = [r for r in drops.rows if r["estimator"] == "mtmse_lossy"]
+    assert {(r["network"], r["p_drop"]) for r in mine} == {(r["network"], r["p_drop"]) for r in drops.rows}
+    for r in mine:
+        lo, hi = (float(x) for x in r["ci95 (MC)"].split("]")[0].strip("[").split(","))
+        assert r["form"] == "drop-aware design" and r["J_T exact"] is not None
+        width = hi - lo
+        assert lo - width <= r["J_T exact"] <= hi + width, r  # 95 % interval, widened x3 (16 runs in the quick board)
+    for net in {r["network"] for r in mine}:
+        ex = {r["p_drop"]: r["J_T exact"] for r in mine if r["network"] == net}
+        assert ex[P_DROPS[0]] < ex[P_DROPS[-1]]  # more drops, larger expected cost: designed per p
+    assert all(r["J_T exact"] == r["J_T"] for r in res.rows)  # the exact ranking
+    assert all(r["J_T exact"] is None for r in drops.rows if r["estimator"] != "mtmse_lossy")  # Monte Carlo only

@@ -54,19 +54,39 @@ from .base import Design
 __all__ = ["Slot", "LinearStep", "LinearTeamDesign", "Algorithm", "build_steps", "transition", "process_noise"]
 
 
+def _memo(system: LinearGaussianSystem, table: str, k_to: int, k_from: int, compute: Callable[[], FloatArray]) -> FloatArray:
+    """``compute()``, stored on ``system`` (read-only) under the lag k_to - k_from (time-invariant) or (k_to, k_from).
+
+    The designs ask for the same Φ(k, s) and Q(k, s) tens of thousands of times (once per agent,
+    neighbour and step); the value is bit for bit the one ``compute`` returns.
+    """
+    cache = system.__dict__.setdefault(table, {})
+    key = (k_to - k_from,) if not system.is_time_varying else (k_to, k_from)
+    out = cache.get(key)
+    if out is None:
+        out = np.asarray(compute(), dtype=float)
+        out.setflags(write=False)
+        cache[key] = out
+    return out  # type: ignore[no-any-return]
+
+
 def transition(system: LinearGaussianSystem, k_to: int, k_from: int) -> FloatArray:
-    """Φ(k_to, k_from) = A(k_to - 1) ... A(k_from)."""
-    return system.transition(k_to, k_from)
+    """Φ(k_to, k_from) = A(k_to - 1) ... A(k_from) (memoized, read-only)."""
+    return _memo(system, "_teamkf_phi", k_to, k_from, lambda: system.transition(k_to, k_from))
 
 
 def process_noise(system: LinearGaussianSystem, k_to: int, k_from: int) -> FloatArray:
-    """Q(k_to, k_from) = Σ_{r=k_from}^{k_to-1} Φ(k_to, r+1) Q(r) Φ(k_to, r+1)ᵀ (zero when equal)."""
-    dx = system.dx
-    Qm = np.zeros((dx, dx))
-    for r in range(k_from, k_to):
-        A = system.A_at(r)
-        Qm = A @ Qm @ A.T + system.Q_at(r)
-    return 0.5 * (Qm + Qm.T)
+    """Q(k_to, k_from) = Σ_{r=k_from}^{k_to-1} Φ(k_to, r+1) Q(r) Φ(k_to, r+1)ᵀ (zero when equal; memoized, read-only)."""
+
+    def compute() -> FloatArray:
+        dx = system.dx
+        Qm = np.zeros((dx, dx))
+        for r in range(k_from, k_to):
+            A = system.A_at(r)
+            Qm = A @ Qm @ A.T + system.Q_at(r)
+        return 0.5 * (Qm + Qm.T)
+
+    return _memo(system, "_teamkf_qnoise", k_to, k_from, compute)
 
 
 @dataclass(frozen=True)
@@ -88,12 +108,24 @@ class Slot:
 
 
 def _compact(M: FloatArray) -> Any:
-    """A CSR copy of a mostly-zero matrix (selector and shift blocks dominate F), else the array itself."""
-    if M.size > 4096 and np.count_nonzero(M) < 0.2 * M.size:
-        import scipy.sparse as sp
+    """A CSR copy of a mostly-zero matrix (selector and shift blocks dominate F), else the array itself.
 
-        return sp.csr_matrix(M)
-    return M
+    The CSR arrays are built from one scan of the nonzeros in row-major order (what
+    ``scipy.sparse.csr_matrix(M)`` stores, without its COO detour and second scan).
+    """
+    if M.size <= 4096:
+        return M
+    flat = np.ascontiguousarray(M).reshape(-1)
+    idx = np.flatnonzero(flat)
+    if idx.size >= 0.2 * M.size:
+        return M
+    import scipy.sparse as sp
+
+    rows, cols = np.divmod(idx, M.shape[1])
+    indptr = np.zeros(M.shape[0] + 1, dtype=np.int64)
+    np.cumsum(np.bincount(rows, minlength=M.shape[0]), out=indptr[1:])
+    index_dtype = np.int32 if max(M.shape[1], idx.size) < 2**31 else np.int64
+    return sp.csr_matrix((flat[idx], cols.astype(index_dtype), indptr.astype(index_dtype)), shape=M.shape)
 
 
 @dataclass(frozen=True, eq=False)
@@ -207,7 +239,11 @@ class Algorithm:
 
 
 def _target(system: LinearGaussianSystem, slot: Slot) -> FloatArray:
-    return np.eye(system.dx) if slot.kind == "x" else system.C_at(slot.agent, slot.step)
+    return transition(system, 0, 0) if slot.kind == "x" else system.C_at(slot.agent, slot.step)  # Φ(0, 0) = I, memoized
+
+
+#: 0, 1, 2, ... (the selection matrices' indices without a new arange per call)
+_ARANGE = np.arange(4096)
 
 
 def build_steps(alg: Algorithm) -> list[LinearStep]:
@@ -236,8 +272,11 @@ def build_steps(alg: Algorithm) -> list[LinearStep]:
         index = {s.key: (int(starts[a]), s) for a, s in enumerate(prev_slots)}
 
         def sel(pos: int, d: int, nb: int = nb) -> FloatArray:
-            e = np.zeros((d, nb))
-            e[:, pos : pos + d] = np.eye(d)
+            e = np.zeros((d, nb))  # [0 | I_d | 0], the identity block at column pos
+            if pos + d <= _ARANGE.size:
+                e[_ARANGE[:d], _ARANGE[pos : pos + d]] = 1.0
+            else:
+                e[:, pos : pos + d] = np.eye(d)
             return e
 
         def zero(d: int, nb: int = nb) -> FloatArray:
@@ -684,7 +723,7 @@ def compensate_information(system: LinearGaussianSystem, Y: FloatArray, s: int, 
     """
     if s == k:
         return Y, Y
-    Phi = system.transition(k, s)
+    Phi = transition(system, k, s)
     P = Phi @ np.linalg.inv(Y) @ Phi.T + process_noise(system, k, s)
     Yn = np.linalg.inv(0.5 * (P + P.T))
     Yn = 0.5 * (Yn + Yn.T)
