@@ -157,7 +157,16 @@ def test_ctrl_c_stops_a_long_monte_carlo_in_one_line(tmp_path: Path) -> None:
     scen.write_text(json.dumps({**_team(2, "line", horizon=4), "cost": {"kind": "average", "lambda": 1.0}}))
     env = dict(os.environ, PYTHONPATH=str(ROOT / "src") + os.pathsep + os.environ.get("PYTHONPATH", ""), TEAMKF_PROGRESS="0")
     argv = [sys.executable, "-m", "teamkf", "evaluate", str(scen), "--monte-carlo", str(10**8), "--plot", str(tmp_path / "p.png")]
-    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=tmp_path)
+    # as from a shell's foreground: SIGINT at its default (pytest-xdist workers ignore it, and a child inherits that)
+    proc = subprocess.Popen(
+        argv,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        cwd=tmp_path,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     time.sleep(3.0)
     assert proc.poll() is None, proc.communicate()
     proc.send_signal(signal.SIGINT)
