@@ -414,7 +414,7 @@ def run_agent(
         if not (res.error or "").startswith("killed"):  # a crash says nothing; everything else says goodbye
             for b in peers:
                 send(BYE, b, 0, 0)
-        time.sleep(0.2)  # let the last frames leave before the session closes
+        time.sleep(0.2)  # let the last frames leave before the Zenoh connection closes
         transport.close()
         with box.cond:
             res.counts = dict(box.counts)
