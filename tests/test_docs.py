@@ -69,9 +69,7 @@ def _require_sphinx() -> None:
         pytest.importorskip(mod, reason=f"the docs build needs {mod}: pip install 'teamkf[docs]'")
 
 
-@pytest.fixture(scope="module")
-def site() -> Path:
-    _require_sphinx()
+def _build_site() -> None:
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), os.environ.get("PYTHONPATH", "")]), "MPLBACKEND": "Agg"}
     env["TEAMKF_PROGRESS"] = "0"
     cmd = [sys.executable, "-m", "sphinx", "-E", "-b", "html", "-W", "--keep-going", "-q", str(DOCS), str(OUT)]
@@ -80,6 +78,31 @@ def site() -> Path:
     # numpydoc reports a docstring section it cannot parse as a Python warning, not a Sphinx one
     bad = [line for line in proc.stderr.splitlines() if "Unknown section" in line or "Potentially wrong underline" in line]
     assert not bad, "docstrings numpydoc cannot parse:\n" + "\n".join(bad)
+
+
+@pytest.fixture(scope="session")
+def site() -> Path:
+    """The site, built once per test run: pytest-xdist workers take a file lock, and the first one builds it.
+
+    Two builds at once in the same folder fail (each removes the other's generated API stubs), and the xdist
+    group of this module is not honoured by every pytest/xdist pair, so the lock is what keeps it to one.
+    """
+    _require_sphinx()
+    import fcntl
+
+    OUT.parent.mkdir(parents=True, exist_ok=True)
+    run = os.environ.get("PYTEST_XDIST_TESTRUNUID")  # the same in every worker of one run; absent without xdist
+    done = OUT.parent / ".built-for-run"
+    with open(OUT.parent / ".build-lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            if run is None or not done.is_file() or done.read_text() != run:
+                done.unlink(missing_ok=True)
+                _build_site()
+                if run is not None:
+                    done.write_text(run)
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
     return OUT
 
 
