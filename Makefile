@@ -31,8 +31,8 @@ $(DOCS_STAMP): pyproject.toml constraints.txt
 
 # The suite runs on every core (pytest-xdist; PYTEST_ARGS="-n 0" runs it in one process), without the tests
 # marked `slow` (long reproductions, T = 10^5 horizons, the documentation site built and opened in Chromium):
-# `make test-slow` runs those, and CI (.ci/run) runs both. --dist loadgroup keeps the tests that share the built
-# site on one worker, so it is built once.
+# `make test-slow` runs those, and CI (.ci/run) runs both. The site is built once per run (tests/test_docs.py:
+# a file lock shared by the workers).
 XDIST := -n auto --dist loadgroup
 test: $(STAMP) lint
 	$(BIN)/python -m pytest -q $(XDIST) -m "not slow" $(PYTEST_ARGS)

@@ -29,7 +29,7 @@ OUT = DOCS / "_build" / "html"
 GALLERY = DOCS / "gallery"
 EXAMPLES = sorted((ROOT / "examples").glob("*.py"))
 
-#: one pytest-xdist worker runs this module (`--dist loadgroup`): the built site is a module fixture, built once
+#: one pytest-xdist worker should run this module (`--dist loadgroup`); the site's lock holds where that is not honoured
 pytestmark = pytest.mark.xdist_group("docs-site")
 
 
