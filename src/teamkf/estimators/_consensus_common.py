@@ -183,6 +183,44 @@ def information_sources(graph: CommGraph | None, T: int, honest: bool) -> list[l
     return out
 
 
+def _nominal(alg: "DiffusionAlgorithm") -> tuple[dict[tuple[int, int, int, int], tuple[FloatArray, FloatArray]], FloatArray, FloatArray]:
+    """The nominal adaptation of every agent (combination not "ci"): gains (G̃, Y) of each fused y_l(s), P_i(k|k), P_i(k).
+
+    P_i(k|k) = (P_i(k)⁻¹ + Σ Y)⁻¹ over y_i(k) and the delay-compensated y_l(s) agent i fuses (Joseph form),
+    P_i(k+1) = A P_i(k|k) Aᵀ + Q. They depend on the model, the sources and T only, so the designs of one
+    tuning grid share them: stored on ``system`` (read-only arrays, the last few source patterns).
+    """
+    system, T, n, dx = alg.system, alg.horizon, alg.system.n_agents, alg.system.dx
+    key = (T, tuple(tuple(tuple(step) for step in row) for row in alg.src))
+    cache: dict[Any, Any] = system.__dict__.setdefault("_teamkf_nominal", {})
+    if key in cache:
+        return cache[key]  # type: ignore[no-any-return]
+    gain: dict[tuple[int, int, int, int], tuple[FloatArray, FloatArray]] = {}
+    P_filt = np.empty((n, T, dx, dx))
+    P_pred = np.empty((n, T, dx, dx))
+    P = [system.Sigma_x for _ in range(n)]
+    for k in range(T):
+        for i in range(n):
+            P_pred[i, k] = P[i]
+            Cs, Rs = [], []
+            for lnode, s in [(i, k), *alg.src[i][k]]:
+                Ct, Rt, G, Y = alg.compensated(lnode, s, k)
+                gain[(i, k, lnode, s)] = (G, Y)
+                Cs.append(Ct)
+                Rs.append(Rt)
+            _, P_filt[i, k] = kalman_step(P[i], np.vstack(Cs), block_diag(*Rs))  # (P^-1 + S)^-1, Joseph form
+            if k + 1 < T:
+                A = system.A_at(k)
+                Pn = A @ P_filt[i, k] @ A.T + system.Q_at(k)
+                P[i] = 0.5 * (Pn + Pn.T)
+    P_filt.setflags(write=False)
+    P_pred.setflags(write=False)
+    if len(cache) >= 4:
+        cache.pop(next(iter(cache)))
+    cache[key] = (gain, P_filt, P_pred)
+    return gain, P_filt, P_pred
+
+
 class DiffusionAlgorithm(Algorithm):
     """The ATC diffusion KF on columns; nominal covariances and compensated gains precomputed."""
 
@@ -217,11 +255,20 @@ class DiffusionAlgorithm(Algorithm):
         n, dx, T = system.n_agents, system.dx, horizon
         self.src = information_sources(self.info_graph, T, honest) or [[[] for _ in range(T)] for _ in range(n)]
         self.nbrs = [set(graph.in_neighbors(i)) if graph is not None and self.info_graph is not None else set() for i in range(n)]
+        #: (i, k) -> [(l, s, W)]: x̂_i = Σ W ψ_l(s) (W includes Φ(k, s)); only for the non-published rules
+        self.comb: dict[tuple[int, int], list[tuple[int, int, FloatArray]]] = {}
+        if self.combination != "ci":  # the nominal covariances do not depend on the combination: shared by the designs on this system
+            self.gain, self.P_filt, self.P_pred = _nominal(self)
+            if not self._published and not self.exact_gains:
+                for k in range(T):
+                    for i in range(n):
+                        items = [(i, k, self.P_filt[i, k]), *[(lnode, s, self.P_filt[lnode, s]) for lnode, s in self.src[i][k]]]
+                        self.comb[(i, k)], _ = self.combination_gains(i, k, items)
+            self.schedules = {"P_filt": self.P_filt, "P_pred": self.P_pred, "weights": c}
+            return
         self.gain: dict[tuple[int, int, int, int], tuple[FloatArray, FloatArray]] = {}  # (i,k,l,s) -> (G̃ = C̃'R̃^-1, Y = G̃ C̃)
         self.P_filt = np.empty((n, T, dx, dx))
         self.P_pred = np.empty((n, T, dx, dx))
-        #: (i, k) -> [(l, s, W)]: x̂_i = Σ W ψ_l(s) (W includes Φ(k, s)); only for the non-published rules
-        self.comb: dict[tuple[int, int], list[tuple[int, int, FloatArray]]] = {}
         P = [system.Sigma_x for _ in range(n)]
         for k in range(T):
             for i in range(n):
@@ -487,32 +534,82 @@ def heard_counts(graph: CommGraph, src: list, T: int, honest: bool, iterations: 
 
 
 def ci_weights(infos: list[FloatArray]) -> FloatArray:
-    """ω on the simplex minimizing tr((Σ ω_j Y_j)⁻¹) for information matrices Y_j (SLSQP, exact gradient)."""
+    r"""ω on the simplex minimizing f(ω) = tr((Σ_j ω_j Y_j)⁻¹) for information matrices Y_j.
+
+    f is convex on the simplex; with P = (Σ ω_j Y_j)⁻¹ its gradient and Hessian are
+
+    .. math:: g_j = -\operatorname{tr}(P^2 Y_j), \qquad H_{jl} = 2 \operatorname{tr}(P^2 Y_j P Y_l),
+
+    so a primal active-set Newton method solves it to round-off in a few iterations: on the free set F
+    (ω_j > 0) the step d solves the equality-constrained Newton system [H_FF 1; 1ᵀ 0][d; ν] = [-g_F; 0].
+    A full step that leaves the simplex is tried projected (every weight it sends below zero leaves F at
+    once) and kept when it decreases f; otherwise the step is cut at the boundary (the blocking weight
+    leaves F) and backtracked (Armijo) until f decreases; at a stationary point a weight at zero whose KKT multiplier g_j - λ is negative
+    (λ = -ν, the multiplier of Σ ω = 1) re-enters F. The result is never worse than the best single
+    estimate (ω = e_j).
+    """
     m = len(infos)
     if m == 1:
         return np.ones(1)
+    Ys = np.stack(infos)  # (m, d, d)
+    flat = Ys.reshape(m, -1)
+    shape = Ys.shape[1:]
 
-    def f(w: FloatArray) -> tuple[float, FloatArray]:
-        Pf = np.linalg.inv(sum(wj * Y for wj, Y in zip(w, infos)))
-        P2 = Pf @ Pf
-        return float(np.trace(Pf)), np.array([-float(np.sum(P2 * Y)) for Y in infos])
+    def cost(w: FloatArray) -> float:
+        return float(np.trace(np.linalg.inv((w @ flat).reshape(shape))))
 
-    traces = np.array([np.trace(np.linalg.inv(Y)) for Y in infos])
-    w0 = np.full(m, 1.0 / m)
-    res = sopt.minimize(
-        f,
-        w0,
-        jac=True,
-        method="SLSQP",
-        bounds=[(0.0, 1.0)] * m,
-        constraints=({"type": "eq", "fun": lambda w: np.sum(w) - 1.0, "jac": lambda w: np.ones(m)},),
-        options={"ftol": 1e-12, "maxiter": 200},
-    )
-    w = np.clip(res.x, 0.0, None)
-    w = w / w.sum()
+    traces = np.trace(np.linalg.inv(Ys), axis1=1, axis2=2)
     best = np.zeros(m)
-    best[int(np.argmin(traces))] = 1.0  # never worse than the best single estimate
-    return w if f(w)[0] <= f(best)[0] else best
+    best[int(np.argmin(traces))] = 1.0
+    w = np.full(m, 1.0 / m)
+    free = np.ones(m, dtype=bool)
+    f = cost(w)
+    for _ in range(200):
+        P = np.linalg.inv((w @ flat).reshape(shape))
+        P2 = P @ P
+        g = -(flat @ P2.reshape(-1))
+        F = np.flatnonzero(free)
+        PY = P @ Ys[F]  # (|F|, d, d): P Y_j
+        H = 2.0 * np.einsum("jab,lba->jl", P @ PY, PY)  # tr(P² Y_j P Y_l) = tr((P P Y_j)(P Y_l))
+        nf = F.size
+        kkt = np.zeros((nf + 1, nf + 1))
+        kkt[:nf, :nf] = H + 1e-14 * max(float(np.trace(H)), 1e-300) * np.eye(nf)  # a flat direction (equal Y_j) stays solvable
+        kkt[:nf, nf] = kkt[nf, :nf] = 1.0
+        sol = np.linalg.solve(kkt, np.concatenate([-g[F], [0.0]]))
+        d, lam = sol[:nf], -sol[nf]
+        decrement = -float(g[F] @ d)  # the Newton decrement: the predicted decrease is half of it
+        if decrement <= 1e-15 * abs(f):
+            out = ~free & (g < lam - 1e-12 * max(abs(lam), 1e-300))
+            if not out.any():
+                break
+            free[int(np.argmin(np.where(out, g, np.inf)))] = True  # the most violated KKT condition re-enters
+            continue
+        neg = d < 0
+        a_max = float(np.min(-w[F][neg] / d[neg])) if neg.any() else np.inf
+        if a_max < 1.0:  # the full step leaves the simplex: its projection drops every weight it sends below zero at once
+            wp = np.zeros(m)
+            wp[F] = np.maximum(w[F] + d, 0.0)
+            fp = cost(wp / wp.sum())
+            if fp < f:
+                free = wp > 0.0
+                w, f = wp / wp.sum(), fp
+                continue
+        a = min(1.0, a_max)
+        while True:
+            wn = w.copy()
+            wn[F] = np.maximum(w[F] + a * d, 0.0)
+            fn = cost(wn)
+            if fn <= f - 1e-4 * a * decrement or a < 1e-12:
+                break
+            a *= 0.5
+        if fn > f:  # no decrease at round-off level: the optimum
+            break
+        if a == a_max:  # the blocking weight reaches the boundary and leaves the free set
+            jb = F[neg][int(np.argmin(-w[F][neg] / d[neg]))]
+            wn[jb] = 0.0
+            free[jb] = False
+        w, f = wn / wn.sum(), fn  # Σ d = 0: the sum is 1 up to round-off
+    return w if f <= cost(best) else best
 
 
 #: the most consensus iterations per step (ICF, HCMCI); consensus has converged to round-off long before

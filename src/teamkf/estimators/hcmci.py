@@ -116,13 +116,16 @@ class HCMCIAlgorithm(Algorithm):
                 self.Obar[i, k] = Obar[i]
             dO = [self.compensated(j, k, k)[3] for j in range(n)]
             if honest:
+                sent: dict[tuple[int, int], tuple[Any, Any]] = {}  # Obar_j(s) compensated to step k: the same for every receiver
                 for i in range(n):
                     heard = {j for j, _ in self.src[i][k]}
                     wii = self.pi[i, i] + sum(self.pi[i, j] for j in self.ins[i] if j not in heard)
                     self.w[(i, k)] = wii
                     Oi, dOi = wii * self.Obar[i, k], wii * dO[i]
                     for j, s in self.src[i][k]:
-                        Yc, Tm = compensate_information(system, self.Obar[j, s], s, k)
+                        if (j, s) not in sent:
+                            sent[(j, s)] = compensate_information(system, self.Obar[j, s], s, k)
+                        Yc, Tm = sent[(j, s)]
                         _, _, Gc, Yn = self.compensated(j, s, k)
                         self.prior_c[(i, k, j, s)] = (Yc, Tm)
                         self.nov_c[(i, k, j, s)] = (Yn, Gc)

@@ -140,10 +140,13 @@ class ICFAlgorithm(Algorithm):
                 self.Jbar[i, k] = Jbar[i]
                 self.V0[i, k] = Jbar[i] / self.m[i, k] + self.U[i]
             if honest:
+                sent: dict[tuple[int, int], tuple[Any, Any]] = {}  # V_j(s) compensated to step k: the same for every receiver
                 for i in range(n):
                     Vi = self.V0[i, k].copy()
                     for j, s in self.src[i][k]:
-                        Yc, Tm = compensate_information(system, self.Vf[j, s], s, k)
+                        if (j, s) not in sent:
+                            sent[(j, s)] = compensate_information(system, self.Vf[j, s], s, k)
+                        Yc, Tm = sent[(j, s)]
                         self.comp[(i, k, j, s)] = (Yc, Tm)
                         Vi = Vi + epsilon * (Yc - self.V0[i, k])
                     self.Vf[i, k] = Vi

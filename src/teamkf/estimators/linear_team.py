@@ -242,6 +242,47 @@ def _target(system: LinearGaussianSystem, slot: Slot) -> FloatArray:
     return transition(system, 0, 0) if slot.kind == "x" else system.C_at(slot.agent, slot.step)  # Φ(0, 0) = I, memoized
 
 
+class _TargetRows:
+    """The stacked targets T_a x(s_a) of a tuple of slots, and their coefficients of w(r).
+
+    Row block a of :meth:`rows` ``(r)`` is T_a Φ(s_a, r + 1) when r <= s_a - 1, else 0 (w(r) enters
+    x(s_a) only for r < s_a). The slots' steps take a few values (the payloads in flight), so the
+    rows are a few products, one per step, instead of one per slot.
+    """
+
+    def __init__(self, alg: "Algorithm", slots: Sequence[Slot]):
+        sysm = alg.system
+        self.alg, self.dim = alg, sum(s.dim for s in slots)
+        self.T = np.vstack([_target(sysm, s) for s in slots]) if slots else np.zeros((0, sysm.dx))
+        steps = np.repeat(np.asarray([s.step for s in slots], dtype=int), [s.dim for s in slots])
+        self.groups = [(int(st), np.flatnonzero(steps == st)) for st in np.unique(steps)]
+        self._rows: dict[int, FloatArray] = {}
+
+    def rows(self, r: int) -> FloatArray:
+        """Coefficient of w(r) in the stacked targets (cached: each r is asked for at two consecutive steps)."""
+        out = self._rows.get(r)
+        if out is None:
+            out = np.zeros((self.dim, self.T.shape[1]))
+            for st, idx in self.groups:
+                if r <= st - 1:
+                    out[idx] = self.T[idx] @ self.alg.Phi(st, r + 1)
+            self._rows[r] = out
+        return out
+
+
+def _target_rows(alg: "Algorithm", slots: tuple[Slot, ...]) -> _TargetRows:
+    """The :class:`_TargetRows` of ``slots``, kept for the last few slot tuples (step k's new slots are step k+1's previous ones)."""
+    cache: dict[int, tuple[tuple[Slot, ...], _TargetRows]] = alg.__dict__.setdefault("_target_rows", {})
+    hit = cache.get(id(slots))
+    if hit is not None and hit[0] is slots:
+        return hit[1]
+    if len(cache) >= 3:
+        cache.pop(next(iter(cache)))
+    tr = _TargetRows(alg, slots)
+    cache[id(slots)] = (slots, tr)
+    return tr
+
+
 #: 0, 1, 2, ... (the selection matrices' indices without a new arange per call)
 _ARANGE = np.arange(4096)
 
@@ -373,19 +414,9 @@ class _ErrorCovariance:
         self.lo = -1 if b == 0 else b
         self.C = sysm.C_stack(k)
         self.R = sysm.R_stack(k)
-        self._rows: dict[int, FloatArray] = {}
 
     def _target_rows(self, r: int) -> FloatArray:
-        if r not in self._rows:
-            dx = self.alg.system.dx
-            out = np.zeros((sum(s.dim for s in self.prev), dx))
-            p = 0
-            for s in self.prev:
-                if r <= s.step - 1:
-                    out[p : p + s.dim] = _target(self.alg.system, s) @ self.alg.Phi(s.step, r + 1)
-                p += s.dim
-            self._rows[r] = out
-        return self._rows[r]
+        return _target_rows(self.alg, tuple(self.prev)).rows(r)
 
     def __call__(self, items: Sequence[tuple[FloatArray, FloatArray]]) -> FloatArray:
         """Cov of the stacked errors M_a x(k) - q_a for ``items`` = [(q_a, M_a)]."""
@@ -393,13 +424,16 @@ class _ErrorCovariance:
         q = np.vstack([np.asarray(a, dtype=float) for a, _ in items])
         M = np.vstack([m for _, m in items])
         Fq, Kq = q[:, : self.nprev], q[:, self.nprev :]
-        S = Fq @ self.P @ Fq.T + Kq @ self.R @ Kq.T
+        # the expressions read a few slots of ξ(k-1): only those rows and columns of Cov ε(k-1) enter
+        cols = np.flatnonzero(np.any(Fq != 0.0, axis=0))
+        Fq = Fq[:, cols]
+        S = Fq @ self.P[np.ix_(cols, cols)] @ Fq.T + Kq @ self.R @ Kq.T
         for r in range(self.lo, k):
-            Bq = M @ self.alg.Phi(k, r + 1) - Fq @ self._target_rows(r) - Kq @ (self.C @ self.alg.Phi(k, r + 1))
+            Bq = M @ self.alg.Phi(k, r + 1) - Fq @ self._target_rows(r)[cols] - Kq @ (self.C @ self.alg.Phi(k, r + 1))
             Qr = sysm.Sigma_x if r == -1 else sysm.Q_at(r)
             S = S + Bq @ Qr @ Bq.T
             if r in self.X:
-                c = Fq @ self.X[r] @ Bq.T
+                c = Fq @ self.X[r][cols] @ Bq.T
                 S = S + c + c.T
         return 0.5 * (S + S.T)
 
@@ -407,33 +441,19 @@ class _ErrorCovariance:
 def _noise_terms(alg: Algorithm, k: int, prev: Sequence[Slot], new: Sequence[Slot], F: FloatArray, K: FloatArray) -> dict[int, FloatArray]:
     """Coefficients B[r] of w(r) in ε(k) (w(-1) = x(0)), after checking that x(b) drops out."""
     sysm = alg.system
-    dx = sysm.dx
     b = min([s.step for s in prev] + [s.step for s in new] + [k])
     C = sysm.C_stack(k)
-
-    def target_rows(slots: Sequence[Slot], r: int) -> FloatArray:
-        # coefficient of w(r) in the stacked targets T x(s): T Φ(s, r+1) for r <= s-1
-        out = np.zeros((sum(s.dim for s in slots), dx))
-        p = 0
-        for s in slots:
-            if r <= s.step - 1:
-                out[p : p + s.dim] = _target(sysm, s) @ alg.Phi(s.step, r + 1)
-            p += s.dim
-        return out
+    tnew, tprev = _target_rows(alg, tuple(new)), _target_rows(alg, tuple(prev))  # coefficient of w(r) in the targets T x(s)
 
     B: dict[int, FloatArray] = {}
     lo = -1 if b == 0 else b
     for r in range(lo, k):
-        Bm = target_rows(new, r) - F @ target_rows(prev, r)
+        Bm = tnew.rows(r) - F @ tprev.rows(r)
         if r <= k - 1:
             Bm = Bm - K @ (C @ alg.Phi(k, r + 1))
         B[r] = Bm
-    if b > 0:  # the coefficient of x(b) must vanish (an unbiased description)
-
-        def base_rows(slots: Sequence[Slot]) -> FloatArray:
-            return np.vstack([_target(sysm, s) @ alg.Phi(s.step, b) for s in slots]) if slots else np.zeros((0, dx))
-
-        Zn, Zp, Zy = base_rows(new), F @ base_rows(prev), K @ (C @ alg.Phi(k, b))
+    if b > 0:  # the coefficient of x(b) must vanish (an unbiased description): T Φ(s, b) = the rows of w(b - 1), as s >= b
+        Zn, Zp, Zy = tnew.rows(b - 1), F @ tprev.rows(b - 1), K @ (C @ alg.Phi(k, b))
         Z = Zn - Zp - Zy
         scale = np.abs(Zn).max(initial=0) + np.abs(Zp).max(initial=0) + np.abs(Zy).max(initial=0) + 1e-300
         if np.abs(Z).max(initial=0) > 1e-8 * scale:

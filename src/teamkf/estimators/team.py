@@ -126,9 +126,13 @@ def window_covariances(system: LinearGaussianSystem, k: int, anchor: int, P_anch
 
 def _window_positions(system: LinearGaussianSystem, anchor: int, pairs: Sequence[tuple[int, int]]) -> np.ndarray:
     """Positions of the measurements y_j(s), (j, s) in ``pairs`` (in that order), in the window y(anchor:k)."""
-    dy_tot, off = system.dy_total, system.offsets
-    parts = [(s - anchor) * dy_tot + off[j] + np.arange(system.dy[j]) for (j, s) in pairs]
-    return np.concatenate(parts).astype(int) if parts else np.zeros(0, dtype=int)
+    if not pairs:
+        return np.zeros(0, dtype=int)
+    js, ss = np.asarray(pairs, dtype=int).T
+    lens = np.asarray(system.dy, dtype=int)[js]
+    starts = (ss - anchor) * system.dy_total + np.asarray(system.offsets, dtype=int)[js]
+    # the block [start, start + d_y^j) of every pair, concatenated: start repeated d_y^j times plus 0 .. d_y^j - 1
+    return np.repeat(starts - (np.cumsum(lens) - lens), lens) + np.arange(int(lens.sum()))
 
 
 def _local_index(system: LinearGaussianSystem, structure: InformationStructure, i: int, k: int, anchor: int) -> np.ndarray:

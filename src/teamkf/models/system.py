@@ -141,6 +141,7 @@ class LinearGaussianSystem:
         object.__setattr__(self, "_n_time", n_time)
         offs = np.concatenate([[0], np.cumsum([c.shape[1] for c in C])]).astype(int)
         object.__setattr__(self, "_offsets", offs)
+        object.__setattr__(self, "_dy", tuple(int(c.shape[1]) for c in C))
 
     # --- sizes -------------------------------------------------------------
     @property
@@ -153,12 +154,12 @@ class LinearGaussianSystem:
 
     @property
     def dy(self) -> tuple[int, ...]:
-        """Measurement dimension of each agent."""
-        return tuple(int(c.shape[1]) for c in self.C)
+        """Measurement dimension of each agent (computed once: the designs ask for it in their inner loops)."""
+        return self._dy  # type: ignore[attr-defined, no-any-return]
 
     @property
     def dy_total(self) -> int:
-        return int(sum(self.dy))
+        return int(self._offsets[-1])  # type: ignore[attr-defined]
 
     @property
     def offsets(self) -> FloatArray:
