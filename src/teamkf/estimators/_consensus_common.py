@@ -30,7 +30,6 @@ import numpy as np
 
 from .. import _validation as V
 from .._lazy import scipy_linalg as sla  # SciPy loads on first use
-from .._lazy import scipy_optimize as sopt
 from .._linalg import block_diag
 from .._validation import FloatArray
 from ..exceptions import ArgumentError, NotPositiveDefiniteError
