@@ -379,23 +379,36 @@ def build_steps(alg: Algorithm) -> list[LinearStep]:
 
 
 def _advance(system: LinearGaussianSystem, st: LinearStep, P: FloatArray, X: dict[int, FloatArray]) -> tuple[FloatArray, dict[int, FloatArray]]:
-    """One step of the exact error recursion: (Cov ε(k-1), Cov(ε(k-1), w(r))) -> the same at k (as :meth:`LinearTeamDesign.analytic`)."""
+    """One step of the exact error recursion: (Cov ε(k-1), Cov(ε(k-1), w(r))) -> the same at k.
+
+    With ε(k) = F ε(k-1) - K v(k) + Σ_r B_r w(r) and X_r = Cov(ε(k-1), w(r)) for the buffered r:
+
+        Cov ε(k) = F P Fᵀ + K R Kᵀ + Σ_r (B_r Q_r B_rᵀ + F X_r B_rᵀ + B_r X_rᵀ Fᵀ),   X_r(k) = F X_r + B_r Q_r.
+
+    The rank-d_x terms are one product U Vᵀ (U = [F X_r, ½ B_r Q_r], V = [B_r, B_r]); the symmetrization
+    0.5 (M + Mᵀ) of M = F P Fᵀ + K R Kᵀ + 2 U Vᵀ adds U Vᵀ + V Uᵀ.
+    """
     F, K = st.Fs, st.Ks  # type: ignore[attr-defined]
     FP = np.asarray(F @ P)
-    KR = np.asarray(K @ system.R_stack(st.k))
-    Pn = np.asarray(F @ FP.T).T + np.asarray(K @ KR.T).T
+    Pn = np.asarray(F @ FP.T)  # F P Fᵀ (P symmetric)
+    if K.shape[1]:
+        KR = np.asarray(K @ system.R_stack(st.k))
+        Pn = Pn + np.asarray(K @ KR.T)
+    U, V = [], []
     Xn: dict[int, FloatArray] = {}
     for r, Bm in st.B.items():
-        Qr = system.Sigma_x if r == -1 else system.Q_at(r)
-        BQ = Bm @ Qr
-        Pn = Pn + BQ @ Bm.T
+        BQ = Bm @ (system.Sigma_x if r == -1 else system.Q_at(r))
+        U.append(0.5 * BQ)
+        V.append(Bm)
         if r in X:
             FX = np.asarray(F @ X[r])
-            cross = FX @ Bm.T
-            Pn = Pn + cross + cross.T
+            U.append(FX)
+            V.append(Bm)
             Xn[r] = FX + BQ
         else:
             Xn[r] = BQ
+    if U:
+        Pn = Pn + 2.0 * (np.hstack(U) @ np.hstack(V).T)
     return 0.5 * (Pn + Pn.T), Xn
 
 
@@ -511,27 +524,8 @@ class LinearTeamDesign(Design):
         P = np.zeros((0, 0))
         X: dict[int, FloatArray] = {}  # Cov(ε(k), w(r)) for buffered r
         out, covs = [], []
-        Rcache: dict[int, FloatArray] = {}
         for st in steps:
-            F, K = st.Fs, st.Ks  # type: ignore[attr-defined]
-            rk = st.k if system.is_time_varying else 0
-            if rk not in Rcache:
-                Rcache[rk] = system.R_stack(st.k)
-            FP = np.asarray(F @ P)
-            KR = np.asarray(K @ Rcache[rk])
-            Pn = np.asarray(F @ FP.T).T + np.asarray(K @ KR.T).T
-            Xn: dict[int, FloatArray] = {}
-            for r, Bm in st.B.items():
-                Qr = system.Sigma_x if r == -1 else system.Q_at(r)
-                FX = np.asarray(F @ X[r]) if r in X else None
-                if FX is not None:
-                    cross = FX @ Bm.T
-                    Pn = Pn + cross + cross.T
-                BQ = Bm @ Qr
-                Pn = Pn + BQ @ Bm.T
-                Xn[r] = BQ if FX is None else FX + BQ
-            P = 0.5 * (Pn + Pn.T)
-            X = Xn
+            P, X = _advance(system, st, P, X)
             HP = np.asarray(st.Hs @ P)  # type: ignore[attr-defined]
             E = np.asarray(st.Hs @ HP.T).T  # type: ignore[attr-defined]
             covs.append(E)
