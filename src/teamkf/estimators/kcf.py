@@ -614,30 +614,44 @@ class KCFAlgorithm(Algorithm):
         self.honest, self.epsilon = honest, epsilon
         n, dx, T = system.n_agents, system.dx, horizon
         self.src = information_sources(graph, T, honest)
-        self.gain: dict[tuple[int, int, int, int], tuple[FloatArray, FloatArray]] = {}
-        self.M = np.empty((n, T, dx, dx))
-        self.S = np.empty((n, T, dx, dx))
-        self.P = np.empty((n, T, dx, dx))
-        self.gamma = np.empty((n, T))
+        # the nominal covariances do not depend on ε: shared by the designs of one system (an ε grid)
+        key = (T, tuple(tuple(tuple(step) for step in row) for row in self.src))
+        cache: dict[Any, Any] = system.__dict__.setdefault("_teamkf_kcf_nominal", {})
+        if key not in cache:
+            if len(cache) >= 4:
+                cache.pop(next(iter(cache)))
+            cache[key] = self._nominal()
+        self.gain, self.M, self.S, self.P, norms = cache[key]
+        self.gamma = epsilon / (1.0 + norms)
+        self.schedules = {"P": self.P, "M": self.M, "gamma": self.gamma, "S_fused": self.S}
+
+    def _nominal(self) -> tuple[dict[tuple[int, int, int, int], tuple[FloatArray, FloatArray]], FloatArray, FloatArray, FloatArray, FloatArray]:
+        """Gains (G̃, Y) of every fused y_l(s), M_i(k), S_i(k), P_i(k) and ‖M_i(k)‖_F (read-only arrays)."""
+        system, T = self.system, self.horizon
+        n, dx = system.n_agents, system.dx
+        gain: dict[tuple[int, int, int, int], tuple[FloatArray, FloatArray]] = {}
+        Ms, Ss, Ps = np.empty((n, T, dx, dx)), np.empty((n, T, dx, dx)), np.empty((n, T, dx, dx))
         for i in range(n):
             P = system.Sigma_x
             for k in range(T):
-                self.P[i, k] = P
+                Ps[i, k] = P
                 Cs, Rs, S = [], [], np.zeros((dx, dx))
                 for lnode, s in [(i, k), *self.src[i][k]]:
                     Ct, Rt, G, Y = self.compensated(lnode, s, k)
-                    self.gain[(i, k, lnode, s)] = (G, Y)
+                    gain[(i, k, lnode, s)] = (G, Y)
                     Cs.append(Ct)
                     Rs.append(Rt)
                     S = S + Y
                 _, M = kalman_step(P, np.vstack(Cs), block_diag(*Rs))  # (P^-1 + S)^-1 in Joseph form
-                self.M[i, k], self.S[i, k] = M, S
-                self.gamma[i, k] = epsilon / (1.0 + np.linalg.norm(M, "fro"))
+                Ms[i, k], Ss[i, k] = M, S
                 if k + 1 < T:
                     A = system.A_at(k)
                     P = A @ M @ A.T + system.Q_at(k)
                     P = 0.5 * (P + P.T)
-        self.schedules = {"P": self.P, "M": self.M, "gamma": self.gamma, "S_fused": self.S}
+        norms = np.linalg.norm(Ms, "fro", axis=(2, 3))
+        for a in (Ms, Ss, Ps, norms):
+            a.setflags(write=False)
+        return gain, Ms, Ss, Ps, norms
 
     def _prior(self, i: int, k: int, prev: dict | None, zero: Any) -> Any:
         return zero(self.system.dx) if prev is None else self.system.A_at(k - 1) @ prev["xhat"]
