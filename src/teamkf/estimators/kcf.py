@@ -612,7 +612,7 @@ class KCFAlgorithm(Algorithm):
 
         super().__init__(system, cost, graph, horizon)
         self.honest, self.epsilon = honest, epsilon
-        n, dx, T = system.n_agents, system.dx, horizon
+        T = horizon
         self.src = information_sources(graph, T, honest)
         # the nominal covariances do not depend on ε: shared by the designs of one system (an ε grid)
         key = (T, tuple(tuple(tuple(step) for step in row) for row in self.src))

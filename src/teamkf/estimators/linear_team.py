@@ -283,8 +283,87 @@ def _target_rows(alg: "Algorithm", slots: tuple[Slot, ...]) -> _TargetRows:
     return tr
 
 
-#: 0, 1, 2, ... (the selection matrices' indices without a new arange per call)
-_ARANGE = np.arange(4096)
+class _Column:
+    r"""A symbolic column of :func:`build_steps`: the coefficients of a linear expression over the stacked
+    (ξ(k-1), y(k)), stored by blocks: Σ_c M_c · [the slot at column c].
+
+    A family's step reads a handful of slots, so each ``M @ q`` multiplies d × d blocks rather than a
+    d × (dim ξ + dim y) row of mostly zeros. It supports what :class:`Algorithm` allows on columns
+    (``M @ q``, ``q ± q``, scalars times q); any other use (``np.vstack``, a product with a dense row)
+    sees the dense coefficient matrix (``__array__``), and arithmetic with a dense row gives a dense row.
+    """
+
+    __array_ufunc__ = None  # NumPy defers M @ q, a * q, row ± q to the methods below
+    __slots__ = ("blocks", "rows", "width")
+
+    def __init__(self, blocks: dict[int, FloatArray], rows: int, width: int):
+        self.blocks, self.rows, self.width = blocks, rows, width
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (self.rows, self.width)
+
+    def __array__(self, dtype: Any = None, copy: Any = None) -> FloatArray:
+        out = np.zeros((self.rows, self.width), dtype=dtype or float)
+        for c, B in self.blocks.items():
+            out[:, c : c + B.shape[1]] += B
+        return out
+
+    def __rmatmul__(self, M: Any) -> "_Column":
+        M = np.asarray(M, dtype=float)
+        return _Column({c: M @ B for c, B in self.blocks.items()}, M.shape[0], self.width)
+
+    def __mul__(self, a: Any) -> Any:
+        if np.ndim(a) != 0:
+            return np.asarray(self) * a
+        return _Column({c: a * B for c, B in self.blocks.items()}, self.rows, self.width)
+
+    __rmul__ = __mul__
+
+    def __neg__(self) -> "_Column":
+        return self * -1.0
+
+    def _plus(self, other: Any, sign: float) -> Any:
+        if isinstance(other, _Column):
+            out = dict(self.blocks)
+            for c, B in other.blocks.items():
+                if c in out:
+                    out[c] = out[c] + B if sign > 0 else out[c] - B
+                else:
+                    out[c] = B if sign > 0 else -B
+            return _Column(out, self.rows, self.width)
+        if np.ndim(other) == 0 and other == 0:  # sum() starts from 0
+            return self
+        return np.asarray(self) + sign * np.asarray(other, dtype=float)
+
+    def __add__(self, other: Any) -> Any:
+        return self._plus(other, 1.0)
+
+    __radd__ = __add__
+
+    def __sub__(self, other: Any) -> Any:
+        return self._plus(other, -1.0)
+
+    def __rsub__(self, other: Any) -> Any:
+        return (-self)._plus(other, 1.0)
+
+    def place(self, out: FloatArray, row: int) -> None:
+        """Write the coefficients into rows row .. row + rows of ``out`` (zeros there)."""
+        for c, B in self.blocks.items():
+            out[row : row + self.rows, c : c + B.shape[1]] = B
+
+
+#: I_d, read-only (the selection blocks)
+_EYES: dict[int, FloatArray] = {}
+
+
+def _eye(d: int) -> FloatArray:
+    e = _EYES.get(d)
+    if e is None:
+        e = np.eye(d)
+        e.setflags(write=False)
+        _EYES[d] = e
+    return e
 
 
 def build_steps(alg: Algorithm) -> list[LinearStep]:
@@ -312,18 +391,13 @@ def build_steps(alg: Algorithm) -> list[LinearStep]:
         nb = nprev + dyt
         index = {s.key: (int(starts[a]), s) for a, s in enumerate(prev_slots)}
 
-        def sel(pos: int, d: int, nb: int = nb) -> FloatArray:
-            e = np.zeros((d, nb))  # [0 | I_d | 0], the identity block at column pos
-            if pos + d <= _ARANGE.size:
-                e[_ARANGE[:d], _ARANGE[pos : pos + d]] = 1.0
-            else:
-                e[:, pos : pos + d] = np.eye(d)
-            return e
+        def sel(pos: int, d: int, nb: int = nb) -> _Column:
+            return _Column({pos: _eye(d)}, d, nb)  # [0 | I_d | 0], the identity block at column pos
 
-        def zero(d: int, nb: int = nb) -> FloatArray:
-            return np.zeros((d, nb))
+        def zero(d: int, nb: int = nb) -> _Column:
+            return _Column({}, d, nb)
 
-        def get(key: tuple, index: dict = index) -> FloatArray:
+        def get(key: tuple, index: dict = index) -> _Column:
             pos, s = index[key]
             return sel(pos, s.dim)
 
@@ -359,7 +433,14 @@ def build_steps(alg: Algorithm) -> list[LinearStep]:
                 for name, kind in alg.state_kinds.items():
                     new_slots.append(Slot(("state", i, name), kind, i, k, alg.dim(kind, i)))
                     rows.append(states[i][name])
-        coef = np.vstack(rows)
+        coef = np.zeros((sum(np.shape(q)[0] for q in rows), nb))
+        at = 0
+        for q in rows:
+            if isinstance(q, _Column):
+                q.place(coef, at)
+            else:
+                coef[at : at + q.shape[0]] = q
+            at += np.shape(q)[0]
         F, K = coef[:, :nprev], coef[:, nprev:]
         slots = tuple(new_slots)
         nstarts = np.concatenate([[0], np.cumsum([s.dim for s in slots])]).astype(int)
