@@ -47,8 +47,8 @@ from ..exceptions import ArgumentError, NotPositiveDefiniteError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
 from ._consensus_common import VARIANTS, DiffusionAlgorithm, check_variant, ci_weights, finite_horizon, information_sources
-from .checks import check_graph, check_information_form, check_model
 from ._kalman_common import kalman_step
+from .checks import check_graph, check_information_form, check_model
 from .linear_team import Algorithm, LinearTeamDesign, delivered, finish_design, freshest, process_noise
 from .registry import Family, Option, _register_builtin
 
