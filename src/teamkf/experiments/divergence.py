@@ -33,9 +33,12 @@ from ..network import CommGraph
 __all__ = ["data_sets", "why_diverging"]
 
 
-def _agents(idx: list[int], limit: int = 12) -> str:
-    shown = ", ".join(map(str, idx[:limit]))
-    return shown + (f", ... ({len(idx)} of them)" if len(idx) > limit else "")
+def _agents(idx: list[int], n: int, limit: int = 12) -> str:
+    """``agents 0, 3 (2 of 10)``, ``all 10 agents``, or the first ``limit`` of them and the count."""
+    if len(idx) == n:
+        return f"all {n} agents"
+    shown = ", ".join(map(str, idx[:limit])) + (", ..." if len(idx) > limit else "")
+    return f"agents {shown} ({len(idx)} of {n})"
 
 
 def data_sets(family: str, options: dict[str, Any], graph: CommGraph) -> list[list[int]]:
@@ -73,29 +76,25 @@ def why_diverging(
     variant = str(options.get("variant", ""))
     if family == "local":
         if blind:
-            return (
-                f"structural: no filter using only its own measurements converges: (A, C_i) not detectable for agents {_agents(blind)} "
-                f"({len(blind)} of {n})"
-            )
+            return f"structural: no filter using only its own measurements converges: (A, C_i) not detectable for {_agents(blind, n)}"
     elif family == "ci" and not options.get("feedback", False):
         loc = undetecting_agents(system) or []
         if loc:
             joint = [i for i in range(n) if i not in blind]
             tail = (
-                f"; the in-neighbourhood (own and in-neighbours' measurements) jointly detects x for agents {_agents(joint)}"
+                f"; the in-neighbourhood (own and in-neighbours' measurements) jointly detects x for {_agents(joint, n)}"
                 if joint
                 else "; no in-neighbourhood (own and in-neighbours' measurements) jointly detects x either"
             )
             if blind:
-                tail += f", not for agents {_agents(blind)} (no estimator on those data converges)"
+                tail += f", not for {_agents(blind, n)} (no estimator on those data converges)"
             return (
                 f"structural: the published CI fuses local Kalman filters that do not converge and feeds nothing back: (A, C_i) not "
-                f"detectable for agents {_agents(loc)} ({len(loc)} of {n}){tail}; the feedback form (feedback=True) fuses into the prior"
+                f"detectable for {_agents(loc, n)}{tail}; the feedback form (feedback=True) fuses into the prior"
             )
     elif blind:
         return (
-            f"structural: the measurements that can reach agents {_agents(blind)} over the graph do not detect x "
-            "(no estimator on those data converges)"
+            f"structural: the measurements that can reach {_agents(blind, n)} over the graph do not detect x (no estimator on those data converges)"
         )
     what = "published parameters" if not _fmt(options) else f"parameters {_fmt(options)}"
     where = "with exchanges inside the step (ideal variant)" if variant == "ideal" else "on this delay graph"
