@@ -48,8 +48,16 @@ def data_sets(family: str, options: dict[str, Any], graph: CommGraph) -> list[li
         return [[i] for i in range(n)]
     if family == "ci" and not options.get("feedback", False):
         return [sorted({i, *graph.in_neighbors(i)}) for i in range(n)]
-    ell = graph.geodesic_delays()  # ell[j, i]: the delay of the fastest path j -> i (inf: never)
-    return [sorted(j for j in range(n) if j == i or ell[j, i] < float("inf")) for i in range(n)]
+    out = []
+    for i in range(n):  # the agents with a directed path to i (any graph, strongly connected or not)
+        seen, todo = {i}, [i]
+        while todo:
+            for j in graph.in_neighbors(todo.pop()):
+                if j not in seen:
+                    seen.add(j)
+                    todo.append(j)
+        out.append(sorted(seen))
+    return out
 
 
 def why_diverging(
