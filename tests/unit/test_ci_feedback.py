@@ -30,7 +30,11 @@ def small():
     """3 agents, 2-dim slightly unstable process, scalar measurements, delays 1 and 2 (a directed cycle plus one edge)."""
     A = np.array([[1.02, 0.1], [0.0, 0.97]])
     system = LinearGaussianSystem(
-        A=A, Q=np.array([[0.2, 0.05], [0.05, 0.1]]), Sigma_x=np.eye(2), C=[np.array([[1.0, 0.0]]), np.array([[0.0, 1.0]]), np.array([[1.0, 1.0]])], R=0.5
+        A=A,
+        Q=np.array([[0.2, 0.05], [0.05, 0.1]]),
+        Sigma_x=np.eye(2),
+        C=[np.array([[1.0, 0.0]]), np.array([[0.0, 1.0]]), np.array([[1.0, 1.0]])],
+        R=0.5,
     )
     graph = CommGraph(3, ((0, 1, 1), (1, 2, 2), (2, 0, 1), (1, 0, 1)))
     return system, TeamCost.mse(3, 2), graph
