@@ -14,6 +14,14 @@ of its own and its in-neighbours' local estimates:
 The weights depend on covariances only, so they are computed at design time
 (the filter stays linear with data-independent gains: exact analytic cost).
 
+``feedback=True`` (the CI diffusion of Hu, Xie & Zhang, IEEE TSP 2012, and
+Battistelli & Chisci, Automatica 2014; :class:`CIFeedbackAlgorithm`): each
+agent updates its prior with its own measurement (ψ_i, P_i(k|k)), CI-fuses ψ_i
+with the delay-compensated ψ_l(s) it received, and the fused estimate with its
+CI covariance P_f is its next prior (x̄_i = A x̂_i, P = A P_f Aᵀ + Q). Where no
+agent detects x alone the published form's local filters diverge, and so does
+their fusion; the feedback form spreads the information over the graph.
+
 Variants: ``ideal`` fuses the neighbours' current x̂_j^loc(k), P_j(k|k);
 ``honest`` (default) fuses what the graph delivered, x̂_j^loc(s) sent at
 s = k - τ_ji, delay-compensated: x̃_j = Φ(k,s) x̂_j^loc(s) and

@@ -24,7 +24,9 @@ optimum on the same graph (>= 1 for every realizable row, a theorem; the
 ideal variants exchange data inside the step, which no delay graph delivers:
 "realizable" is False and they may go below 1); "last / last*" compares the
 stage costs at t = T. A row whose stage cost keeps growing is marked
-diverging.
+diverging, and "why diverging" says why (:mod:`teamkf.experiments.divergence`):
+structural (the data its agents ever use do not detect x, PBH test, the
+agents named) or parametric (its published parameters on this delay graph).
 
 Lossy links (``teamkf reproduce leaderboard-drops``, rows with p_drop > 0):
 on the UAV formation n = 4 and the platoon, every family runs in the
