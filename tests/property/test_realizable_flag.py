@@ -3,7 +3,7 @@
 The test does not trust the flag: it measures what each agent uses. For every
 registered family, every value of its ``variant`` option (the registry's
 ``choices``) and the fair honest forms of the baselines (exact gains, the
-combination rules, lazy updates, the heard-count ICF/HCMCI, another KCF ε), it
+combination rules, lazy updates, the heard-count ICF/HCMCI, another KCF ε, the CI with feedback), it
 perturbs one measurement y_j(s) at a time and records every agent estimate
 ẑ_i(k) that changes. The graph delivers y_j(s) to agent i at s + ℓ_ji (ℓ: the
 geodesic delay, 0 for j = i), so an estimate that changes at k < s + ℓ_ji used
@@ -41,6 +41,7 @@ EXTRA: dict[str, list[dict]] = {
     "icf": [{"count": "heard"}],
     "hcmci": [{"count": "heard"}],
     "kcf": [{"epsilon": 0.01}],
+    "ci": [{"feedback": True}],
 }
 
 

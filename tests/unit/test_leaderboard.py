@@ -93,6 +93,20 @@ def test_leaderboard_cache_returns_the_same_rows_and_strict_json(board):
     assert data["rows"] and all(np.isfinite(r["J / J*"]) for r in data["rows"] if r["J / J*"] is not None)
 
 
+def test_every_row_says_why_it_diverges_and_ci_has_a_tuned_row(board):
+    from teamkf.experiments.leaderboard import _parse_options
+
+    out, res, _, drops = board
+    assert "why diverging" in (out / "leaderboard.csv").read_text().splitlines()[0].split(",")
+    for r in [*res.rows, *drops.rows]:
+        assert (r["why diverging"] is None) == (not r["diverging"]), r
+        if r["diverging"]:
+            assert r["why diverging"].startswith(("structural: ", "parametric: ")), r
+    for net in {r["network"] for r in res.rows}:
+        assert any(r["network"] == net and r["estimator"] == "ci" and r["form"] == "tuned" for r in res.rows), net
+    assert _parse_options("feedback=True, lazy=0.1") == {"feedback": True, "lazy": 0.1}  # the lossy ranking re-reads the tuned options
+
+
 def test_a_registered_drop_aware_design_is_ranked_under_drops():
     """The drop-aware hook: a family registered as ``mtmse_lossy`` joins the p_drop rankings."""
     import teamkf

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Iterable, Sequence
 
 from ..exceptions import ArgumentError, GraphError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
 
-__all__ = ["check_model", "check_graph"]
+__all__ = ["check_model", "check_graph", "detects", "undetecting_agents"]
 
 
 def check_model(system: Any, cost: Any) -> None:
@@ -59,3 +59,34 @@ def check_information_form(system: LinearGaussianSystem, family: str) -> None:
                 "and A is not invertible; give Q positive definite",
                 argument="system.Q",
             )
+
+
+def detects(system: LinearGaussianSystem, agents: Iterable[int]) -> bool | None:
+    r"""Whether the stacked measurements of ``agents`` detect x: (A, C_J) detectable, C_J = [C_j]_{j in J} (PBH test).
+
+    .. math:: \operatorname{rank} \begin{bmatrix} A - \lambda I \\ C_J \end{bmatrix} = d_x
+              \quad \text{for every eigenvalue } \lambda \text{ of } A \text{ with } |\lambda| \ge 1
+
+    (:func:`teamkf._linalg.unstable_unobservable_modes`). When it fails, no estimator that uses only y_j, j in J,
+    has a bounded error covariance on a process whose noise excites the undetected unstable modes. ``None``
+    for a time-varying model (the test is for time-invariant ones) and for an empty ``agents``.
+    """
+    import numpy as np
+
+    from .._linalg import is_detectable
+
+    J = sorted(set(int(j) for j in agents))
+    if system.is_time_varying or not J:
+        return None
+    return bool(is_detectable(system.A_at(0), np.vstack([system.C_at(j, 0) for j in J])))
+
+
+def undetecting_agents(system: LinearGaussianSystem, groups: Sequence[Iterable[int]] | None = None) -> list[int] | None:
+    """The agents i whose data set ``groups[i]`` (default: {i}, its own measurements) does not detect x (:func:`detects`).
+
+    ``None`` for a time-varying model (not tested).
+    """
+    if system.is_time_varying:
+        return None
+    sets = [[i] for i in range(system.n_agents)] if groups is None else list(groups)
+    return [i for i, g in enumerate(sets) if detects(system, g) is False]

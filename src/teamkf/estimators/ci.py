@@ -14,6 +14,14 @@ of its own and its in-neighbours' local estimates:
 The weights depend on covariances only, so they are computed at design time
 (the filter stays linear with data-independent gains: exact analytic cost).
 
+``feedback=True`` (the CI diffusion of Hu, Xie & Zhang, IEEE TSP 2012, and
+Battistelli & Chisci, Automatica 2014; :class:`CIFeedbackAlgorithm`): each
+agent updates its prior with its own measurement (ψ_i, P_i(k|k)), CI-fuses ψ_i
+with the delay-compensated ψ_l(s) it received, and the fused estimate with its
+CI covariance P_f is its next prior (x̄_i = A x̂_i, P = A P_f Aᵀ + Q). Where no
+agent detects x alone the published form's local filters diverge, and so does
+their fusion; the feedback form spreads the information over the graph.
+
 Variants: ``ideal`` fuses the neighbours' current x̂_j^loc(k), P_j(k|k);
 ``honest`` (default) fuses what the graph delivered, x̂_j^loc(s) sent at
 s = k - τ_ji, delay-compensated: x̃_j = Φ(k,s) x̂_j^loc(s) and
@@ -43,15 +51,16 @@ from typing import Any
 import numpy as np
 
 from .._validation import FloatArray
-from ..exceptions import NotPositiveDefiniteError
+from ..exceptions import ArgumentError, NotPositiveDefiniteError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
 from ._consensus_common import VARIANTS, DiffusionAlgorithm, check_variant, ci_weights, finite_horizon, information_sources
+from ._kalman_common import kalman_step
 from .checks import check_graph, check_information_form, check_model
-from .linear_team import LinearTeamDesign, delivered, finish_design, freshest, process_noise
+from .linear_team import Algorithm, LinearTeamDesign, delivered, finish_design, freshest, process_noise
 from .registry import Family, Option, _register_builtin
 
-__all__ = ["design_ci", "ci_weights"]
+__all__ = ["design_ci", "ci_weights", "check_feedback", "CIFeedbackAlgorithm"]
 
 
 def _information(P: FloatArray, agent: int, s: int, k: int) -> FloatArray:
@@ -160,8 +169,127 @@ class CIAlgorithm(DiffusionAlgorithm):
         return [{"xloc": xl[(i, k)], "xhat": self._fused(i, k, xl)} for i in range(n)]
 
 
+class CIFeedbackAlgorithm(DiffusionAlgorithm):
+    r"""CI diffusion with feedback: own update, CI of the estimates received, the fused estimate is the next prior.
+
+    Agent i, step k, prior (x̄_i, P_i(k|k-1)) (0 and Σ_x at k = 0):
+
+    .. math::
+
+        P_i(k|k) = (P_i(k|k-1)^{-1} + C_i^\top R_i^{-1} C_i)^{-1}, \quad
+        \psi_i = \bar x_i + P_i(k|k)\, C_i^\top R_i^{-1} (y_i - C_i \bar x_i), \\
+        \hat x_i = P_f \sum_{(l,s)\in J_i(k)} \omega_l \tilde P_l^{-1} \Phi(k,s)\,\psi_l(s), \quad
+        P_f^{-1} = \sum \omega_l \tilde P_l^{-1}, \quad
+        \bar x_i(k+1) = A \hat x_i, \quad P_i(k+1|k) = A P_f A^\top + Q,
+
+    with J_i(k) = {(i, k)} ∪ {(l, k - τ_li)} (honest, once arrived) or {(l, k)} (ideal), P̃_l = Φ P_l(s|s) Φᵀ + Q(k, s)
+    (P̃_i = P_i(k|k)) and ω the trace-minimizing point of the simplex. The nominal covariances P_i(k|k), P_f and the
+    weights depend on the model only, so the step is linear with data-independent gains (exact cost).
+    """
+
+    state_kinds = {"xhat": "x"}
+    payload_kinds = {"psi": "x"}
+
+    @property
+    def info_graph(self) -> CommGraph | None:
+        return None  # the adaptation uses the agent's own measurement only; the graph carries the estimates ψ
+
+    def __init__(self, system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, horizon: int, honest: bool):
+        Algorithm.__init__(self, system, cost, graph, horizon)  # the nominal recursion below replaces the diffusion one
+        n, dx, T = system.n_agents, system.dx, horizon
+        self.honest, self.c = honest, np.eye(n)
+        self.combination, self.lazy, self.exact_gains = "ci", 1.0, False
+        self.xgain, self.xcomb = {}, {}
+        self.src = [[[] for _ in range(T)] for _ in range(n)]  # adaptation: own measurement only
+        self.nbrs = [set() for _ in range(n)]
+        self.fuse_src = information_sources(graph, T, honest)
+        self.gain = {}
+        self.P_filt = np.empty((n, T, dx, dx))
+        self.P_pred = np.empty((n, T, dx, dx))
+        self.omega = np.zeros((n, T, n))
+        self.P_fused = np.empty((n, T, dx, dx))
+        self.comb = {}
+        self._wcache: dict[tuple, FloatArray] = {}
+        P = [system.Sigma_x for _ in range(n)]
+        for k in range(T):
+            for i in range(n):
+                self.P_pred[i, k] = P[i]
+                Ct, Rt, G, Y = self.compensated(i, k, k)
+                self.gain[(i, k, i, k)] = (G, Y)
+                self.P_filt[i, k] = kalman_step(P[i], Ct, Rt)[1]
+            for i in range(n):
+                srcs = [(i, k), *self.fuse_src[i][k]]
+                self.comb[(i, k)], w, Pf = self._fusion(k, [(lnode, s, self.P_filt[lnode, s]) for lnode, s in srcs])
+                self.P_fused[i, k] = Pf
+                for (lnode, _), wj in zip(srcs, w):
+                    self.omega[i, k, lnode] = wj
+                if k + 1 < T:
+                    A = system.A_at(k)
+                    Pn = A @ Pf @ A.T + system.Q_at(k)
+                    P[i] = 0.5 * (Pn + Pn.T)
+        self.schedules = {"P_filt": self.P_filt, "P_pred": self.P_pred, "P_fused": self.P_fused, "omega": self.omega}
+
+    def _fusion(self, k: int, items: list[tuple[int, int, FloatArray]]) -> tuple[list[tuple[int, int, FloatArray]], FloatArray, FloatArray]:
+        """CI at step k of ψ_l(s) with covariances P_l(s|s), ``items`` = [(l, s, P)] (own first): gains ω_l P_f P̃_l⁻¹ Φ(k, s), ω, P_f."""
+        Ys = []
+        for lnode, s, Pl in items:
+            Pt = Pl if s == k else self.Phi(k, s) @ Pl @ self.Phi(k, s).T + process_noise(self.system, k, s)
+            Ys.append(_information(Pt, lnode, s, k))
+        key = tuple(np.round(Y, 12).tobytes() for Y in Ys)  # converged covariances: the same weights, solved once
+        if key not in self._wcache:
+            self._wcache[key] = ci_weights(Ys)
+        w = self._wcache[key]
+        Pf = np.linalg.inv(sum(wj * Y for wj, Y in zip(w, Ys)))
+        Pf = 0.5 * (Pf + Pf.T)
+        gains = [(lnode, s, wj * Pf @ Y @ self.Phi(k, s)) for (lnode, s, _), wj, Y in zip(items, w, Ys) if wj > 0]
+        return gains, w, Pf
+
+    def agent_step(self, i: int, k: int, prev: dict | None, y_i: Any, inbox: Any, zero: Any) -> tuple[dict, dict]:
+        psi = self.adapt(i, k, self._prior(i, k, prev, zero), {(i, k): y_i})
+        xhat = self.combine(i, k, psi, {(lnode, s): p["psi"] for (lnode, s, p) in inbox})
+        return {"xhat": xhat}, {"psi": psi}
+
+    def agent_step_tolerant(self, i: int, k: int, prev: dict | None, y_i: Any, inbox: Any, zero: Any) -> tuple[dict, dict]:
+        r"""Unreliable links: own update, then CI of ψ_i and the most recent ψ_l(s_l) of each in-neighbour that delivered.
+
+        The agent carries its own P_i(k|k-1) (a per-run quantity) and each packet carries its sender's P_l(s|s), so
+        the weights ω are re-optimized over J_i(k) = {(i, k)} ∪ {(l, s_l)}, the estimates actually fused (on time or
+        late, compensated from s_l to k as in :meth:`agent_step`), and P_i(k+1|k) = A P_f Aᵀ + Q. CI is consistent for
+        any cross-correlation, so a late estimate is fused as correctly as an on-time one. With nothing lost it is the
+        honest variant; with every packet lost each agent is its own Kalman filter (:mod:`teamkf.estimators.local`).
+
+        Returns
+        -------
+        (state, payload) : state = {"xhat": x̂_i(k|k), "P": P_i(k+1|k)}, payload = {"psi": ψ_i(k), "P": P_i(k|k)}
+        """
+        sysm = self.system
+        xbar = self._prior(i, k, prev, zero)
+        P = sysm.Sigma_x if prev is None else prev.get("P", self.P_pred[i, k])
+        r, Pk = self.fuse_delivered(i, k, xbar, P, y_i, [])
+        psi = xbar + Pk @ r
+        fresh = freshest(delivered(self.graph, i, inbox))
+        items = [(i, k, Pk), *[(lnode, s, p.get("P", self.P_filt[lnode, s])) for lnode, s, p in fresh]]
+        nominal = [(lnode, s) for lnode, s, _ in items] == [(i, k), *self.fuse_src[i][k]] and all(
+            np.array_equal(Pl, self.P_filt[lnode, s]) for lnode, s, Pl in items
+        )
+        if nominal:  # what the design fused, with the design's covariances: its gains (bit for bit the reliable runtime)
+            gains, Pf = self.comb[(i, k)], self.P_fused[i, k]
+        else:
+            gains, _, Pf = self._fusion(k, items)
+        psis = {(i, k): psi, **{(lnode, s): p["psi"] for lnode, s, p in fresh}}
+        xhat: Any = None
+        for lnode, s, W in gains:
+            t = W @ psis[(lnode, s)]
+            xhat = t if xhat is None else xhat + t
+        if k + 1 < self.horizon:
+            A = sysm.A_at(k)
+            P = A @ Pf @ A.T + sysm.Q_at(k)
+            P = 0.5 * (P + P.T)
+        return {"xhat": xhat, "P": P}, {"psi": psi, "P": Pk}
+
+
 def design_ci(
-    system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, horizon: int | None = None, *, variant: str = "honest"
+    system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, horizon: int | None = None, *, variant: str = "honest", feedback: bool = False
 ) -> LinearTeamDesign:
     """Design local Kalman filters with covariance-intersection fusion, with the exact team cost.
 
@@ -178,6 +306,10 @@ def design_ci(
     variant : "honest" (default) or "ideal"
         "honest": one exchange per step over the graph's delays, delay-compensated (realizable);
         "ideal": neighbours' current data within the step (a bound, not realizable on a delay graph).
+    feedback : bool
+        False (default, the published form): the local filters are not changed by the fusion. True: the CI
+        diffusion (:class:`CIFeedbackAlgorithm`): each agent updates with its own measurement, CI-fuses the
+        estimates ψ_l it received, and the fused estimate with its CI covariance P_f is its next prior.
 
     Returns
     -------
@@ -190,14 +322,29 @@ def design_ci(
     >>> d = design_ci(LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 10.0), CommGraph.line(4), 10)
     >>> d.label
     'ci [honest]'
+    >>> design_ci(LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 10.0), CommGraph.line(4), 10, feedback=True).info["feedback"]
+    True
     """
     check_model(system, cost)
     check_information_form(system, "ci")
     check_graph(graph, system.n_agents)
     variant = check_variant(variant, "variant")
+    fb = check_feedback(feedback, "ci.feedback")
     T = finite_horizon(horizon, "ci", system, cost)
-    alg = CIAlgorithm(system, cost, graph, T, honest=(variant == "honest"))
-    return finish_design("ci", alg, variant)
+    honest = variant == "honest"
+    alg: DiffusionAlgorithm = CIFeedbackAlgorithm(system, cost, graph, T, honest) if fb else CIAlgorithm(system, cost, graph, T, honest=honest)
+    return finish_design("ci", alg, variant, {"feedback": fb})
+
+
+def check_feedback(v: Any, key: str) -> bool:
+    """The ``feedback`` option: a bool (True or False; numpy bools accepted, nothing else)."""
+    if isinstance(v, (bool, np.bool_)):
+        return bool(v)
+    raise ArgumentError(
+        f"{key}: expected a bool, True (the fused estimate is the next prior: CI diffusion) or False (the published form: local "
+        f"filters not changed by the fusion), found {v!r} of type {type(v).__name__}; give true or false",
+        argument=key,
+    )
 
 
 FAMILY = _register_builtin(
@@ -215,6 +362,12 @@ FAMILY = _register_builtin(
                 check=check_variant,
                 doc=" | ".join(f"{k!r}: {d}" for k, d in VARIANTS.items()),
                 choices=tuple(VARIANTS),
+            ),
+            Option(
+                name="feedback",
+                default=False,
+                check=check_feedback,
+                doc="False (published): local filters, CI fusion reported only | True: CI diffusion, the fused estimate and P_f are the next prior",
             ),
         ),
         example="design_ci(system, cost, graph, horizon=100, variant='honest')",

@@ -24,7 +24,9 @@ optimum on the same graph (>= 1 for every realizable row, a theorem; the
 ideal variants exchange data inside the step, which no delay graph delivers:
 "realizable" is False and they may go below 1); "last / last*" compares the
 stage costs at t = T. A row whose stage cost keeps growing is marked
-diverging.
+diverging, and "why diverging" says why (:mod:`teamkf.experiments.divergence`):
+structural (the data its agents ever use do not detect x, PBH test, the
+agents named) or parametric (its published parameters on this delay graph).
 
 Lossy links (``teamkf reproduce leaderboard-drops``, rows with p_drop > 0):
 on the UAV formation n = 4 and the platoon, every family runs in the
@@ -165,7 +167,7 @@ def networks(quick: bool) -> list[tuple[str, Any]]:
 
 
 #: bump when :func:`network_rows` or :func:`lossy_network_rows` compute something else (part of the cache key)
-ROWS_VERSION = 4
+ROWS_VERSION = 5
 
 
 def _fingerprint(system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph) -> str:
@@ -263,6 +265,8 @@ def network_part(part: str, system: LinearGaussianSystem, cost: TeamCost, graph:
             c = evaluate(extra, system, cost, graph, T, {})
             if c.error is None:
                 raw.append(_raw(extra, "", "published", "", c.stage_costs, c.realizable, c.seconds))
+        for r in raw:
+            _explain(r, r["estimator"], {}, system, graph, None)
         return {"raw": raw, "steady": steady, "n_agents": system.n_agents, "d_x": system.dx}
     variants = dict(FAMILIES)[part]
     if part not in fams:
@@ -270,21 +274,37 @@ def network_part(part: str, system: LinearGaussianSystem, cost: TeamCost, graph:
     res = tune(part, system, cost, graph, T, variant="honest")
     tried = [{"options": _fmt_options(c.options), "J_T": c.J_T, "diverging": c.diverging, "error": c.error} for c in res.tried]
     pub, best = res.published, res.best
-    raw = [_raw(part, "honest", "published defaults", "", pub.stage_costs, pub.realizable, pub.seconds)]
-    if len(res.tried) > 1:
-        raw.append(
-            _raw(part, "honest", "tuned", _fmt_options(best.options) or "(published defaults)", best.stage_costs, best.realizable, best.seconds)
+    tuned = (_fmt_options(best.options), bool(best.diverging)) if len(res.tried) > 1 else None
+    raw = [
+        _explain(
+            _raw(part, "honest", "published defaults", "", pub.stage_costs, pub.realizable, pub.seconds), part, pub.options, system, graph, tuned
         )
+    ]
+    if len(res.tried) > 1:
+        row = _raw(part, "honest", "tuned", _fmt_options(best.options) or "(published defaults)", best.stage_costs, best.realizable, best.seconds)
+        raw.append(_explain(row, part, best.options, system, graph, tuned))
     for c in res.tried:  # the heard-count ICF / HCMCI beside the published count
         if c.options.get("count") == "heard" and set(c.options) == {"count", "variant"} and c.error is None:
-            raw.append(_raw(part, "honest", "heard-count", "count=heard", c.stage_costs, c.realizable, c.seconds))
+            row = _raw(part, "honest", "heard-count", "count=heard", c.stage_costs, c.realizable, c.seconds)
+            raw.append(_explain(row, part, c.options, system, graph, tuned))
     for v in variants:
         if v == "honest":
             continue
         c = evaluate(part, system, cost, graph, T, {"variant": v})
         if c.error is None:
-            raw.append(_raw(part, v, "published", "", c.stage_costs, c.realizable, c.seconds))
+            raw.append(_explain(_raw(part, v, "published", "", c.stage_costs, c.realizable, c.seconds), part, c.options, system, graph, tuned))
     return {"raw": raw, "tried": tried}
+
+
+def _explain(
+    row: dict[str, Any], family: str, options: dict[str, Any], system: LinearGaussianSystem, graph: CommGraph, tuned: tuple[str, bool] | None
+) -> dict[str, Any]:
+    """``row`` with its "why diverging" (None unless its stage costs diverge; :func:`~teamkf.experiments.divergence.why_diverging`)."""
+    from .divergence import why_diverging
+
+    sc = np.asarray(row["stage_costs"], dtype=float)
+    row["why diverging"] = why_diverging(family, options, system, graph, tuned=tuned) if _diverging(sc) else None
+    return row
 
 
 def assemble(name: str, parts: dict[str, dict[str, Any]]) -> dict[str, Any]:
@@ -299,6 +319,7 @@ def assemble(name: str, parts: dict[str, dict[str, Any]]) -> dict[str, Any]:
         for r in parts[part]["raw"]:
             sc = np.asarray(r["stage_costs"], dtype=float)
             rows.append(_row(base, r["estimator"], r["variant"], r["form"], r["options"], sc, opt_sc, r["realizable"], r["seconds"]))
+            rows[-1]["why diverging"] = r.get("why diverging")
         if parts[part].get("tried") is not None:
             tuning[part] = [
                 {
@@ -481,6 +502,7 @@ def lossy_network_rows(name: str, system: Any, cost: Any, graph: Any, quick: boo
                     "last / last*": None,
                     "ci95 (MC)": f"[{lo:.6g}, {hi:.6g}] ({runs} runs)",
                     "diverging": False,
+                    "why diverging": None,
                     "realizable": fam != "centralized",
                     "beats MTMSE at some step": None,
                     "seconds": None,
@@ -503,6 +525,7 @@ COLUMNS = [
     "last / last*",
     "ci95 (MC)",
     "diverging",
+    "why diverging",
     "realizable",
     "beats MTMSE at some step",
     "J*_avg (steady)",
@@ -587,6 +610,9 @@ def _parse_options(text: str) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for part in filter(None, (p.strip() for p in text.split(","))):
         k, v = part.split("=", 1)
+        if v in ("True", "False"):  # a bool option (ci feedback)
+            out[k] = v == "True"
+            continue
         try:
             out[k] = float(v)
         except ValueError:

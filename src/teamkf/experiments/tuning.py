@@ -15,7 +15,8 @@ The grids (honest variants; ``docs/baselines.md``):
 family      candidates (besides the published defaults)
 ==========  ==========================================================================
 local       none (no free parameter)
-ci          none (its weights are already optimized per step: trace-minimizing CI)
+ci          ``feedback=True``: the CI diffusion (the fused estimate and its CI covariance
+            are the next prior); the weights are optimized per step in both forms
 diffusion   ``gains="exact"`` with the ``"matrix"`` (best linear unbiased) combination;
             age-aware weights; CI combination; lazy α = 0.1 with Metropolis weights
 kcf         ε ∈ {0.03, 0.01, 0.003} (published 0.1)
@@ -49,7 +50,7 @@ def _icf_grid(graph: Any) -> list[dict[str, Any]]:
 #: family -> candidate options (a list, or a function of the graph returning one), besides the published defaults
 GRIDS: dict[str, Any] = {
     "local": [],
-    "ci": [],
+    "ci": [{"feedback": True}],
     "diffusion": [{"gains": "exact", "combination": "matrix"}, {"combination": "age"}, {"combination": "ci"}, {"lazy": 0.1}],
     "kcf": [{"epsilon": e} for e in (0.03, 0.01, 0.003)],
     "icf": _icf_grid,
