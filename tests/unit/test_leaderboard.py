@@ -151,3 +151,25 @@ def test_the_drop_aware_design_is_designed_for_each_p_drop(board):
         assert ex[P_DROPS[0]] < ex[P_DROPS[-1]]  # more drops, larger expected cost: designed per p
     assert all(r["J_T exact"] == r["J_T"] for r in res.rows)  # the exact ranking
     assert all(r["J_T exact"] is None for r in drops.rows if r["estimator"] != "mtmse_lossy")  # Monte Carlo only
+
+
+def test_a_structurally_diverging_row_is_flagged_even_when_its_growth_is_slow():
+    """Agent 0 sees only the stable mode of a slowly unstable process (|λ| = 1.01): no local filter converges.
+
+    Over 8 steps its stage cost has not grown 1.5-fold (the numeric test), yet the row is flagged by the
+    detectability theorem; the communicating diffusion, whose agents hear each other, is not.
+    """
+    from teamkf import CommGraph, LinearGaussianSystem, TeamCost
+    from teamkf.experiments.leaderboard import _diverging, assemble, network_part
+
+    system = LinearGaussianSystem(A=np.diag([1.01, 0.5]), Q=0.1, Sigma_x=1.0, C=[np.array([[0.0, 1.0]]), np.array([[1.0, 0.0]])], R=0.5)
+    cost, graph = TeamCost.mse(2, 2), CommGraph.line(2)
+    parts = {p: {"raw": [], "tried": None} for p in ("ci", "kcf", "icf", "hcmci")}
+    parts["base"] = network_part("base", system, cost, graph, 8, True)
+    parts["local"] = network_part("local", system, cost, graph, 8, True)
+    parts["diffusion"] = network_part("diffusion", system, cost, graph, 8, True)
+    rows = assemble("two agents", parts)["rows"]
+    local = next(r for r in rows if r["estimator"] == "local")
+    assert not _diverging(np.asarray(parts["local"]["raw"][0]["stage_costs"]))  # the numbers alone do not show it yet
+    assert local["diverging"] and local["why diverging"].startswith("structural") and "agents 0" in local["why diverging"]
+    assert not any(r["diverging"] for r in rows if r["estimator"] == "diffusion" and r["variant"] == "honest")
