@@ -173,3 +173,7 @@ def test_a_structurally_diverging_row_is_flagged_even_when_its_growth_is_slow():
     assert not _diverging(np.asarray(parts["local"]["raw"][0]["stage_costs"]))  # the numbers alone do not show it yet
     assert local["diverging"] and local["why diverging"].startswith("structural") and "agents 0" in local["why diverging"]
     assert not any(r["diverging"] for r in rows if r["estimator"] == "diffusion" and r["variant"] == "honest")
+    from teamkf.experiments.divergence import forced
+
+    # the published CI fuses the in-neighbourhood {0, 1}, which detects x: its divergence would not be forced
+    assert forced("local", {}, system, graph) and not forced("ci", {}, system, graph) and not forced("diffusion", {}, system, graph)

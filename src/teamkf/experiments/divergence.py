@@ -30,7 +30,7 @@ from ..estimators.checks import undetecting_agents
 from ..models import LinearGaussianSystem
 from ..network import CommGraph
 
-__all__ = ["data_sets", "why_diverging"]
+__all__ = ["data_sets", "forced", "why_diverging"]
 
 
 def _agents(idx: list[int], n: int, limit: int = 12) -> str:
@@ -58,6 +58,20 @@ def data_sets(family: str, options: dict[str, Any], graph: CommGraph) -> list[li
                     todo.append(j)
         out.append(sorted(seen))
     return out
+
+
+def forced(family: str, options: dict[str, Any], system: LinearGaussianSystem, graph: CommGraph) -> bool:
+    """Divergence forced by a theorem: some agent's data set D_i does not detect x, and Q > 0 excites every mode.
+
+    Then no estimator on those data has a bounded error covariance, whatever the horizon shows. (A
+    published CI whose local filters diverge but whose in-neighbourhoods detect x is not forced: its
+    divergence, when the numbers show one, is the rule's.) False for time-varying models (not tested).
+    """
+    import numpy as np
+
+    if system.is_time_varying or np.linalg.eigvalsh(0.5 * (system.Q_at(0) + system.Q_at(0).T))[0] <= 0.0:
+        return False
+    return bool(undetecting_agents(system, data_sets(family, options, graph)))
 
 
 def why_diverging(

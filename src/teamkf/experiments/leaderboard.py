@@ -309,25 +309,17 @@ def _explain(
     row: dict[str, Any], family: str, options: dict[str, Any], system: LinearGaussianSystem, graph: CommGraph, tuned: tuple[str, bool] | None
 ) -> dict[str, Any]:
     """``row`` with its "why diverging" (None unless its stage costs diverge; :func:`~teamkf.experiments.divergence.why_diverging`)."""
-    from .divergence import why_diverging
+    from .divergence import forced, why_diverging
 
     sc = np.asarray(row["stage_costs"], dtype=float)
-    why = why_diverging(family, options, system, graph, tuned=tuned)
     if _diverging(sc):
-        row["why diverging"] = why
-    elif why.startswith("structural") and _excites_every_mode(system):
-        # a theorem, whatever the horizon shows: with Q > 0 every undetected mode |λ| >= 1 has an unbounded error
+        row["why diverging"] = why_diverging(family, options, system, graph, tuned=tuned)
+    elif forced(family, options, system, graph):  # a theorem, whatever the horizon shows
+        why = why_diverging(family, options, system, graph, tuned=tuned)
         row["why diverging"] = why + " (by the detectability test: the error grows without bound, slowly on this horizon)"
     else:
         row["why diverging"] = None
     return row
-
-
-def _excites_every_mode(system: LinearGaussianSystem) -> bool:
-    """Q positive definite (time-invariant): the process noise drives every mode, so an undetected |λ| >= 1 one diverges."""
-    if system.is_time_varying:
-        return False
-    return bool(np.linalg.eigvalsh(0.5 * (system.Q_at(0) + system.Q_at(0).T))[0] > 0.0)
 
 
 def assemble(name: str, parts: dict[str, dict[str, Any]]) -> dict[str, Any]:
