@@ -484,9 +484,10 @@ def lossy_network_rows(name: str, system: Any, cost: Any, graph: Any, quick: boo
         if fam not in fams:
             continue
         _add_lossy(designs, labels, f"{fam} published", fam, "published defaults", {"variant": "honest"}, system, cost, graph, T)
-        for opts in tuned.get(fam, []):
-            if opts and f"{fam} tuned" not in designs:
-                _add_lossy(designs, labels, f"{fam} tuned", fam, "tuned", {**opts, "variant": "honest"}, system, cost, graph, T)
+        for opts in tuned.get(fam, []):  # the best candidate with a rule for lost messages; none when it is the published row
+            if not opts or f"{fam} tuned" in designs:
+                break
+            _add_lossy(designs, labels, f"{fam} tuned", fam, "tuned", {**opts, "variant": "honest"}, system, cost, graph, T)
         if fam in ("icf", "hcmci"):
             _add_lossy(designs, labels, f"{fam} heard", fam, "heard-count", {"variant": "honest", "count": "heard"}, system, cost, graph, T)
     for p in P_DROPS:
