@@ -256,6 +256,8 @@ class DiffusionAlgorithm(Algorithm):
         self.nbrs = [set(graph.in_neighbors(i)) if graph is not None and self.info_graph is not None else set() for i in range(n)]
         #: (i, k) -> [(l, s, W)]: x̂_i = Σ W ψ_l(s) (W includes Φ(k, s)); only for the non-published rules
         self.comb: dict[tuple[int, int], list[tuple[int, int, FloatArray]]] = {}
+        #: (i,k,l,s) -> (G̃ = C̃'R̃^-1, Y = G̃ C̃)
+        self.gain: dict[tuple[int, int, int, int], tuple[FloatArray, FloatArray]] = {}
         if self.combination != "ci":  # the nominal covariances do not depend on the combination: shared by the designs on this system
             self.gain, self.P_filt, self.P_pred = _nominal(self)
             if not self._published and not self.exact_gains:
@@ -265,7 +267,6 @@ class DiffusionAlgorithm(Algorithm):
                         self.comb[(i, k)], _ = self.combination_gains(i, k, items)
             self.schedules = {"P_filt": self.P_filt, "P_pred": self.P_pred, "weights": c}
             return
-        self.gain: dict[tuple[int, int, int, int], tuple[FloatArray, FloatArray]] = {}  # (i,k,l,s) -> (G̃ = C̃'R̃^-1, Y = G̃ C̃)
         self.P_filt = np.empty((n, T, dx, dx))
         self.P_pred = np.empty((n, T, dx, dx))
         P = [system.Sigma_x for _ in range(n)]

@@ -417,7 +417,7 @@ def build_steps(alg: Algorithm) -> list[LinearStep]:
             alg._errcov = _ErrorCovariance(alg, k, prev_slots, nprev, Pk, Xk)
         prev_states: list[dict | None] = [None if k == 0 else {name: get(("state", i, name)) for name in alg.state_kinds} for i in range(n)]
         new_slots: list[Slot] = []
-        rows: list[FloatArray] = []
+        rows: list[Any] = []  # symbolic columns (_Column) or dense rows
         if alg.honest:
             payloads = []
             for i in range(n):
