@@ -77,6 +77,21 @@ def _information(P: FloatArray, agent: int, s: int, k: int) -> FloatArray:
     return np.asarray(np.linalg.inv(P), dtype=float)
 
 
+def _ci_fusion(alg: Any, k: int, items: list[tuple[int, int, FloatArray]]) -> tuple[list[FloatArray], FloatArray, FloatArray]:
+    """CI at step k of estimates from steps s with covariances P, ``items`` = [(l, s, P)]: the information
+    matrices P̃⁻¹ (P̃ = Φ(k, s) P Φ(k, s)ᵀ + Q(k, s)), the weights ω (:func:`ci_weights`, solved once per
+    distinct set of matrices: converged covariances repeat) and P_f = (Σ ω_l P̃_l⁻¹)⁻¹."""
+    Ys = []
+    for lnode, s, Pl in items:
+        Pt = Pl if s == k else alg.Phi(k, s) @ Pl @ alg.Phi(k, s).T + process_noise(alg.system, k, s)
+        Ys.append(_information(Pt, lnode, s, k))
+    key = tuple(np.round(Y, 12).tobytes() for Y in Ys)
+    if key not in alg._wcache:
+        alg._wcache[key] = ci_weights(Ys)
+    w = alg._wcache[key]
+    return Ys, w, np.linalg.inv(sum(wj * Y for wj, Y in zip(w, Ys)))
+
+
 class CIAlgorithm(DiffusionAlgorithm):
     """Local KF per agent (no combination), then CI fusion of the local estimates received."""
 
@@ -105,16 +120,7 @@ class CIAlgorithm(DiffusionAlgorithm):
 
     def _fusion(self, k: int, srcs: list[tuple[int, int]]) -> tuple[list[tuple[int, int, FloatArray]], FloatArray]:
         """CI of the local estimates x̂_l^loc(s), (l, s) in ``srcs``, at step k: the gains ω_l P_f P̃_l⁻¹ Φ(k, s) and ω."""
-        Ys = []
-        for lnode, s in srcs:
-            Phi = self.Phi(k, s)
-            Pt = Phi @ self.P_filt[lnode, s] @ Phi.T + (process_noise(self.system, k, s) if s != k else 0.0)
-            Ys.append(_information(Pt, lnode, s, k))
-        key = tuple(np.round(Y, 12).tobytes() for Y in Ys)  # converged covariances: the same weights, solved once
-        if key not in self._wcache:
-            self._wcache[key] = ci_weights(Ys)
-        w = self._wcache[key]
-        Pf = np.linalg.inv(sum(wj * Y for wj, Y in zip(w, Ys)))
+        Ys, w, Pf = _ci_fusion(self, k, [(lnode, s, self.P_filt[lnode, s]) for lnode, s in srcs])
         return [(lnode, s, wj * Pf @ Y @ self.Phi(k, s)) for (lnode, s), wj, Y in zip(srcs, w, Ys) if wj > 0], w
 
     def _prior(self, i: int, k: int, prev: dict | None, zero: Any) -> Any:
@@ -231,15 +237,7 @@ class CIFeedbackAlgorithm(DiffusionAlgorithm):
 
     def _fusion(self, k: int, items: list[tuple[int, int, FloatArray]]) -> tuple[list[tuple[int, int, FloatArray]], FloatArray, FloatArray]:
         """CI at step k of ψ_l(s) with covariances P_l(s|s), ``items`` = [(l, s, P)] (own first): gains ω_l P_f P̃_l⁻¹ Φ(k, s), ω, P_f."""
-        Ys = []
-        for lnode, s, Pl in items:
-            Pt = Pl if s == k else self.Phi(k, s) @ Pl @ self.Phi(k, s).T + process_noise(self.system, k, s)
-            Ys.append(_information(Pt, lnode, s, k))
-        key = tuple(np.round(Y, 12).tobytes() for Y in Ys)  # converged covariances: the same weights, solved once
-        if key not in self._wcache:
-            self._wcache[key] = ci_weights(Ys)
-        w = self._wcache[key]
-        Pf = np.linalg.inv(sum(wj * Y for wj, Y in zip(w, Ys)))
+        Ys, w, Pf = _ci_fusion(self, k, items)
         Pf = 0.5 * (Pf + Pf.T)
         gains = [(lnode, s, wj * Pf @ Y @ self.Phi(k, s)) for (lnode, s, _), wj, Y in zip(items, w, Ys) if wj > 0]
         return gains, w, Pf
