@@ -14,7 +14,9 @@ import numpy as np
 
 import teamkf
 from teamkf.estimators.base import Design
+from teamkf.estimators.checks import check_graph, check_model
 from teamkf.estimators.kalman import kalman_covariances
+from teamkf.exceptions import ArgumentError
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
@@ -44,6 +46,10 @@ class AveragingAgent:
 
 def design_avg_kf(system, cost, graph, horizon=None):
     """Per-agent Kalman gains on each agent's own measurements (finite horizon, time-invariant A)."""
+    check_model(system, cost)  # teamkf's own checks: clear errors that name the argument
+    check_graph(graph, system.n_agents)
+    if isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer)) or horizon < 1:
+        raise ArgumentError(f"horizon: expected a number of steps T >= 1, found {horizon!r}; give an integer", argument="horizon")
     gains = []
     for i in range(system.n_agents):
         own = teamkf.LinearGaussianSystem(A=system.A, Q=system.Q, Sigma_x=system.Sigma_x, C=[system.C[i]], R=[system.R[i]])
