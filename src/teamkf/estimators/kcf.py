@@ -648,7 +648,8 @@ class KCFAlgorithm(Algorithm):
                     A = system.A_at(k)
                     P = A @ M @ A.T + system.Q_at(k)
                     P = 0.5 * (P + P.T)
-        norms = np.linalg.norm(Ms, "fro", axis=(2, 3))
+        # ‖M‖_F one matrix at a time, as the agents' step for lost packets computes it (bit for bit the same γ)
+        norms = np.array([[np.linalg.norm(Ms[i, k], "fro") for k in range(T)] for i in range(n)]).reshape(n, T)
         for a in (Ms, Ss, Ps, norms):
             a.setflags(write=False)
         return gain, Ms, Ss, Ps, norms
