@@ -11,7 +11,7 @@ row                                             D_i
 every other family (and ``ci`` with feedback)   the agents from which i is reachable in the graph
 ==============================================  ================================================
 
-When (A, C_{D_i}) is not detectable (PBH test on the modes |λ| >= 1,
+When (A, C_{D_i}) is not detectable (PBH test on the modes with modulus >= 1,
 :func:`teamkf.estimators.checks.detects`; time-invariant models) no estimator
 using only those data has a bounded error covariance: the row diverges for a
 **structural** reason, a theorem, not a defect of the family. The published CI
