@@ -36,7 +36,7 @@ from ..exceptions import ArgumentError, NotPositiveDefiniteError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
 from ._kalman_common import kalman_step
-from .linear_team import Algorithm, delivered, freshest, process_noise
+from .linear_team import Algorithm, delivered, freshest, process_noise, shared_schedules
 
 __all__ = [
     "VARIANTS",
@@ -190,10 +190,6 @@ def _nominal(alg: "DiffusionAlgorithm") -> tuple[dict[tuple[int, int, int, int],
     tuning grid share them: stored on ``system`` (read-only arrays, the last few source patterns).
     """
     system, T, n, dx = alg.system, alg.horizon, alg.system.n_agents, alg.system.dx
-    key = (T, tuple(tuple(tuple(step) for step in row) for row in alg.src))
-    cache: dict[Any, Any] = system.__dict__.setdefault("_teamkf_nominal", {})
-    if key in cache:
-        return cache[key]  # type: ignore[no-any-return]
     gain: dict[tuple[int, int, int, int], tuple[FloatArray, FloatArray]] = {}
     P_filt = np.empty((n, T, dx, dx))
     P_pred = np.empty((n, T, dx, dx))
@@ -214,9 +210,6 @@ def _nominal(alg: "DiffusionAlgorithm") -> tuple[dict[tuple[int, int, int, int],
                 P[i] = 0.5 * (Pn + Pn.T)
     P_filt.setflags(write=False)
     P_pred.setflags(write=False)
-    if len(cache) >= 4:
-        cache.pop(next(iter(cache)))
-    cache[key] = (gain, P_filt, P_pred)
     return gain, P_filt, P_pred
 
 
@@ -259,7 +252,7 @@ class DiffusionAlgorithm(Algorithm):
         #: (i,k,l,s) -> (G̃ = C̃'R̃^-1, Y = G̃ C̃)
         self.gain: dict[tuple[int, int, int, int], tuple[FloatArray, FloatArray]] = {}
         if self.combination != "ci":  # the nominal covariances do not depend on the combination: shared by the designs on this system
-            self.gain, self.P_filt, self.P_pred = _nominal(self)
+            self.gain, self.P_filt, self.P_pred = shared_schedules(self, "_teamkf_nominal", lambda: _nominal(self))
             if not self._published and not self.exact_gains:
                 for k in range(T):
                     for i in range(n):

@@ -100,7 +100,7 @@ from ._consensus_common import information_sources
 from ._kalman_common import kalman_step
 from .base import Design, check_measurements
 from .checks import check_graph, check_model
-from .linear_team import Algorithm, delivered, finish_design, freshest
+from .linear_team import Algorithm, delivered, finish_design, freshest, shared_schedules
 from .registry import Family, Option, _register_builtin
 
 __all__ = ["KCFDesign", "KCFAgent", "KCFMessage", "KCFAlgorithm", "design_kcf", "kcf_schedules", "VARIANTS"]
@@ -615,13 +615,7 @@ class KCFAlgorithm(Algorithm):
         T = horizon
         self.src = information_sources(graph, T, honest)
         # the nominal covariances do not depend on ε: shared by the designs of one system (an ε grid)
-        key = (T, tuple(tuple(tuple(step) for step in row) for row in self.src))
-        cache: dict[Any, Any] = system.__dict__.setdefault("_teamkf_kcf_nominal", {})
-        if key not in cache:
-            if len(cache) >= 4:
-                cache.pop(next(iter(cache)))
-            cache[key] = self._nominal()
-        self.gain, self.M, self.S, self.P, norms = cache[key]
+        self.gain, self.M, self.S, self.P, norms = shared_schedules(self, "_teamkf_kcf_nominal", self._nominal)
         self.gamma = epsilon / (1.0 + norms)
         self.schedules = {"P": self.P, "M": self.M, "gamma": self.gamma, "S_fused": self.S}
 

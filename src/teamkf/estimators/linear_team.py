@@ -70,6 +70,22 @@ def _memo(system: LinearGaussianSystem, table: str, k_to: int, k_from: int, comp
     return out  # type: ignore[no-any-return]
 
 
+def shared_schedules(alg: "Algorithm", table: str, compute: Callable[[], Any]) -> Any:
+    """``compute()``, stored on ``alg.system`` under ``table`` and the algorithm's horizon and sources ``alg.src``.
+
+    A family's nominal covariances depend on the model, T and which data each agent fuses, not on its
+    tuning parameters (a combination rule, ε), so the designs of one tuning grid share them; the last
+    four source patterns of each table are kept.
+    """
+    key = (alg.horizon, tuple(tuple(tuple(step) for step in row) for row in alg.src))  # type: ignore[attr-defined]
+    cache: dict[Any, Any] = alg.system.__dict__.setdefault(table, {})
+    if key not in cache:
+        if len(cache) >= 4:
+            cache.pop(next(iter(cache)))
+        cache[key] = compute()
+    return cache[key]
+
+
 def transition(system: LinearGaussianSystem, k_to: int, k_from: int) -> FloatArray:
     """Φ(k_to, k_from) = A(k_to - 1) ... A(k_from) (memoized, read-only)."""
     return _memo(system, "_teamkf_phi", k_to, k_from, lambda: system.transition(k_to, k_from))
@@ -379,6 +395,18 @@ def _eye(d: int) -> FloatArray:
 
 def build_steps(alg: Algorithm) -> list[LinearStep]:
     """Run ``alg`` symbolically over its horizon: the linear description of every step (with the error terms)."""
+    return _build(alg)[0]
+
+
+def _stage_cost(cost: TeamCost, st: LinearStep, P: FloatArray) -> tuple[FloatArray, float]:
+    """The outputs' error covariance E = H P_ε Hᵀ at step k and the stage cost tr(S E)."""
+    HP = np.asarray(st.Hs @ P)  # type: ignore[attr-defined]
+    E = np.asarray(st.Hs @ HP.T).T  # type: ignore[attr-defined]
+    return E, float(np.sum(cost.S_at(st.k) * E))
+
+
+def _build(alg: Algorithm) -> tuple[list[LinearStep], FloatArray | None]:
+    """:func:`build_steps`, and the exact stage costs when the family's gains already ran the error recursion."""
     sysm, cost, T = alg.system, alg.cost, alg.horizon
     n, dx, dys = sysm.n_agents, sysm.dx, sysm.dy
     offs = np.concatenate([[0], np.cumsum(dys)]).astype(int)
@@ -396,6 +424,7 @@ def build_steps(alg: Algorithm) -> list[LinearStep]:
     exact = bool(getattr(alg, "exact_gains", False))
     Pk: FloatArray = np.zeros((0, 0))
     Xk: dict[int, FloatArray] = {}
+    stage: list[float] = []
     for k in range(T):
         starts = np.concatenate([[0], np.cumsum([s.dim for s in prev_slots])]).astype(int)
         nprev = int(starts[-1])
@@ -464,10 +493,12 @@ def build_steps(alg: Algorithm) -> list[LinearStep]:
         steps.append(LinearStep(k=k, slots=slots, F=F, K=K, H=H, B=B))
         if exact:
             Pk, Xk = _advance(sysm, steps[-1], Pk, Xk)
+            with np.errstate(over="ignore", invalid="ignore"):  # as analytic(): a diverging design's cost is inf/nan
+                stage.append(_stage_cost(cost, steps[-1], Pk)[1])
         prev_slots = slots
     if exact:
         alg._errcov = None
-    return steps
+    return steps, (np.asarray(stage) if exact else None)
 
 
 def _advance(system: LinearGaussianSystem, st: LinearStep, P: FloatArray, X: dict[int, FloatArray]) -> tuple[FloatArray, dict[int, FloatArray]]:
@@ -477,7 +508,7 @@ def _advance(system: LinearGaussianSystem, st: LinearStep, P: FloatArray, X: dic
 
         Cov ε(k) = F P Fᵀ + K R Kᵀ + Σ_r (B_r Q_r B_rᵀ + F X_r B_rᵀ + B_r X_rᵀ Fᵀ),   X_r(k) = F X_r + B_r Q_r.
 
-    The rank-d_x terms are one product U Vᵀ (U = [F X_r, ½ B_r Q_r], V = [B_r, B_r]); the symmetrization
+    The rank-d_x terms are one product U Vᵀ (U = [½ B_r Q_r + F X_r], V = [B_r]); the symmetrization
     0.5 (M + Mᵀ) of M = F P Fᵀ + K R Kᵀ + 2 U Vᵀ adds U Vᵀ + V Uᵀ.
     """
     F, K = st.Fs, st.Ks  # type: ignore[attr-defined]
@@ -490,15 +521,14 @@ def _advance(system: LinearGaussianSystem, st: LinearStep, P: FloatArray, X: dic
     Xn: dict[int, FloatArray] = {}
     for r, Bm in st.B.items():
         BQ = Bm @ (system.Sigma_x if r == -1 else system.Q_at(r))
-        U.append(0.5 * BQ)
-        V.append(Bm)
         if r in X:
             FX = np.asarray(F @ X[r])
-            U.append(FX)
-            V.append(Bm)
+            U.append(0.5 * BQ + FX)
             Xn[r] = FX + BQ
         else:
+            U.append(0.5 * BQ)
             Xn[r] = BQ
+        V.append(Bm)
     if U:
         Pn = Pn + 2.0 * (np.hstack(U) @ np.hstack(V).T)
     return 0.5 * (Pn + Pn.T), Xn
@@ -618,10 +648,9 @@ class LinearTeamDesign(Design):
         out, covs = [], []
         for st in steps:
             P, X = _advance(system, st, P, X)
-            HP = np.asarray(st.Hs @ P)  # type: ignore[attr-defined]
-            E = np.asarray(st.Hs @ HP.T).T  # type: ignore[attr-defined]
+            E, c = _stage_cost(cost, st, P)
             covs.append(E)
-            out.append(float(np.sum(cost.S_at(st.k) * E)))
+            out.append(c)
         return np.asarray(out), covs
 
     # --- Monte Carlo ------------------------------------------------------------------------
@@ -761,9 +790,10 @@ class LinearAgent:
 def finish_design(estimator: str, alg: Algorithm, variant: str, info: dict[str, Any] | None = None) -> LinearTeamDesign:
     """Build the steps of ``alg``, their exact cost, and the design object."""
     with single_thread_blas():  # many medium GEMMs: one BLAS thread is robust on a shared machine
-        steps = build_steps(alg)
-        with np.errstate(over="ignore", invalid="ignore"):
-            stage, _ = LinearTeamDesign.analytic(alg.system, alg.cost, steps)
+        steps, stage = _build(alg)  # exact gains: the recursion they ran gives the cost
+        if stage is None:
+            with np.errstate(over="ignore", invalid="ignore"):
+                stage, _ = LinearTeamDesign.analytic(alg.system, alg.cost, steps)
     # realizable exactly when the agents run one exchange per step over the graph (the honest step); an ideal
     # variant exchanges inside the step, which no delay graph delivers (Design.realizable reads this)
     inf = {"variant": variant, "cost_method": "analytic", "realizable": bool(alg.honest), **(info or {})}
