@@ -65,6 +65,7 @@ def kalman_covariances(system: LinearGaussianSystem, n_steps: int) -> tuple[Floa
     >>> bool(np.all(np.trace(P_filt, axis1=1, axis2=2) <= np.trace(P_pred, axis1=1, axis2=2)))
     True
     """
+    V.instance(system, "system", LinearGaussianSystem, "a LinearGaussianSystem", "build one with teamkf.LinearGaussianSystem(...)")
     T = V.positive_int(n_steps, "n_steps")
     dx, dy = system.dx, system.dy_total
     from .._budget import check_memory

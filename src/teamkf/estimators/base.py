@@ -60,6 +60,7 @@ __all__ = [
     "Message",
     "MeasurementRelay",
     "check_measurements",
+    "check_paths",
     "deliver_structured",
     "pass_messages",
     "checked_step",
@@ -254,6 +255,7 @@ class Design(DesignReprMixin, abc.ABC):
         families override it with an error recursion driven by the primitive noises
         (``paths.x[:, 0]``, ``paths.w``, ``paths.v``).
         """
+        check_paths(paths, self.system)
         ys, _, T, _ = check_measurements(paths.y, self.system, self.horizon)
         z = self._filter(ys)
         L = [self.cost.L_at(k) for k in range(T)]
@@ -379,6 +381,22 @@ class Design(DesignReprMixin, abc.ABC):
 # ---------------------------------------------------------------------------
 # measurements
 # ---------------------------------------------------------------------------
+def check_paths(paths: Any, system: LinearGaussianSystem) -> None:
+    """``paths`` must be sampled runs of ``system`` (what :func:`teamkf.sample` returns): x, y, w, v with d_x matching.
+
+    The boundary check of every family's :meth:`Design.errors`: a wrong object is one
+    :class:`~teamkf.exceptions.ArgumentError`, not an ``AttributeError`` deep inside a recursion.
+    """
+    from .._validation import describe
+
+    fix = "pass the sampled runs teamkf.sample(system, n_steps, n_runs=..., rng=...) returns"
+    if any(not hasattr(paths, a) for a in ("x", "y", "w", "v")):
+        raise ArgumentError(f"paths: expected sampled runs (an object with x, y, w, v), found {describe(paths)}; {fix}", argument="paths")
+    x = np.asarray(paths.x)
+    if x.ndim != 3 or x.shape[2] != system.dx:
+        raise ShapeError(f"paths.x: expected shape (n_runs, n_steps, {system.dx}), found {x.shape}; {fix}")
+
+
 def check_measurements(y: Any, system: LinearGaussianSystem, horizon: int | None) -> tuple[list[FloatArray], int, int, bool]:
     """Validate measurements: a list over agents of (n_runs, T, d_y^i) or (T, d_y^i) arrays, or a ``Paths``.
 

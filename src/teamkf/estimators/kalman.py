@@ -27,7 +27,7 @@ from .._validation import FloatArray
 from ..exceptions import ArgumentError, InformationStructureError
 from ..models import LinearGaussianSystem, TeamCost
 from ._kalman_common import kalman_covariances, kalman_step, predictor_errors, steady_state
-from .base import Design, Packet
+from .base import Design, Packet, check_paths
 from .checks import check_model
 from .registry import Family, Option, _register_builtin
 
@@ -84,6 +84,7 @@ class CentralizedDesign(Design):
         eps(k+1) = A [eps(k) - K (C eps(k) + v(k))] + w(k)   (stable: A(I - KC) is)
         filter error eps(k) - K (C eps(k) + v(k)).
         """
+        check_paths(paths, self.system)
         sys, cost = self.system, self.cost
         eps = predictor_errors(sys, self.K_at, paths)
         out = []

@@ -98,7 +98,7 @@ from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
 from ._consensus_common import information_sources
 from ._kalman_common import kalman_step
-from .base import Design, check_measurements
+from .base import Design, check_measurements, check_paths
 from .checks import check_graph, check_model
 from .linear_team import Algorithm, delivered, finish_design, freshest, shared_schedules
 from .registry import Family, Option, _register_builtin
@@ -332,6 +332,7 @@ class KCFDesign(Design):
         ----------
         paths : ``teamkf.simulation.sampling.Paths`` (x, y, w, v), T' <= horizon steps
         """
+        check_paths(paths, self.system)
         n, dx, sys, cost = self.n_agents, self.system.dx, self.system, self.cost
         x = V.as_float_array(paths.x, "paths.x")
         if x.ndim != 3 or x.shape[2] != dx:

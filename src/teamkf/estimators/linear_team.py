@@ -49,7 +49,7 @@ from ..exceptions import DivergenceError, ShapeError, TeamkfError, UnsupportedOp
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
 from ._kalman_common import kalman_step
-from .base import Design
+from .base import Design, check_paths
 
 __all__ = ["Slot", "LinearStep", "LinearTeamDesign", "Algorithm", "build_steps", "transition", "process_noise"]
 
@@ -656,6 +656,7 @@ class LinearTeamDesign(Design):
     # --- Monte Carlo ------------------------------------------------------------------------
     def errors(self, paths: Any) -> FloatArray:
         """e(k) = L x(k) - ẑ(k) = H ε(k), (n_runs, T', n d_z), from the primitive noises x(0), w, v."""
+        check_paths(paths, self.system)
         with single_thread_blas():
             return self._errors(paths)
 

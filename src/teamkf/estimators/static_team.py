@@ -114,7 +114,10 @@ def static_team_estimate(joint_cov: Any, dims: Sequence[int], cost: TeamCost, *,
     >>> round(est.cost, 6)  # (2 + lam) alpha s2 / (1 + alpha s2), alpha = 2/3
     2.4
     """
-    dims = [int(d) for d in dims]
+    if isinstance(dims, (str, bytes)) or not hasattr(dims, "__len__") or np.ndim(dims) != 1:
+        raise ShapeError(f"dims: expected a sequence (d_x, d_0, d_1, ..., d_n) of whole numbers, found {V.describe(dims)}")
+    dims = [V.integer(d, f"dims[{k}]", minimum=0) for k, d in enumerate(dims)]
+    V.instance(cost, "cost", TeamCost, "a TeamCost", "build one with teamkf.TeamCost(...)")
     if len(dims) < 3 or any(d < 0 for d in dims) or dims[0] < 1:
         raise ShapeError(f"dims: expected (d_x, d_0, d_1, ..., d_n) with d_x >= 1 and d_i >= 0, found {tuple(dims)}")
     n = len(dims) - 2

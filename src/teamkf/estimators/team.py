@@ -50,7 +50,7 @@ from ..exceptions import InformationStructureError, UnsupportedOperationError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.information import InformationStructure
 from ._kalman_common import kalman_covariances, predictor_errors, steady_state
-from .base import Design, Packet
+from .base import Design, Packet, check_paths
 from .checks import check_model
 from .gamma import DENSE_MAX_BYTES, choose_solver, innovations_pays
 from .registry import Family, Option, _register_builtin
@@ -289,6 +289,7 @@ class TeamDesign(Design):
         exactly what the online agents produce, but without subtracting two
         large numbers when A is unstable.
         """
+        check_paths(paths, self.system)
         sys, cost, st = self.system, self.cost, self.structure
         n, dz = sys.n_agents, cost.dz
         eps_pred = predictor_errors(sys, self.K_at, paths, max(paths.n_steps - st.common_lag + 1, 1))

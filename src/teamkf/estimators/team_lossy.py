@@ -87,7 +87,7 @@ from ..exceptions import ArgumentError, ShapeError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
 from ._arrivals import ArrivalModel
-from .base import Design
+from .base import Design, check_paths
 from .checks import check_graph, check_model
 from .registry import Family, Option, _register_builtin, register_alias
 
@@ -488,6 +488,7 @@ class LossyTeamDesign(Design):
         Vectorized over runs: the local filters' errors are propagated from the primitive noises and
         the estimate (1) is a batched product with the arrival-masked innovations.
         """
+        check_paths(paths, self.system)
         sysm, cost = self.system, self.cost
         x0 = np.asarray(paths.x, dtype=float)[:, 0]
         w = np.asarray(paths.w, dtype=float)

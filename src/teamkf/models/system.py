@@ -266,6 +266,14 @@ class LinearGaussianSystem:
         0.7, 0.7, 0.5, 0.5, ... (our choice; the paper gives only n = 4).
         """
         n = V.positive_int(n_agents, "n_agents")
+        from .._budget import check_memory
+
+        check_memory(
+            8.0 * n * n * (n + 3),
+            f"a platoon of {n:,} vehicles (every one measures all {n:,} positions)",
+            argument="n_agents",
+            fix="use fewer vehicles",
+        )
         if A is None:
             col = [0.9, 0.7, 0.7] + [0.5] * max(0, n - 3)
             A_arr = np.zeros((n, n))

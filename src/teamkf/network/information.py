@@ -72,6 +72,7 @@ class InformationStructure:
 
     def __post_init__(self) -> None:
         n = V.positive_int(self.n_agents, "n_agents")
+        _check_agents(n)
         c = _int(self.common_lag, "common_lag", minimum=1)
         if self.local is None or len(self.local) != n:
             found = "None" if self.local is None else f"{len(self.local)} lists"
@@ -144,11 +145,13 @@ class InformationStructure:
     @classmethod
     def own_window(cls, n_agents: int, common_lag: int, length: int | None = None) -> "InformationStructure":
         """Each agent keeps only its own last ``length`` readings (default: common_lag), like IS2."""
+        n = _int(n_agents, "n_agents", minimum=1)
+        _check_agents(n)
         c = _int(common_lag, "common_lag", minimum=1)
         m = c if length is None else _int(length, "length", minimum=1)
         if m > c:
             raise InformationStructureError(f"length: expected <= common_lag = {c}, found {m}")
-        return cls(n_agents, c, [[(i, 0, m - 1)] for i in range(n_agents)])
+        return cls(n, c, [[(i, 0, m - 1)] for i in range(n)])
 
     # --- queries ------------------------------------------------------------
     def local_lags(self, i: int) -> list[tuple[int, int]]:
@@ -232,6 +235,16 @@ class InformationStructure:
     @classmethod
     def from_dict(cls, n_agents: int, d: dict[str, Any]) -> "InformationStructure":
         return cls(n_agents, d["common_lag"], d["local"])
+
+
+#: the largest team an information structure is built for (one window list per agent, held in Python)
+MAX_AGENTS = 10**6
+
+
+def _check_agents(n: int) -> None:
+    from .._budget import check_size
+
+    check_size(n, "n_agents", maximum=MAX_AGENTS, what="a team of", fix="use fewer agents (a population scenario handles huge N)")
 
 
 def _int(x: Any, name: str, *, minimum: int) -> int:

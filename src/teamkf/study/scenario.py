@@ -257,6 +257,10 @@ class Scenario(ScenarioBase):
 
     def updated(self, values: Mapping[str, Any]) -> "Scenario":
         """A new scenario with dotted keys replaced, e.g. ``{"cost.lambda": 10.0, "graph.delay": 2}``."""
+        if not isinstance(values, Mapping):
+            raise ArgumentError(
+                f"values: expected a mapping of dotted keys to values, e.g. {{'cost.lambda': 10.0}}, found {V.describe(values)}", argument="values"
+            )
         d = self.raw
         for key, value in values.items():
             d = set_dotted(d, key, value)

@@ -170,6 +170,14 @@ def design_cikf(
                 f"{[complex(b) for b in bad[:4]]}; observe them with some agent's C, or pass check=False"
             )
     r = model.rank
+    from ..._budget import check_memory
+
+    check_memory(  # the gains K(t) (T, N, M, r) and the stored covariances: refused before the first allocation
+        8.0 * T * N * M * (r + 2 * M),
+        f"the CIKF gains and covariances of T = {T:,} steps (N = {N} agents, M = {M})",
+        argument="horizon",
+        fix="use a shorter horizon",
+    )
     hoods = [np.array([n, *nbrs[n]], dtype=int) for n in range(N)]
     r_idx = [np.concatenate([np.arange(l * r, (l + 1) * r) for l in h]) for h in hoods]
     Ops = _Structured if method == "structured" else _Dense

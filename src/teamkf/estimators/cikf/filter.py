@@ -20,7 +20,7 @@ from ..._blas import blas_threads
 from ..._validation import FloatArray
 from ...exceptions import InformationStructureError, ShapeError
 from ...network.graph import CommGraph
-from ..base import Design, check_measurements
+from ..base import Design, check_measurements, check_paths
 from .gains import DEFAULT_RCOND
 from .kernels import Form, _agent_groups, _worker_pool
 from .model import PseudoStateModel
@@ -335,6 +335,7 @@ class CIKFDesign(Design):
         nothing large is subtracted when A is unstable; the result is what the online
         agents produce (``L x - simulate(y)``) up to round-off.
         """
+        check_paths(paths, self.system)
         x = V.as_float_array(paths.x, "paths.x")
         sys, N = self.system, self.n_agents
         if x.ndim != 3 or x.shape[2] != sys.dx:
