@@ -687,6 +687,9 @@ def load_plugins_into(plugins: Sequence[tuple[str, str | None, str | None]], ide
             if source is None:
                 if name not in sys.modules:
                     load_plugin(name)
+                elif name not in _HASHES:  # imported here before (a preload): its identity is its file here
+                    _PLUGINS.append((name, None, None))
+                    _HASHES[name] = _module_hash(sys.modules[name])
             elif name not in sys.modules or _HASHES.get(name) != _sha256(source):
                 _replace_plugin(name, path or f"<plugin {name}>", source)
         if identities is not None:
