@@ -42,6 +42,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from ..estimators.base import checked_step, step_context
 from ..exceptions import TeamkfError, UnsupportedOperationError
 from .codec import BYE, DATA, DROPPED, HELLO, Frame, FrameError, decode_frame, encode_frame
 from .transport import Transport
@@ -118,6 +119,7 @@ class AgentCore:
         #: True when the family's loss-tolerant step runs (see the module docstring)
         self.tolerant = _set_tolerant(self.agent) if tolerant else False
         self.state: Any = None
+        self._dz, self._who = step_context(design)
 
     def expected(self, k: int) -> list[tuple[int, int]]:
         """The (sender, sent step) due at step k, in in-neighbour order."""
@@ -129,7 +131,7 @@ class AgentCore:
     def step(self, k: int, own: Any, received: dict[tuple[int, int], Any]) -> tuple[np.ndarray, Any]:
         due = self.expected(k)
         inbox = [(j, s, received[(j, s)]) for (j, s) in due if received.get((j, s)) is not None]
-        self.state, z, payload = self.agent.step(self.state, k, own, inbox)
+        self.state, z, payload = checked_step(self.agent, self.index, self.state, k, own, inbox, 1, self._dz, self._who)  # a plug-in's z: one line
         return z, payload
 
 

@@ -64,6 +64,7 @@ __all__ = [
     "deliver_structured",
     "pass_messages",
     "checked_step",
+    "step_context",
     "json_float",
 ]
 
@@ -297,7 +298,7 @@ class Design(DesignReprMixin, abc.ABC):
         """Batched filtering (validated input); families with a vectorized form override it."""
         graph = self.delivery_graph
         if graph is not None:
-            return pass_messages(self.graph_agents(), graph, ys)
+            return pass_messages(self.graph_agents(), graph, ys, design=self)
         return deliver_structured(self.agents(), ys)
 
     # --- what the CLI writes ------------------------------------------------------------
@@ -507,22 +508,41 @@ def deliver_structured(agents: Sequence[OnlineAgent], ys: Sequence[FloatArray]) 
     return np.stack(out, axis=1)
 
 
-def checked_step(agent: Any, i: int, state: Any, k: int, own: Any, inbox: Any, n_runs: int) -> tuple[Any, Any, Any]:
-    """``agent.step(state, k, own, inbox)``, with its return checked: ``(state, z, payload)``, z of shape (n_runs, d_z).
+def step_context(design: Any) -> tuple[int | None, str]:
+    """``(d_z, who)`` for :func:`checked_step`: a design's estimate width and ``"plug-in FILE, family 'name', "`` (the prefix of its messages)."""
+    if design is None:
+        return None, ""
+    dz = getattr(getattr(design, "cost", None), "dz", None)
+    name = getattr(design, "estimator", None)
+    who = f"family {name!r}, " if name else ""
+    from .registry import plugin_of
 
-    A step that returns something else (a user's plug-in, typically) is a :class:`ShapeError` naming the agent's
-    class, the step and what came back, instead of an error deep in the runtime.
+    plugin = plugin_of(type(design).__module__)
+    return (int(dz) if isinstance(dz, (int, np.integer)) else None), (f"plug-in {plugin}, {who}" if plugin else who)
+
+
+def checked_step(
+    agent: Any, i: int, state: Any, k: int, own: Any, inbox: Any, n_runs: int, dz: int | None = None, who: str = ""
+) -> tuple[Any, Any, Any]:
+    """``agent.step(state, k, own, inbox)``, with its return checked: ``(state, z, payload)``, z a float array of shape (n_runs, d_z).
+
+    A step that returns something else (a user's plug-in, typically) is a :class:`ShapeError` naming the plug-in
+    and family (``who``, from :func:`step_context`), the agent's class, the step, and expected vs found, instead
+    of an error deep in the runtime. The check is a few attribute reads per agent and step (no pass over the
+    values): a non-finite z is not refused here (a diverging estimator's inf or NaN is flagged in the results).
     """
     out = agent.step(state, k, own, inbox)
     if not isinstance(out, tuple) or len(out) != 3:
         raise ShapeError(
-            f"agent {i} ({type(agent).__qualname__}).step at step {k}: expected a tuple (next state, z, payload), found {_describe(out)}"
+            f"{who}agent {i} ({type(agent).__qualname__}).step at step {k}: expected a tuple (next state, z, payload), found {_describe(out)}"
         )
     z = out[1]
-    if not isinstance(z, np.ndarray) or z.ndim != 2 or z.shape[0] != n_runs:
-        shape = f"shape {z.shape}" if isinstance(z, np.ndarray) else _describe(z)
+    if not isinstance(z, np.ndarray) or z.ndim != 2 or z.shape[0] != n_runs or (dz is not None and z.shape[1] != dz) or z.dtype.kind != "f":
+        found = f"an array of shape {z.shape} and dtype {z.dtype}" if isinstance(z, np.ndarray) else _describe(z)
+        want = f"({n_runs}, {dz})" if dz is not None else f"({n_runs}, d_z)"
         raise ShapeError(
-            f"agent {i} ({type(agent).__qualname__}).step at step {k}: expected z of shape ({n_runs}, d_z), one row per run, found {shape}"
+            f"{who}agent {i} ({type(agent).__qualname__}).step at step {k}: expected z of shape {want} and a float dtype "
+            f"(one row per run, cost.dz columns), found {found}; fix the step's z (docs: plugins.html, 'The agents')"
         )
     return out
 
@@ -533,12 +553,13 @@ def _describe(x: Any) -> str:
     return describe(x)
 
 
-def pass_messages(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray]) -> FloatArray:
+def pass_messages(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray], *, design: Any = None) -> FloatArray:
     """Run graph agents over ``graph``: own y_i(k) plus in-neighbours' payloads sent at k - τ_ji.
 
     Payloads are sent after every agent has stepped, so nothing arrives within
     a step. Omniscient agents receive every y_j(k) at step k. Returns the
-    estimates (n_runs, T, Σ d_z), agent-major.
+    estimates (n_runs, T, Σ d_z), agent-major. With ``design`` every step's z is
+    checked against its d_z (:func:`checked_step`).
     """
     n = graph.n_agents
     if len(agents) != n or len(ys) != n:
@@ -548,6 +569,7 @@ def pass_messages(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArr
     sent: list[dict[int, Any]] = [{} for _ in range(n)]
     max_delay = max((d for (_, _, d) in graph.edges), default=1)
     states = [ag.init_state(n_runs) for ag in agents]
+    dz, who = step_context(design)
     out = []
     for k in range(T):
         zs = []
@@ -559,7 +581,7 @@ def pass_messages(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArr
                 inbox = []
             else:
                 own = ys[i][:, k]
-            states[i], z, payload = checked_step(ag, i, states[i], k, own, inbox, n_runs)
+            states[i], z, payload = checked_step(ag, i, states[i], k, own, inbox, n_runs, dz, who)
             zs.append(z)
             payloads.append(payload)
         for i in range(n):

@@ -41,6 +41,7 @@ __all__ = [
     "get_family",
     "family_listing",
     "load_plugin",
+    "plugin_identities",
     "ENTRY_POINT_GROUP",
     "PLUGINS_ENV",
 ]
@@ -371,9 +372,42 @@ def register_family(family: Family | None = None, /, *, replace: bool = False, *
         raise ArgumentError(f"family: expected a Family record, found {type(family).__name__}", argument="family")
     _load_builtins()
     if family.name in _REGISTRY and not replace and _REGISTRY[family.name] is not family:
-        raise ArgumentError(f"name: a family called {family.name!r} is already registered; choose another name or pass replace=True", argument="name")
+        held, new = _REGISTRY[family.name], _origin(family)
+        by = f" by {_origin(held)}" if _origin(held) != new else ""
+        where = f" on {_WHERE[0]}" if _WHERE[0] else ""
+        fix = (
+            "give the family another name, or restart that cluster's workers (client.restart()) to forget the other plug-in"
+            if where
+            else "choose another name, unregister the other one first (teamkf.unregister_family), or pass replace=True"
+        )
+        raise ArgumentError(
+            f"name: a family called {family.name!r} is already registered{by}{where}; {new} registers it again: {fix}", argument="name"
+        )
     _REGISTRY[family.name] = family
     return family
+
+
+#: where this process is, for messages (set on a Dask worker while it loads plug-ins: "the Dask worker ADDRESS of the cluster at ADDRESS")
+_WHERE = [""]
+
+
+def plugin_of(module: str) -> str | None:
+    """The file (or module name) of the loaded plug-in that defines ``module``, or None for teamkf's own code and the rest."""
+    for name, path, _ in _PLUGINS:
+        if module == name or module.startswith(name + "."):
+            return path or name
+    return None
+
+
+def _origin(family: Family) -> str:
+    """``plug-in FILE (sha256 0123456789ab)``, ``module M`` or ``Python code``: where a family's record comes from."""
+    mod = getattr(family.design, "__module__", "") or ""
+    for name, path, _ in _PLUGINS:
+        if mod == name or mod.startswith(name + "."):
+            return f"plug-in {path or name} (sha256 {_HASHES.get(name, '?')[:12]})"
+    if mod.startswith("teamkf."):
+        return f"teamkf's module {mod}"
+    return f"module {mod}" if mod and mod != "__main__" else "Python code (register_family)"
 
 
 def unregister_family(name: str) -> None:
@@ -560,6 +594,59 @@ def get_family(name: Any, key: str = "estimator") -> Family:
 
 #: the plug-ins this process loaded, in order: (module name, file path or None, source text or None)
 _PLUGINS: list[tuple[str, str | None, str | None]] = []
+#: module name -> sha256 (hex) of each loaded plug-in's source: its identity, with the name
+_HASHES: dict[str, str] = {}
+
+
+def _sha256(data: str | bytes) -> str:
+    import hashlib
+
+    return hashlib.sha256(data.encode("utf-8") if isinstance(data, str) else data).hexdigest()
+
+
+def _module_hash(module: Any) -> str:
+    """sha256 of an imported plug-in module's source file(s): every ``.py`` of a package, in path order; "" when it has none."""
+    from pathlib import Path
+
+    files: list[Path] = []
+    for root in getattr(module, "__path__", None) or ():
+        files.extend(sorted(Path(root).rglob("*.py")))
+    if not files and getattr(module, "__file__", None):
+        files = [Path(module.__file__)]
+    if not files:
+        return ""
+    import hashlib
+
+    h = hashlib.sha256()
+    for f in files:
+        try:
+            h.update(f.name.encode() + b"\0" + f.read_bytes())
+        except OSError:
+            return ""
+    return h.hexdigest()
+
+
+def plugin_identities() -> dict[str, str]:
+    """The identity of every plug-in loaded in this process: module name -> sha256 of its source.
+
+    A ``.py`` plug-in is hashed from the source it was loaded from; an importable module from its file
+    (a package: every ``.py`` file in it). teamkf sends the identities with every Dask task: a worker that
+    holds another version of a plug-in is updated from the shipped source, or the task is refused in one
+    line naming the worker, the scheduler and both hashes, never run with the stale version.
+
+    Returns
+    -------
+    dict of str to str
+        ``{module name: sha256 hex digest}``, in loading order ("" for a module without a source file).
+
+    Examples
+    --------
+    >>> import teamkf
+    >>> from teamkf.estimators.registry import plugin_identities
+    >>> all(len(h) in (0, 64) for h in plugin_identities().values())
+    True
+    """
+    return {name: _HASHES.get(name, "") for name, _, _ in _PLUGINS}
 
 
 def loaded_plugins() -> tuple[tuple[str, str | None, str | None], ...]:
@@ -584,17 +671,102 @@ def loaded_plugins() -> tuple[tuple[str, str | None, str | None], ...]:
     return tuple(_PLUGINS)
 
 
-def load_plugins_into(plugins: Sequence[tuple[str, str | None, str | None]]) -> None:
-    """Load ``plugins`` (from :func:`loaded_plugins` of another process) here, under the same module names."""
+def load_plugins_into(plugins: Sequence[tuple[str, str | None, str | None]], identities: Mapping[str, str] | None = None, where: str = "") -> None:
+    """Load ``plugins`` (from :func:`loaded_plugins` of another process) here, under the same module names.
+
+    A plug-in already loaded here with the same source is kept; one loaded with another source (the file was
+    edited since) is replaced: its families are unregistered, the shipped source runs in its place. An
+    importable module cannot be shipped: when its file here hashes otherwise than ``identities`` says, the
+    load is refused. ``where`` (e.g. ``"the Dask worker tcp://... of the cluster at tcp://..."``) goes into every message.
+    """
     import sys
 
-    for name, path, source in plugins:
-        if name in sys.modules:
+    _WHERE[0] = where
+    try:
+        for name, path, source in plugins:
+            if source is None:
+                if name not in sys.modules:
+                    load_plugin(name)
+                elif name not in _HASHES:  # imported here before (a preload): its identity is its file here
+                    _PLUGINS.append((name, None, None))
+                    _HASHES[name] = _module_hash(sys.modules[name])
+            elif name not in sys.modules or _HASHES.get(name) != _sha256(source):
+                _replace_plugin(name, path or f"<plugin {name}>", source)
+        if identities is not None:
+            check_plugin_identities(identities, where)
+    finally:
+        _WHERE[0] = ""
+
+
+def check_plugin_identities(identities: Mapping[str, str], where: str = "") -> None:
+    """Refuse (one :class:`~teamkf.exceptions.ArgumentError`) unless this process holds exactly these plug-in versions.
+
+    Parameters
+    ----------
+    identities : mapping of str to str
+        ``{module name: sha256}`` of the driver (:func:`plugin_identities`).
+    where : str
+        Where this process is, for the message (``"the Dask worker ADDRESS of the cluster at ADDRESS"``).
+    """
+    import sys
+
+    for name, want in identities.items():
+        held = _HASHES.get(name) if name in sys.modules else None
+        if held == want:
             continue
-        if source is None:
-            load_plugin(name)
+        path = next((p for n, p, _ in _PLUGINS if n == name and p), name)
+        if held is None:
+            found = f"holds no plug-in {name!r}"
+            fix = "rerun; if it persists, restart the workers (client.restart())"
         else:
-            _exec_plugin(name, path or f"<plugin {name}>", source)
+            found = f"holds plug-in {path} with sha256 {held[:12]}"
+            fix = (
+                "install the same version of the module on every worker"
+                if not any(n == name and src for n, _, src in _PLUGINS)
+                else "another run loaded another version there meanwhile; rerun when it is done, or use a cluster of your own"
+            )
+        raise ArgumentError(
+            f"plugin: {where or 'this process'} {found}, this run's {name!r} has sha256 {want[:12]}; teamkf never runs a stale plug-in: {fix}",
+            argument="plugin",
+        )
+
+
+def _unload_plugin(name: str) -> list[Family]:
+    """Forget the plug-in module ``name``: its families leave the registry (returned), it leaves sys.modules."""
+    import sys
+
+    gone = [f for f in _REGISTRY.values() if _is_from(f, name)]
+    for f in gone:
+        _REGISTRY.pop(f.name, None)
+    sys.modules.pop(name, None)
+    _PLUGINS[:] = [p for p in _PLUGINS if p[0] != name]
+    _HASHES.pop(name, None)
+    return gone
+
+
+def _is_from(family: Family, name: str) -> bool:
+    mod = getattr(family.design, "__module__", "") or ""
+    return mod == name or mod.startswith(name + ".")
+
+
+def _replace_plugin(name: str, path: str, source: str) -> Any:
+    """Run ``source`` as plug-in ``name``, in place of the version loaded now (if any); the old one is restored if the new one fails."""
+    import sys
+
+    old_module, old_entry = sys.modules.get(name), [p for p in _PLUGINS if p[0] == name]
+    old_hash = _HASHES.get(name)
+    gone = _unload_plugin(name) if old_module is not None else []
+    try:
+        return _exec_plugin(name, path, source)
+    except BaseException:
+        if old_module is not None:
+            sys.modules[name] = old_module
+            _PLUGINS.extend(old_entry)
+            if old_hash is not None:
+                _HASHES[name] = old_hash
+            for f in gone:
+                _REGISTRY.setdefault(f.name, f)
+        raise
 
 
 def _plugin_error(spec: str, what: str, exc: BaseException) -> ArgumentError:
@@ -612,10 +784,16 @@ def _exec_plugin(name: str, path: str, source: str) -> Any:
     module = types.ModuleType(name)
     module.__file__ = path
     sys.modules[name] = module
+    _HASHES[name] = _sha256(source)  # known while it registers its families (messages name it)
+    _PLUGINS.append((name, path, source))
     try:
         exec(compile(source, path, "exec"), module.__dict__)
     except BaseException as exc:
+        for fam in [f for f in _REGISTRY.values() if _is_from(f, name)]:  # what it registered before it failed
+            _REGISTRY.pop(fam.name, None)
         sys.modules.pop(name, None)
+        _PLUGINS[:] = [p for p in _PLUGINS if p[0] != name]
+        _HASHES.pop(name, None)
         if isinstance(exc, (KeyboardInterrupt, TeamkfError)):
             raise
         raise _plugin_error(path, "importing", exc) from exc  # SystemExit too: a plug-in's sys.exit() must not end teamkf silently
@@ -625,21 +803,22 @@ def _exec_plugin(name: str, path: str, source: str) -> Any:
         cloudpickle.register_pickle_by_value(module)
     except (ImportError, ValueError):  # no cloudpickle: the workers load the plug-in themselves
         pass
-    _PLUGINS.append((name, path, source))
     return module
 
 
 def load_plugin(spec: str) -> Any:
     """Import a module that registers families: a module name (``mypkg.filters``) or a ``.py`` file path.
 
-    A file is imported under the name ``teamkf_plugin_<stem>``; its source is remembered
-    (:func:`loaded_plugins`) so that Dask workers load the same module. An exception while importing it
-    becomes one :class:`~teamkf.exceptions.ArgumentError` naming the plug-in (the original is chained).
+    A file is imported under the name ``teamkf_plugin_<stem>``; its source and its sha256 are remembered
+    (:func:`loaded_plugins`, :func:`plugin_identities`) so that Dask workers load the same version. Loading
+    a file again after it was edited replaces the old version (its families are re-registered from the new
+    source). An exception while importing it becomes one :class:`~teamkf.exceptions.ArgumentError` naming
+    the plug-in (the original is chained).
 
     Parameters
     ----------
     spec : str
-        A ``.py`` file path or an importable module name; loading the same plug-in twice is a no-op.
+        A ``.py`` file path or an importable module name; loading the same (unchanged) plug-in twice is a no-op.
 
     Returns
     -------
@@ -665,14 +844,23 @@ def load_plugin(spec: str) -> Any:
         if not path.is_file():
             raise ArgumentError(f"plugin: no such file {spec!r}; give a .py file or an importable module name", argument="plugin")
         name = f"teamkf_plugin_{path.stem}"
-        if name in sys.modules:
-            return sys.modules[name]
         try:
             source = path.read_text(encoding="utf-8")
         except (OSError, UnicodeDecodeError) as exc:
             raise ArgumentError(f"plugin: cannot read {spec!r} as UTF-8 Python source ({exc})", argument="plugin") from None
-        return _exec_plugin(name, str(path.resolve()), source)
+        if name in sys.modules and _HASHES.get(name) == _sha256(source):
+            return sys.modules[name]
+        held = next((p for n, p, _ in _PLUGINS if n == name), None)
+        if name in sys.modules and held is not None and held != str(path.resolve()):
+            raise ArgumentError(
+                f"plugin: {spec!r} would load as module {name!r}, which plug-in {held} (sha256 {_HASHES.get(name, '?')[:12]}) "
+                "already is; rename one of the two files",
+                argument="plugin",
+            )
+        return _replace_plugin(name, str(path.resolve()), source)  # a file edited since it was loaded: the new version replaces it
     if spec in sys.modules:
+        if spec not in _HASHES and any(n == spec for n, _, _ in _PLUGINS):
+            _HASHES[spec] = _module_hash(sys.modules[spec])
         return sys.modules[spec]
     try:
         module = importlib.import_module(spec)
@@ -685,6 +873,7 @@ def load_plugin(spec: str) -> Any:
     except BaseException as exc:
         raise _plugin_error(spec, "importing", exc) from exc
     _PLUGINS.append((spec, None, None))
+    _HASHES[spec] = _module_hash(module)
     return module
 
 

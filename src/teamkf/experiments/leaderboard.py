@@ -42,6 +42,13 @@ with its exact expected cost in "J_T exact" (the Monte Carlo cost must cover
 it). It is a separate command because its Monte Carlo runs (the baselines'
 agents one run at a time) cost more than the exact leaderboard.
 
+Plug-in families (``--plugin``, ``TEAMKF_PLUGINS``, entry points, ``register_family``) are ranked too,
+with their published defaults (form "plug-in"), where their registry records permit: the exact
+ranking takes those with an analytic cost and a finite-horizon design, the p_drop ranking those that
+declare ``lossy_links``. Every other plug-in is listed, with the reason, before the run starts (on
+stderr) and in these notes; so is a plug-in whose design fails on a network. Plug-in rows are not
+cached (their source may change between runs).
+
 Each network's rows are cached on disk (``$TEAMKF_CACHE_DIR``, default
 ``~/.cache/teamkf``; ``TEAMKF_CACHE_DIR=off`` disables it), keyed by the
 network's arrays, T and the source of the estimators and of this module, and
@@ -72,6 +79,7 @@ from .tuning import evaluate, tune
 
 __all__ = [
     "FAMILIES",
+    "plugin_entrants",
     "HORIZON",
     "LOSSY_FAMILIES",
     "LOSSY_NETWORKS",
@@ -305,6 +313,88 @@ def network_part(part: str, system: LinearGaussianSystem, cost: TeamCost, graph:
     return {"raw": raw, "tried": tried}
 
 
+#: the families the leaderboard ranks by name besides :data:`FAMILIES`: its base rows and the drop-aware design
+_BY_NAME = ("mtmse", "centralized", "mmse", "cikf", *LOSSY_FAMILIES)
+
+
+def plugin_entrants(lossy: bool = False) -> tuple[list[str], dict[str, str]]:
+    """The registered families that are not teamkf's own: ``(ranked, left_out)``, left_out mapping name -> why.
+
+    The exact ranking (``lossy=False``) takes a plug-in with an analytic cost and a finite-horizon design;
+    the p_drop ranking (``lossy=True``) one with a finite-horizon design that declares ``lossy_links``.
+
+    Examples
+    --------
+    >>> from teamkf.experiments.leaderboard import plugin_entrants
+    >>> ranked, left = plugin_entrants()
+    >>> isinstance(ranked, list) and isinstance(left, dict)
+    True
+    """
+    from ..estimators._builtin import DECLARED
+
+    own = {d.name for d in DECLARED} | set(_BY_NAME) | {f for f, _ in FAMILIES}
+    ranked: list[str] = []
+    left: dict[str, str] = {}
+    for name, fam in families().items():
+        if name in own:
+            continue
+        if "finite" not in fam.horizons:
+            left[name] = f"it has no finite-horizon design (the leaderboard ranks J_T over T = {HORIZON} steps)"
+        elif lossy and not fam.lossy_links:
+            left[name] = "its record does not declare lossy_links=True (no rule for lost messages)"
+        elif not lossy and not fam.analytic_cost:
+            left[name] = (
+                "its record declares analytic_cost=False and this ranking is by exact cost; compare it by Monte Carlo "
+                "(teamkf evaluate --monte-carlo R; teamkf reproduce leaderboard-drops ranks it when it declares lossy_links)"
+            )
+        else:
+            ranked.append(name)
+    return ranked, left
+
+
+def plugin_part(system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, T: int, names: list[str]) -> dict[str, Any]:
+    """The exact rows of the plug-in families ``names`` on one network (published defaults); ``"failed"``: name -> error."""
+    raw: list[dict[str, Any]] = []
+    failed: dict[str, str] = {}
+    for name in names:
+        t0 = time.perf_counter()
+        try:
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                d = get_family(name).build(system, cost, graph=graph, structure=graph, horizon=T)
+            sc = np.asarray(d.stage_costs, dtype=float) if d.stage_costs is not None else None
+            if sc is None or sc.shape != (T,):
+                raise ValueError(f"its design's stage_costs are {'None' if sc is None else f'of shape {sc.shape}'}, expected ({T},)")
+        except Exception as exc:  # noqa: BLE001  (a user's family: any failure is reported, the ranking goes on)
+            failed[name] = f"{type(exc).__name__}: {' '.join(str(exc).split())[:300]}"
+            continue
+        raw.append(_explain(_raw(name, "", "plug-in", "", sc, bool(d.realizable), time.perf_counter() - t0), name, {}, system, graph, None))
+    return {"raw": raw, "failed": failed}
+
+
+def _plugin_job(index: int, quick: bool, T: int, names: list[str]) -> dict[str, Any]:
+    """The plug-in rows of network ``index`` (never cached: a plug-in's source may change between runs)."""
+    name, build = networks(quick)[index]
+    system, cost, graph = build()
+    out = plugin_part(system, cost, graph, T, names)
+    out["failed"] = {k: f"{name}: {v}" for k, v in out["failed"].items()}
+    return out
+
+
+def _announce(ranked: list[str], left: dict[str, str], what: str) -> str:
+    """The plug-in notice: printed on stderr before the run and kept for the notes ("" without plug-ins)."""
+    import sys
+
+    lines = []
+    if ranked:
+        lines.append(f"plug-ins ranked ({what}): {', '.join(ranked)}")
+    for name, why in left.items():
+        lines.append(f"plug-in {name!r} left out: {why}")
+    text = "; ".join(lines)
+    if text:
+        print(f"teamkf: leaderboard: {text}", file=sys.stderr, flush=True)
+    return text
+
+
 def _explain(
     row: dict[str, Any], family: str, options: dict[str, Any], system: LinearGaussianSystem, graph: CommGraph, tuned: tuple[str, bool] | None
 ) -> dict[str, Any]:
@@ -330,13 +420,15 @@ def assemble(name: str, parts: dict[str, dict[str, Any]]) -> dict[str, Any]:
     base = {"network": name, "n_agents": b["n_agents"], "d_x": b["d_x"], "J*_avg (steady)": b["steady"]}
     rows = []
     tuning: dict[str, Any] = {}
-    for part in PARTS:
+    for part in (*PARTS, "plugins"):
+        if part not in parts:
+            continue
         for r in parts[part]["raw"]:
             sc = np.asarray(r["stage_costs"], dtype=float)
             rows.append(_row(base, r["estimator"], r["variant"], r["form"], r["options"], sc, opt_sc, r["realizable"], r["seconds"]))
             rows[-1]["why diverging"] = r.get("why diverging")
             rows[-1]["diverging"] = rows[-1]["diverging"] or r.get("why diverging") is not None  # structural: a theorem
-        if parts[part].get("tried") is not None:
+        if parts[part].get("tried") is not None:  # (the plugins part has none)
             tuning[part] = [
                 {
                     "options": c["options"],
@@ -362,10 +454,14 @@ def _part_job(index: int, part: str, quick: bool, T: int) -> dict[str, Any]:
     return _cached(key, lambda: network_part(part, system, cost, graph, T, quick))
 
 
-def _lossy_job(index: int, quick: bool, tuned: dict[str, list[dict[str, Any]]]) -> dict[str, Any]:
-    """One network's p_drop rows (Monte Carlo), cached like :func:`_part_job` (the key includes the tuned options)."""
+def _lossy_job(index: int, quick: bool, tuned: dict[str, list[dict[str, Any]]], plugins: list[str] | None = None) -> dict[str, Any]:
+    """One network's p_drop rows (Monte Carlo), cached like :func:`_part_job` (the key includes the tuned options); not cached with plug-ins."""
     name, build = networks(quick)[index]
     system, cost, graph = build()
+    if plugins:
+        failed: dict[str, str] = {}
+        rows = lossy_network_rows(name, system, cost, graph, quick, tuned, plugins=plugins, failed=failed)
+        return {"rows": rows, "failed": failed, "cached": False}
     tag = hashlib.sha256(json.dumps(tuned, sort_keys=True).encode()).hexdigest()[:12]
     key = f"leaderboard-lossy-{'quick' if quick else 'full'}-{_fingerprint(system, cost, graph)}-{tag}"
     return _cached(key, lambda: {"rows": lossy_network_rows(name, system, cost, graph, quick, tuned)})
@@ -463,11 +559,22 @@ def _add_lossy(
 LOSSY_NETWORKS = (0, 1)
 
 
-def lossy_network_rows(name: str, system: Any, cost: Any, graph: Any, quick: bool, tuned: dict[str, list[dict[str, Any]]]) -> list[dict[str, Any]]:
+def lossy_network_rows(
+    name: str,
+    system: Any,
+    cost: Any,
+    graph: Any,
+    quick: bool,
+    tuned: dict[str, list[dict[str, Any]]],
+    *,
+    plugins: Any = (),
+    failed: dict[str, str] | None = None,
+) -> list[dict[str, Any]]:
     """The p_drop rankings of one network (Monte Carlo through the lossy runtime, common random numbers).
 
     ``tuned[family]`` are the family's candidates of the exact ranking, best first; a tuned form without a rule
-    for lost messages (exact-gain diffusion) is replaced by the best candidate that has one.
+    for lost messages (exact-gain diffusion) is replaced by the best candidate that has one. ``plugins``: plug-in
+    families ranked too (published defaults); one whose design fails goes into ``failed`` (name -> why).
     """
     from ..simulation.links import LinkModel
     from ..simulation.monte_carlo import monte_carlo
@@ -490,6 +597,14 @@ def lossy_network_rows(name: str, system: Any, cost: Any, graph: Any, quick: boo
             _add_lossy(designs, labels, f"{fam} tuned", fam, "tuned", {**opts, "variant": "honest"}, system, cost, graph, T)
         if fam in ("icf", "hcmci"):
             _add_lossy(designs, labels, f"{fam} heard", fam, "heard-count", {"variant": "honest", "count": "heard"}, system, cost, graph, T)
+    for fam in plugins:
+        try:
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                designs[fam] = get_family(fam).build(system, cost, graph=graph, structure=graph, horizon=T)
+            labels[fam] = (fam, "plug-in", "")
+        except Exception as exc:  # noqa: BLE001  (a user's family: reported, the ranking goes on)
+            if failed is not None:
+                failed[fam] = f"{name}: {type(exc).__name__}: {' '.join(str(exc).split())[:300]}"
     for p in P_DROPS:
         here, exact = dict(designs), {}
         for fam in dict.fromkeys(get_family(f).name for f in LOSSY_FAMILIES if f in fams):  # designed for this p (its option), once
@@ -550,15 +665,24 @@ COLUMNS = [
 ]
 
 
-def _exact_results(quick: bool, T: int, which: list[int]) -> list[dict[str, Any]]:
-    """The exact rows and tuning records of networks ``which`` (their parts in parallel, each cached); ``"cached"``: every part was."""
+def _exact_results(quick: bool, T: int, which: list[int], plugins: list[str] | None = None) -> list[dict[str, Any]]:
+    """The exact rows and tuning records of networks ``which`` (their parts in parallel, each cached); ``"cached"``: every part was.
+
+    ``plugins``: plug-in families ranked too (one more part per network, not cached); their failures in ``"failed"``.
+    """
     nets = networks(quick)
     jobs = [(i, part) for i in which for part in PARTS]
-    done = _parallel([(_part_job, (i, part, quick, T)) for i, part in jobs])
+    calls: list[tuple[Any, tuple[Any, ...]]] = [(_part_job, (i, part, quick, T)) for i, part in jobs]
+    if plugins:
+        jobs += [(i, "plugins") for i in which]
+        calls += [(_plugin_job, (i, quick, T, plugins)) for i in which]
+    done = _parallel(calls)
     out = []
     for i in which:
         got = {part: res for (a, part), res in zip(jobs, done) if a == i}
-        out.append({**assemble(nets[i][0], got), "cached": all(res.get("cached") for res in got.values())})
+        failed = got.get("plugins", {}).get("failed", {})
+        cached = all(res.get("cached") for part, res in got.items() if part != "plugins")
+        out.append({**assemble(nets[i][0], got), "cached": cached, "failed": failed})
     return out
 
 
@@ -579,8 +703,11 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
     T = HORIZON
     t0 = time.perf_counter()
     nets = networks(quick)
-    results = _exact_results(quick, T, list(range(len(nets))))
+    entrants, left = plugin_entrants()
+    notice = _announce(entrants, left, "exact cost, published defaults")  # before the long run, not after it
+    results = _exact_results(quick, T, list(range(len(nets))), entrants)
     ranked = _rank([r for res in results for r in res["rows"]])
+    failed = [f"plug-in {k!r} left out on {v}" for res in results for k, v in res["failed"].items()]
     figures: list[str] = []
     if out_dir is not None and plotting_available():
         _plot(ranked, out_dir, figures, "leaderboard")
@@ -591,9 +718,14 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
         ranked,
         COLUMNS,
         notes=(__doc__.split("\n\n", 1)[1].strip() if __doc__ else "")
+        + (f"\n\nPlug-ins: {'; '.join([notice, *failed] if notice else failed)}." if notice or failed else "")
         + f"\n\nNetworks from the cache: {cached} of {len(results)}; {time.perf_counter() - t0:.1f} s.",
         figures=figures,
-        data={"T": T, "tuning": {name: res["tuning"] for (name, _), res in zip(nets, results)}},
+        data={
+            "T": T,
+            "tuning": {name: res["tuning"] for (name, _), res in zip(nets, results)},
+            "plugins": {"ranked": entrants, "left_out": {**left, **{k: v for res in results for k, v in res["failed"].items()}}},
+        },
     )
 
 
@@ -603,9 +735,12 @@ def run_drops(out_dir: Path | None, quick: bool) -> ExperimentResult:
     T = HORIZON
     t0 = time.perf_counter()
     nets = networks(quick)
+    entrants, left = plugin_entrants(lossy=True)
+    notice = _announce(entrants, left, "Monte Carlo under p_drop, published defaults")  # before the long run, not after it
     exact = _exact_results(quick, T, list(LOSSY_NETWORKS))
-    lossy = _parallel([(_lossy_job, (i, quick, _tuned_options([res]))) for i, res in zip(LOSSY_NETWORKS, exact)])
+    lossy = _parallel([(_lossy_job, (i, quick, _tuned_options([res]), entrants)) for i, res in zip(LOSSY_NETWORKS, exact)])
     ranked = _rank([r for res in lossy for r in res["rows"]])
+    failed = [f"plug-in {k!r} left out on {v}" for res in lossy for k, v in res.get("failed", {}).items()]
     figures: list[str] = []
     if out_dir is not None and plotting_available():
         _plot(ranked, out_dir, figures, "leaderboard-drops")
@@ -616,6 +751,7 @@ def run_drops(out_dir: Path | None, quick: bool) -> ExperimentResult:
         ranked,
         COLUMNS,
         notes=(__doc__.split("\n\n", 1)[1].strip() if __doc__ else "")
+        + (f"\n\nPlug-ins: {'; '.join([notice, *failed] if notice else failed)}." if notice or failed else "")
         + f"\n\nParts from the cache: {cached} of {len(exact) + len(lossy)} (the exact rankings that give the tuned options, then the lossy rankings); "
         + f"{time.perf_counter() - t0:.1f} s.",
         figures=figures,

@@ -235,6 +235,8 @@ def pass_messages_lossy(
     links: LinkModel,
     streams: Sequence[np.random.SeedSequence],
     stats: LinkStats | None = None,
+    *,
+    design: Any = None,
 ) -> FloatArray:
     """The message-passing loop over unreliable links, each run with its own link events.
 
@@ -260,4 +262,4 @@ def pass_messages_lossy(
                 obj.tolerant = True
     from .lossy import run_lossy
 
-    return run_lossy(agents, graph, ys, links, streams, stats if stats is not None else LinkStats())
+    return run_lossy(agents, graph, ys, links, streams, stats if stats is not None else LinkStats(), design=design)

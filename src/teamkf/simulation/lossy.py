@@ -554,7 +554,9 @@ def _events(streams: Sequence[Any], T: int, edges: list, links: Any, omni: tuple
     return out, t
 
 
-def run_lossy(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray], links: Any, streams: Sequence[Any], stats: Any) -> FloatArray:
+def run_lossy(
+    agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray], links: Any, streams: Sequence[Any], stats: Any, *, design: Any = None
+) -> FloatArray:
     """The lossy message-passing loop for a block of runs (see :func:`teamkf.simulation.links.pass_messages_lossy`)."""
     from ..estimators.base import pass_messages
 
@@ -568,11 +570,11 @@ def run_lossy(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray],
     out, t = _events(streams, T, edges, links, omni, n, relays)
     count_links(out, stats)
     if all(omni):  # the centralized bound: every y_j(k) at step k, whatever the links
-        return pass_messages(agents, graph, ys)
+        return pass_messages(agents, graph, ys, design=design)
     if relays:
         assert t is not None
         return _run_team(agents, graph, ys, t, streams, stats)
-    return _run_grouped(agents, graph, ys, out, stats)
+    return _run_grouped(agents, graph, ys, out, stats, design)
 
 
 def _run_team(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray], t: np.ndarray, streams: Any, stats: Any) -> FloatArray:
@@ -595,8 +597,11 @@ def _run_team(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray],
 # ---------------------------------------------------------------------------
 # any tolerant family: runs grouped by what arrived
 # ---------------------------------------------------------------------------
-def _run_grouped(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray], out: LinkOutcomes, stats: Any) -> FloatArray:
+def _run_grouped(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray], out: LinkOutcomes, stats: Any, design: Any = None) -> FloatArray:
     """Step the agents' own ``step`` on the runs one at a time (their states need not stack), on the block's link events."""
+    from ..estimators.base import checked_step, step_context
+
+    dz, who = step_context(design)
 
     n = graph.n_agents
     R, T = ys[0].shape[:2]
@@ -615,7 +620,7 @@ def _run_grouped(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArra
                     msgs: list[Any] = []
                 else:
                     own, msgs = ys[i][r : r + 1, k], box[i]
-                states[i], z, payload = ag.step(states[i], k, own, msgs)
+                states[i], z, payload = checked_step(ag, i, states[i], k, own, msgs, 1, dz, who)
                 zs.append(z)
                 payloads.append(payload)
             for q, (a, b, _) in enumerate(out.edges):

@@ -251,7 +251,7 @@ def runtime_estimates(design: Any, y: Any, graph: Any = None, *, links: Any = No
     if graph is not None:
         from .runtime import graph_agents, run_graph
 
-        return run_graph(graph_agents(design), graph, y, links=links, streams=streams, stats=stats)
+        return run_graph(graph_agents(design), graph, y, links=links, streams=streams, stats=stats, design=design)
     if links is not None and not links.trivial:
         raise ArgumentError(
             f"links: the {design.estimator!r} design has no graph of its own; pass graph= (the network the links belong to)", argument="links"
@@ -387,13 +387,14 @@ def _serial(spec: _Spec, chunks: list[tuple[int, int]], bar: Any) -> Iterator[di
 
 
 def _dask(spec: _Spec, chunks: list[tuple[int, int]], bar: Any, scheduler: Any) -> Iterator[dict[str, Any]]:
-    from .parallel import _open_client  # the Dask clients (LocalCluster tuned: one BLAS thread per worker)
+    from .parallel import _open_client, with_plugins  # the Dask clients (LocalCluster tuned: one BLAS thread per worker)
 
     distributed = V.require("distributed", "dask")
     client, owned = _open_client(scheduler, None)
     try:
         [fspec] = client.scatter([spec], broadcast=True)
-        futs = {client.submit(_run_chunk, fspec, a, b, pure=False, retries=3): (a, b) for a, b in chunks}
+        task = with_plugins(_run_chunk, client)  # a worker holding another version of a plug-in refuses
+        futs = {client.submit(task, fspec, a, b, pure=False, retries=3): (a, b) for a, b in chunks}
         for fut in distributed.as_completed(futs):
             a, b = futs[fut]
             part = fut.result()

@@ -20,7 +20,7 @@ from .. import _validation as V
 from .._progress import progress
 from ..exceptions import ArgumentError
 
-__all__ = ["map_points", "use_scheduler", "current_scheduler", "local_cluster", "WORKER_ENV"]
+__all__ = ["map_points", "use_scheduler", "current_scheduler", "local_cluster", "with_plugins", "WORKER_ENV"]
 
 #: environment of the worker processes of the embedded LocalCluster (one BLAS thread each)
 WORKER_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
@@ -54,7 +54,7 @@ def map_points(func: Callable[[P], R], points: Iterable[P], *, scheduler: Any = 
         return [func(p) for p in progress(pts, desc=getattr(func, "__name__", "points"), unit="point")]
     client, owned = _open_client(sched, None)
     try:
-        futures = client.map(func, pts, pure=False, retries=3)
+        futures = client.map(with_plugins(func, client), pts, pure=False, retries=3)
         return list(client.gather(futures))
     finally:
         for obj in owned:
@@ -117,40 +117,113 @@ def local_cluster(n_workers: int | None = None, **kwargs: Any) -> Any:
 
 
 def _open_client(scheduler: Any, n_workers: int | None) -> tuple[Any, list[Any]]:
-    """A Dask client for ``scheduler`` and the objects this run owns (closed at the end).
+    """A Dask client for ``scheduler`` and the objects this run owns (closed at the end, in order).
 
     The plug-ins loaded in this process (``--plugin``, ``TEAMKF_PLUGINS``, :func:`~teamkf.estimators.registry.load_plugin`)
     are loaded on every worker, present and future (a ``WorkerPlugin``), before any task of a plug-in family
-    is unpickled there.
+    is unpickled there. A worker that holds another version of a plug-in (its file was edited since, or
+    another run loaded it) gets this run's version from the shipped source; where that cannot be (an
+    importable module that differs there, or two families of one name), the run is refused in one line
+    naming the worker and the scheduler. Tasks wrapped with :func:`with_plugins` check the versions again.
     """
     client, owned = _connect(scheduler, n_workers)
-    from ..estimators.registry import loaded_plugins
+    from ..estimators.registry import loaded_plugins, plugin_identities
 
     plugins = loaded_plugins()
     if plugins:
+        import uuid
+
+        name = f"teamkf-plugins-{uuid.uuid4().hex[:12]}"  # this run's: unregistered when it ends
         try:
-            client.register_plugin(_plugin_loader(plugins), name="teamkf-plugins-" + str(abs(hash(plugins))))
+            client.register_plugin(_plugin_loader(plugins, plugin_identities(), _address(client)), name=name)
         except BaseException:
+            _forget(client, name)
             for obj in owned:
                 obj.close()
             raise
+        owned.insert(0, _Unregister(client, name))
     return client, owned
 
 
-def _plugin_loader(plugins: Any) -> Any:
-    """A Dask ``WorkerPlugin`` that loads the driver's teamkf plug-ins on a worker when it starts."""
+def _address(client: Any) -> str:
+    try:
+        return str(client.scheduler.address)
+    except AttributeError:  # pragma: no cover - an unusual client
+        return "?"
+
+
+def _forget(client: Any, name: str) -> None:
+    try:
+        client.unregister_worker_plugin(name)
+    except Exception:  # noqa: BLE001  (best effort: the plug-in may not have reached the scheduler)
+        pass
+
+
+class _Unregister:
+    """Owned by a run: removes its plug-in loader from the cluster when the run ends (the workers keep the modules)."""
+
+    def __init__(self, client: Any, name: str) -> None:
+        self.client, self.name = client, name
+
+    def close(self) -> None:
+        if getattr(self.client, "status", "running") == "running":
+            _forget(self.client, self.name)
+
+
+def _where(scheduler: str) -> str:
+    """ "the Dask worker ADDRESS of the cluster at SCHEDULER" on a worker ("" elsewhere)."""
+    try:
+        from distributed import get_worker
+
+        return f"the Dask worker {get_worker().address} of the cluster at {scheduler}"
+    except (ImportError, ValueError):
+        return ""
+
+
+def _plugin_loader(plugins: Any, identities: Any = None, scheduler: str = "?") -> Any:
+    """A Dask ``WorkerPlugin`` that loads the driver's teamkf plug-ins (this version of each) on a worker when it starts."""
     from distributed.diagnostics.plugin import WorkerPlugin
 
     from ..estimators.registry import load_plugins_into
 
     class TeamkfPlugins(WorkerPlugin):
-        def __init__(self, plugins: Any) -> None:
-            self.plugins = plugins
+        def __init__(self, plugins: Any, identities: Any, scheduler: str) -> None:
+            self.plugins, self.identities, self.scheduler = plugins, identities, scheduler
 
         def setup(self, worker: Any) -> None:
-            load_plugins_into(self.plugins)
+            where = f"the Dask worker {worker.address} of the cluster at {self.scheduler}"
+            load_plugins_into(self.plugins, self.identities, where)
 
-    return TeamkfPlugins(plugins)
+    return TeamkfPlugins(plugins, identities, scheduler)
+
+
+class _WithPlugins:
+    """A task function that first checks, on the worker, that it holds this run's plug-in versions (:func:`with_plugins`)."""
+
+    def __init__(self, func: Callable[..., Any], identities: dict[str, str], scheduler: str) -> None:
+        self.func, self.identities, self.scheduler = func, identities, scheduler
+        self.__name__ = getattr(func, "__name__", "task")
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        from ..estimators.registry import check_plugin_identities
+
+        check_plugin_identities(self.identities, _where(self.scheduler))
+        return self.func(*args, **kwargs)
+
+
+def with_plugins(func: Callable[..., R], client: Any) -> Callable[..., R]:
+    """``func`` as a Dask task that carries the identities (name, sha256) of this process's plug-ins.
+
+    On the worker it refuses to run, in one line naming the worker, the scheduler and both hashes, unless the
+    worker holds exactly these versions: a plug-in edited or replaced meanwhile is never used silently.
+    Without plug-ins ``func`` is returned as it is.
+    """
+    from ..estimators.registry import plugin_identities
+
+    ids = plugin_identities()
+    if not ids:
+        return func
+    return _WithPlugins(func, ids, _address(client))  # type: ignore[return-value]
 
 
 def _connect(scheduler: Any, n_workers: int | None) -> tuple[Any, list[Any]]:

@@ -38,6 +38,7 @@ def run_graph(
     rng: Any = None,
     streams: Sequence[Any] | None = None,
     stats: Any = None,
+    design: Any = None,
 ) -> FloatArray:
     """Run graph agents over the horizon of ``y``, each using only what the graph delivers.
 
@@ -62,6 +63,9 @@ def run_graph(
         Explicit per-run link streams (instead of ``rng``).
     stats : LinkStats or None
         A :class:`~teamkf.simulation.links.LinkStats` that receives the per-edge counts.
+    design : Design or None
+        The design the agents come from (default: the agents' ``design`` attribute, when they have one):
+        every step's z is checked against its width d_z, and an error names its family (and plug-in).
 
     Returns
     -------
@@ -85,15 +89,17 @@ def run_graph(
         raise GraphError(f"graph: expected a CommGraph, found {type(graph).__name__}", argument="graph")
     inner = [getattr(a, "inner", a) for a in agents]
     ys = _batched(inner, y)
+    if design is None and inner:
+        design = getattr(inner[0], "design", None)
     if links is None or links.trivial:
         if stats is not None:  # count the packets of the reliable runtime too
             _count_reliable(graph, agents, ys[0].shape[0], ys[0].shape[1], stats)
-        return pass_messages(agents, graph, ys)
+        return pass_messages(agents, graph, ys, design=design)
     from .links import link_streams, pass_messages_lossy
 
     if streams is None:
         streams = link_streams(rng, ys[0].shape[0])
-    return pass_messages_lossy(agents, graph, ys, links, streams, stats)
+    return pass_messages_lossy(agents, graph, ys, links, streams, stats, design=design)
 
 
 def _count_reliable(graph: CommGraph, agents: Sequence[Any], n_runs: int, T: int, stats: Any) -> None:

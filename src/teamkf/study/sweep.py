@@ -141,7 +141,7 @@ from .._budget import check_sweep
 from .._progress import bar as _progress_bar
 from .._version import __version__
 from ..exceptions import ScenarioError, TeamkfError
-from ..simulation.parallel import WORKER_ENV, _cpu_count, _open_client, local_cluster  # noqa: F401  (public here since 0.1)
+from ..simulation.parallel import WORKER_ENV, _cpu_count, _open_client, local_cluster, with_plugins  # noqa: F401  (public here since 0.1)
 from .evaluate import evaluate_point, is_analytic  # noqa: F401  (evaluate_point is looked up by _module_evaluate)
 from .results import _FIXED_COLUMNS as _ROW_COLUMNS  # columns of a row besides the grid keys, in order
 from .results import MANIFEST_NAME, SweepError, SweepResult, load_results
@@ -672,9 +672,10 @@ def run_sweep(
                 # the validated spec goes to every worker once; a task is (spec, point index): the worker
                 # builds the point's scenario, the client neither rebuilds nor ships one per point
                 [fspec] = client.scatter([spec], broadcast=True, hash=False)
+                task = with_plugins(_run_spec_point, client)  # a worker holding another version of a plug-in refuses
                 for p in todo:
                     f = client.submit(
-                        _run_spec_point,
+                        task,
                         fn,
                         fspec,
                         p.index,

@@ -111,11 +111,23 @@ def realized_costs(cost: Any, x: FloatArray, z: FloatArray) -> FloatArray:
     return c[0] if single else c
 
 
-def online_estimates(design: Any, ys: Sequence[FloatArray]) -> FloatArray:
+def online_estimates(design: Any, ys: Sequence[FloatArray], *, missing: bool = False) -> FloatArray:
     """One run's estimates (n_steps, n d_z) from the design's online agents, exactly as the Monte Carlo
     ``path="runtime"`` computes them (message passing over the design's graph, or delivery by its
-    information structure); ``design.filter`` for a design without online agents (the ideal KCF)."""
+    information structure); ``design.filter`` for a design without online agents (the ideal KCF).
+
+    ``missing=True``: ``ys`` holds NaN where a measurement is missing, and the agents receive it as it is
+    (the contract of a ``missing_data`` family whose design does not set ``handles_missing``, see
+    :func:`filter_log`); otherwise every value must be finite."""
     batch = [np.asarray(y, dtype=float)[None] for y in ys]
+    if missing:
+        from ...estimators.base import deliver_structured, pass_messages
+        from ...simulation.runtime import graph_agents
+
+        graph = getattr(design, "graph", None)
+        if graph is not None:
+            return np.asarray(pass_messages(graph_agents(design), graph, batch, design=design))[0]
+        return np.asarray(deliver_structured(design.agents(), batch))[0]
     try:
         return np.asarray(runtime_estimates(design, batch))[0]
     except UnsupportedOperationError:
@@ -136,7 +148,7 @@ def filter_log(
     Parameters
     ----------
     scenario : Scenario
-    log : MeasurementLog, or per-agent (n_steps, d_y^i) arrays (NaN = missing)
+    log : MeasurementLog, or per-agent (n_steps, d_y^i) arrays (NaN = missing; see Notes)
     estimators : names (default: the scenario's)
     truth : (n_steps, d_x) states, or None
     inputs : KnownInputs, None (zero means) or "scenario" (default: :func:`known_inputs` of the scenario)
@@ -145,6 +157,16 @@ def filter_log(
     Returns
     -------
     FilterResult
+
+    Notes
+    -----
+    What a family gets for a missing measurement (a log with gaps; only families that declare
+    ``missing_data`` are run on one): its design function receives the masked model of the log
+    (:func:`masked_system`: the rows of C_i(t) of the missing values are zero, their noise unit-variance and
+    independent of everything else), and its agents' ``step`` receives **NaN** in ``own`` (and so in whatever
+    relays it) at each missing entry: ``np.isnan(own)`` is the mask. A design class that sets
+    ``handles_missing = True`` (teamkf's centralized filter, MTMSE and MMSE: their gains on the masked rows
+    are exactly zero) receives 0.0 there instead.
     """
     if not isinstance(log, MeasurementLog):
         log = MeasurementLog.from_arrays(log, scenario.system, scenario.horizon)
@@ -163,6 +185,7 @@ def filter_log(
     if known is not None:
         mean, ybar = known.means(scenario.system, T, log.u, log.b, log.d)
         ys = [np.where(np.isnan(log.y[i]), 0.0, log.y[i] - ybar[i]) for i in range(n)]
+        raw = [log.y[i] - ybar[i] for i in range(n)]  # NaN where missing
     else:
         if log.u is not None:
             raise MeasurementFileError(
@@ -170,13 +193,15 @@ def filter_log(
                 argument="u",
             )
         ys = log.filled()
+        raw = list(log.y)
     est: dict[str, FloatArray] = {}
     designs: dict[str, Any] = {}
     for name in names:
         d = design_for_log(scenario, name, log)
         designs[name] = d
+        gaps = log.has_gaps and not getattr(d, "handles_missing", False)  # the missing_data contract: NaN, the mask being np.isnan(own)
         with np.errstate(over="ignore", invalid="ignore"):
-            z = online_estimates(d, ys)
+            z = online_estimates(d, raw, missing=True) if gaps else online_estimates(d, ys)
             if known is not None:
                 z = z + np.stack([scenario.cost.L_at(k) @ mean[k] for k in range(T)])
         est[name] = z
