@@ -46,10 +46,10 @@ So for every estimator z_i of agent i from D_i, with e_i = L_i x - z_i,
           P_{t+1} = A_+ P_t A_+^\top + Q_{+|r}, \quad P_0 = \Sigma_{+|r},
 
 and the team cost is at least agent i's share:
-e' S e >= e_i' S̃_i e_i for every e (S̃_i = S_ii - S_i,-i S_-i,-i^{-1} S_-i,i,
+e' S e >= e_i' Ŝ_i e_i for every e (Ŝ_i = S_ii - S_{i,-i} S_{-i,-i}^{-1} S_{-i,i},
 the Schur complement, positive definite since S is: the minimum of e' S e over
 the other agents' errors), whatever the other agents do. Hence E c(t) >=
-λ_min(S̃_i) tr(M P_t M'), and the row's cost grows without bound when
+λ_min(Ŝ_i) tr(M P_t M'), and the row's cost grows without bound when
 M P_t M' does.
 
 *When the bound grows* (:func:`teamkf._linalg.lyapunov_growth`). Write
@@ -64,7 +64,7 @@ Jordan block on the unit circle: **forced by the initial uncertainty** (an
 unstable mode that no noise excites still diverges from Σ_x; a marginal one,
 semisimple, does not: its error stays at its initial size).
 
-So agent i's data **force** the row to diverge iff a mode of modulus >= 1 is
+So agent i's data **force** the row to diverge (:func:`forced`) when a mode of modulus >= 1 is
 (a) undetectable from C_{D_i}, (b) excited, given what D_i measures, by the
 noise (linear growth at least: a random walk gives linear growth, a Jordan
 block on the unit circle faster) or, for modulus > 1 or a Jordan block, by Σ_x,
