@@ -347,3 +347,157 @@ def _stabilizability_message(what: str, modes: list[complex]) -> str:
         "stabilizing. Add process noise along the mode (make Q positive definite there), or use a finite horizon "
         "instead: a steady-state design needs assumption (A5) of the team-MMSE paper."
     )
+
+
+# ----------------------------------------------------------------------------
+# undetectable subspace and the growth of a Lyapunov lower bound (structural divergence)
+# ----------------------------------------------------------------------------
+
+
+def _orth(M: np.ndarray, tol: float) -> FloatArray:
+    """Orthonormal basis (columns) of the range of ``M``: left singular vectors with singular value > ``tol``."""
+    if M.size == 0:
+        return np.zeros((M.shape[0], 0))
+    U, s, _ = np.linalg.svd(M, full_matrices=False)
+    return np.asarray(U[:, s > tol])
+
+
+def _null(M: np.ndarray, tol: float) -> FloatArray:
+    """Orthonormal basis (columns) of the null space of ``M``: right singular vectors with singular value <= ``tol``."""
+    n = M.shape[1]
+    if M.shape[0] == 0 or n == 0:
+        return np.eye(n)
+    _, s, Vh = np.linalg.svd(M, full_matrices=True)
+    rank = int(np.sum(s > tol))
+    return np.asarray(Vh[rank:].T.conj() if np.iscomplexobj(Vh) else Vh[rank:].T)
+
+
+def _invariant_in_kernel(A: np.ndarray, M: np.ndarray, tol: float) -> FloatArray:
+    """Orthonormal basis of the largest ``A``-invariant subspace inside ker ``M`` (the unobservable subspace of (A, M)).
+
+    N_0 = ker M, N_{j+1} = {x in N_j : A x in N_j}: at most d_x SVDs, no powers of A (which overflow on unstable modes).
+    """
+    N = _null(M, tol)
+    while N.shape[1]:
+        N2 = N @ _null(A @ N - N @ (N.T @ (A @ N)), tol)
+        if N2.shape[1] == N.shape[1]:
+            return N
+        N = N2
+    return N
+
+
+def undetectable_subspace(A: ArrayLike, C: ArrayLike) -> FloatArray:
+    r"""Orthonormal basis V_+ (d_x x k) of the undetectable subspace of (A, C).
+
+    U_+ = U ∩ X_u: the unobservable subspace U of (A, C) (the largest A-invariant subspace in ker C) intersected
+    with the generalized eigenspace X_u of the eigenvalues with modulus >= 1 (``UNIT_CIRCLE_TOL`` below 1 counts).
+    Both are A-invariant, so is U_+, and (A, C) is detectable iff k = 0. Computed without eigenvectors (so
+    repeated eigenvalues and Jordan blocks are handled): U by :func:`_invariant_in_kernel`, then an ordered real
+    Schur form of A restricted to U keeps its unstable part.
+    """
+    A_ = _square(A, "A")
+    C_ = V.matrix(C, "C", (None, A_.shape[0]))
+    tol = _tol(A_, C_)
+    N = _invariant_in_kernel(A_, C_, tol)
+    k = N.shape[1]
+    if k == 0:
+        return N
+    AU = N.T @ A_ @ N
+    thr = 1.0 - UNIT_CIRCLE_TOL
+    try:
+        _T, Z, sdim = sla.schur(AU, output="real", sort=lambda re, im: re * re + im * im >= thr * thr)
+    except (np.linalg.LinAlgError, ValueError):  # reordering failed (nearly equal eigenvalues): keep all of U
+        return N
+    return np.asarray(N @ Z[:, : int(sdim)])
+
+
+def _minimal_part(A: np.ndarray, M: np.ndarray, B: np.ndarray, tol_b: float, tol_m: float) -> FloatArray:
+    """The state matrix of the part of (A, B, M) that is both reachable from B and seen by M (0 x 0 if none).
+
+    Restrict A to the reachable subspace of (A, B) (invariant), then take the quotient by the unobservable
+    subspace of (A, M) there: ``M A^t B = M_o A_o^t B_o`` with (A_o, B_o) reachable and (M_o, A_o) observable.
+    """
+    K = _orth(B, tol_b)
+    tol_a = PBH_RTOL * max(1.0, float(np.linalg.norm(A)))
+    while K.shape[1] and K.shape[1] < A.shape[0]:
+        R = A @ K - K @ (K.T @ (A @ K))
+        new = _orth(R, tol_a)
+        if not new.shape[1]:
+            break
+        new = _orth(new - K @ (K.T @ new), tol_a)
+        if not new.shape[1]:
+            break
+        K = np.hstack([K, new])
+    if not K.shape[1]:
+        return np.zeros((0, 0))
+    Ac, Mc = K.T @ A @ K, M @ K
+    N = _invariant_in_kernel(Ac, Mc, tol_m)
+    Vo = _null(N.T, 0.5) if N.shape[1] else np.eye(Ac.shape[0])
+    return np.asarray(Vo.T @ Ac @ Vo)
+
+
+def distinct_modes(lams: ArrayLike) -> list[complex]:
+    """The distinct eigenvalues among ``lams`` (clusters closer than ``_CLUSTER_RTOL`` merged, e.g. a Jordan block's
+    round-off split), real when the imaginary part is round-off, largest modulus first (then the upper half first)."""
+    arr = np.asarray(lams, dtype=complex).ravel()
+    out = []
+    for cl in _cluster(arr):
+        lam = complex(np.mean(arr[cl]))
+        if abs(lam.imag) <= _CLUSTER_RTOL * max(1.0, abs(lam)):
+            lam = complex(lam.real, 0.0)
+        out.append(lam)
+    return sorted(out, key=lambda z: (-round(abs(z), 9), -z.imag))
+
+
+def _not_power_bounded(Ao: np.ndarray) -> list[complex]:
+    """Eigenvalues of ``Ao`` (all of modulus >= 1) that make A_o^t unbounded: modulus > 1, or on the unit circle in a Jordan block."""
+    if Ao.shape[0] == 0:
+        return []
+    lams = np.linalg.eigvals(Ao)
+    out: list[complex] = []
+    scale = max(1.0, float(np.linalg.norm(Ao)))
+    for cl in _cluster(lams):
+        lam = complex(np.mean(lams[cl]))
+        if abs(lam) > 1.0 + _CLUSTER_RTOL:
+            out.append(lam)
+            continue
+        if abs(lam) < 1.0 - _CLUSTER_RTOL:
+            continue
+        # unit modulus: bounded iff semisimple (geometric multiplicity = the cluster's size)
+        s = np.linalg.svd(Ao - lam * np.eye(Ao.shape[0]), compute_uv=False)
+        if int(np.sum(s <= _CLUSTER_RTOL * scale)) < len(cl):
+            out.append(lam)
+    return distinct_modes(out)
+
+
+def conditional_factor(F: ArrayLike, Vr: ArrayLike, Vp: ArrayLike, tol: float) -> FloatArray:
+    r"""Factor B with B B' = Cov(V_+' u | V_r' u) for u = F e, e ~ N(0, I): ``V_+' F (I - P)``, P the projector on the rows of V_r' F."""
+    F_, Vr_, Vp_ = np.asarray(F, float), np.asarray(Vr, float), np.asarray(Vp, float)
+    Fr, Fp = Vr_.T @ F_, Vp_.T @ F_
+    W = _orth(Fr.T, tol)
+    return np.asarray(Fp - (Fp @ W) @ W.T)
+
+
+def lyapunov_growth(
+    A: ArrayLike, M: ArrayLike, B: ArrayLike, B0: ArrayLike, *, tol_b: float, tol_b0: float, tol_m: float
+) -> tuple[list[complex], list[complex]]:
+    r"""Whether M P_t M' is unbounded, P_{t+1} = A P_t A' + B B', P_0 = B0 B0', for A with every eigenvalue of modulus >= 1.
+
+    Returns (modes driven by the noise B, modes driven by the initial B0): empty lists iff bounded.
+
+    * Noise: M P_t M' >= sum_{s<t} (M A^s B)(M A^s B)', and a nonzero sequence M A^s B with every eigenvalue of modulus >= 1
+      does not tend to 0 (on the minimal part, observability and reachability turn M A_o^s B_o -> 0 into
+      A_o^s -> 0): the sum grows at least linearly iff the minimal part of (A, B, M) is not empty; its modes are
+      returned.
+    * Initial: M A^t B0 = M_o A_o^t B0_o on the minimal part of (A, B0, M) is bounded iff A_o^t is: every
+      eigenvalue on the unit circle and semisimple. The modes of modulus > 1 or in a unit-modulus Jordan block
+      are returned.
+    """
+    A_ = np.asarray(A, float)
+    M_, B_, B0_ = np.asarray(M, float), np.asarray(B, float), np.asarray(B0, float)
+    if A_.shape[0] == 0:
+        return [], []
+    Ao = _minimal_part(A_, M_, B_, tol_b, tol_m)
+    noise = distinct_modes(np.linalg.eigvals(Ao)) if Ao.shape[0] else []
+    initial = _not_power_bounded(_minimal_part(A_, M_, B0_, tol_b0, tol_m))
+    return noise, initial

@@ -168,17 +168,21 @@ def test_why_text_on_a_tiny_undetectable_network():
     from teamkf.experiments.tuning import diverging
 
     assert diverging(teamkf_local(system, cost, graph, 60).stage_costs)
-    why = why_diverging("local", {"variant": "honest"}, system, graph)
-    assert why == "structural: no filter using only its own measurements converges: (A, C_i) not detectable for all 3 agents"
+    why = why_diverging("local", {"variant": "honest"}, system, graph, cost=cost)
+    assert why.startswith("structural: no filter using only its own measurements converges for all 3 agents: their C_i cannot detect")
+    assert "the modes λ = 1.1, 1.05 (unstable; excited by the process noise), which their cost (L_i) weighs" in why
     # published ci: agents 1 and 2 have a jointly detecting in-neighbourhood, agent 0 ({0, 1}: the first mode only) has not
     assert diverging(design_ci(system, cost, graph, 60).stage_costs)
-    why = why_diverging("ci", {"variant": "honest"}, system, graph)
+    why = why_diverging("ci", {"variant": "honest"}, system, graph, cost=cost)
     assert why.startswith("structural: the published CI fuses local Kalman filters that do not converge")
-    assert "jointly detects x for agents 1, 2 (2 of 3), not for agents 0 (1 of 3)" in why
+    assert (
+        "do not force the cost to grow for agents 1, 2 (2 of 3), not for agents 0 (1 of 3), whose in-neighbourhood cannot detect the mode λ = 1.05"
+        in why
+    )
     # feedback on a one-way chain 0 -> 1 -> 2: nothing reaches agent 0 but its own data
     chain = CommGraph(3, ((0, 1, 1), (1, 2, 1)))
-    why = why_diverging("ci", {"variant": "honest", "feedback": True}, system, chain)
-    assert why.startswith("structural: the measurements that can reach agents 0, 1 (2 of 3) over the graph do not detect x")
+    why = why_diverging("ci", {"variant": "honest", "feedback": True}, system, chain, cost=cost)
+    assert why.startswith("structural: the measurements that can reach agents 0, 1 (2 of 3) over the graph do not keep their cost bounded")
     # on the line every agent's reachable data detect x: a parametric reason, naming the tuned row
     why = why_diverging("kcf", {"variant": "honest"}, system, graph, tuned=("epsilon=0.003", False))
     assert why.startswith("parametric: published parameters on this delay graph") and "the tuned row (epsilon=0.003) does not diverge" in why

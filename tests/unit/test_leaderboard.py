@@ -101,7 +101,7 @@ def test_every_row_says_why_it_diverges_and_ci_has_a_tuned_row(board):
     for r in [*res.rows, *drops.rows]:
         assert (r["why diverging"] is None) == (not r["diverging"]), r
         if r["diverging"]:
-            assert r["why diverging"].startswith(("structural: ", "parametric: ")), r
+            assert r["why diverging"].startswith(("structural: ", "undetectable: ", "parametric: ")), r
     for net in {r["network"] for r in res.rows}:
         assert any(r["network"] == net and r["estimator"] == "ci" and r["form"] == "tuned" for r in res.rows), net
     assert _parse_options("feedback=True, lazy=0.1") == {"feedback": True, "lazy": 0.1}  # the lossy ranking re-reads the tuned options

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, Iterable, Sequence
 
 from ..exceptions import ArgumentError, GraphError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
 
-__all__ = ["check_model", "check_graph", "detects", "undetecting_agents"]
+__all__ = ["check_model", "check_graph", "detects", "undetecting_agents", "ForcedGrowth", "forced_growth"]
 
 
 def check_model(system: Any, cost: Any) -> None:
@@ -90,3 +91,89 @@ def undetecting_agents(system: LinearGaussianSystem, groups: Sequence[Iterable[i
         return None
     sets = [[i] for i in range(system.n_agents)] if groups is None else list(groups)
     return [i for i, g in enumerate(sets) if detects(system, g) is False]
+
+
+@dataclass(frozen=True)
+class ForcedGrowth:
+    """Why agent ``agent``'s share of the team cost must grow, whatever its estimator (:func:`forced_growth`).
+
+    ``undetected``: the eigenvalues (modulus >= 1) of A on the undetectable subspace U_+ of its data set;
+    ``by_noise``: those whose growth the process noise forces into its cost (at least linear growth);
+    ``by_initial``: those whose growth the initial uncertainty Sigma_x forces (modulus > 1, or a Jordan block on
+    the unit circle). ``forced`` is true iff one of the last two is not empty.
+    """
+
+    agent: int
+    undetected: tuple[complex, ...]
+    by_noise: tuple[complex, ...]
+    by_initial: tuple[complex, ...]
+
+    @property
+    def forced(self) -> bool:
+        return bool(self.by_noise or self.by_initial)
+
+
+def _factor(P: Any) -> Any:
+    """Columns F with F F' = P (symmetric PSD), zero directions dropped."""
+    import numpy as np
+
+    w, U = np.linalg.eigh(0.5 * (P + P.T))
+    top = max(float(w[-1]), 0.0) if w.size else 0.0
+    keep = w > max(top, np.finfo(float).tiny) * P.shape[0] * np.finfo(float).eps
+    return U[:, keep] * np.sqrt(w[keep])
+
+
+def forced_growth(
+    system: LinearGaussianSystem, cost: TeamCost | None = None, groups: Sequence[Iterable[int]] | None = None
+) -> list[ForcedGrowth] | None:
+    r"""Per agent i: the modes of x its data set ``groups[i]`` (default {i}) cannot detect, and those that force its cost to grow.
+
+    The test of :mod:`teamkf.experiments.divergence` (the theorem and its proof are there): with V_+ an orthonormal
+    basis of the undetectable subspace of (A, C_{D_i}) (:func:`teamkf._linalg.undetectable_subspace`), V_r its
+    orthogonal complement, A_+ = V_+' A V_+, B and B_0 factors of the conditional covariances of the noise and of
+    x(0) along V_+ given their V_r components, and M = L_i V_+ (``cost`` None: M = V_+, agent i weighs all of x),
+    the lower bound M P_t M', P_{t+1} = A_+ P_t A_+' + B B', P_0 = B_0 B_0', is tested for growth
+    (:func:`teamkf._linalg.lyapunov_growth`). ``None`` for a time-varying system or cost (not tested).
+    """
+    import numpy as np
+
+    from .._linalg import PBH_RTOL, _null, conditional_factor, distinct_modes, lyapunov_growth, undetectable_subspace
+
+    if system.is_time_varying or (cost is not None and cost.is_time_varying):
+        return None
+    n = system.n_agents
+    sets = [[i] for i in range(n)] if groups is None else [sorted(set(int(j) for j in g)) for g in groups]
+    A = np.asarray(system.A_at(0), dtype=float)
+    FQ, FS = _factor(np.asarray(system.Q_at(0), dtype=float)), _factor(np.asarray(system.Sigma_x, dtype=float))
+    tiny = np.finfo(float).tiny
+    out: list[ForcedGrowth] = []
+    cache: dict[tuple[int, ...], Any] = {}
+    for i, g in enumerate(sets):
+        key = tuple(g)
+        if key not in cache:
+            C = np.vstack([system.C_at(j, 0) for j in g]) if g else np.zeros((0, system.dx))
+            Vp = undetectable_subspace(A, C)
+            if Vp.shape[1] == 0:
+                cache[key] = None
+            else:
+                Vr = _null(Vp.T, 0.5)
+                B = conditional_factor(FQ, Vr, Vp, PBH_RTOL * max(float(np.linalg.norm(FQ)), tiny))
+                B0 = conditional_factor(FS, Vr, Vp, PBH_RTOL * max(float(np.linalg.norm(FS)), tiny))
+                cache[key] = (Vp, Vp.T @ A @ Vp, B, B0)
+        got = cache[key]
+        if got is None:
+            out.append(ForcedGrowth(i, (), (), ()))
+            continue
+        Vp, Ap, B, B0 = got
+        Li = np.eye(system.dx) if cost is None else np.asarray(cost.L_block(i), dtype=float)
+        noise, initial = lyapunov_growth(
+            Ap,
+            Li @ Vp,
+            B,
+            B0,
+            tol_b=PBH_RTOL * max(float(np.linalg.norm(FQ)), tiny),
+            tol_b0=PBH_RTOL * max(float(np.linalg.norm(FS)), tiny),
+            tol_m=PBH_RTOL * max(float(np.linalg.norm(Li)), tiny),
+        )
+        out.append(ForcedGrowth(i, tuple(distinct_modes(np.linalg.eigvals(Ap))), tuple(noise), tuple(initial)))
+    return out

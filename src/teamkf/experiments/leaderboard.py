@@ -24,11 +24,16 @@ optimum on the same graph (>= 1 for every realizable row, a theorem; the
 ideal variants exchange data inside the step, which no delay graph delivers:
 "realizable" is False and they may go below 1); "last / last*" compares the
 stage costs at t = T. A row whose stage cost keeps growing is marked
-diverging, and "why diverging" says why (:mod:`teamkf.experiments.divergence`):
-structural (the data its agents ever use do not detect x, PBH test, the
-agents named) or parametric (its published parameters on this delay graph).
-A structural row is marked diverging even when its growth is still slow at
-t = T (with Q > 0 its error is unbounded: a theorem, not a measurement).
+diverging (:func:`teamkf.experiments.tuning.diverging`: a 1.5-fold rise over
+the last quarter, or sustained growth by a slope test over the second half),
+and "why diverging" says why (:mod:`teamkf.experiments.divergence`):
+structural (for some agents a mode of modulus >= 1 that their data cannot
+detect is excited by the noise or Sigma_x and weighed by their cost: the
+agents and the modes named), undetectable (their data miss a mode, but the
+theorem does not force the growth) or parametric (its published parameters
+on this delay graph). A structural row is marked diverging even when its
+growth is still slow at t = T (its cost is unbounded: a theorem, not a
+measurement).
 
 Lossy links (``teamkf reproduce leaderboard-drops``, rows with p_drop > 0):
 on the UAV formation n = 4 and the platoon, every family runs in the
@@ -184,7 +189,7 @@ def networks(quick: bool) -> list[tuple[str, Any]]:
 
 
 #: bump when :func:`network_rows` or :func:`lossy_network_rows` compute something else (part of the cache key)
-ROWS_VERSION = 6
+ROWS_VERSION = 7
 
 
 def _fingerprint(system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph) -> str:
@@ -197,7 +202,14 @@ def _fingerprint(system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph)
     h.update(repr(sorted(graph.edges)).encode())
     root = Path(__file__).resolve().parent.parent
     for src in sorted(
-        [*(root / "estimators").rglob("*.py"), root / "simulation" / "links.py", root / "experiments" / "tuning.py", Path(__file__).resolve()]
+        [
+            *(root / "estimators").rglob("*.py"),
+            root / "simulation" / "links.py",
+            root / "experiments" / "tuning.py",
+            root / "experiments" / "divergence.py",
+            root / "_linalg.py",
+            Path(__file__).resolve(),
+        ]
     ):
         h.update(src.name.encode())
         h.update(src.read_bytes())
@@ -283,7 +295,7 @@ def network_part(part: str, system: LinearGaussianSystem, cost: TeamCost, graph:
             if c.error is None:
                 raw.append(_raw(extra, "", "published", "", c.stage_costs, c.realizable, c.seconds))
         for r in raw:
-            _explain(r, r["estimator"], {}, system, graph, None)
+            _explain(r, r["estimator"], {}, system, graph, None, cost)
         return {"raw": raw, "steady": steady, "n_agents": system.n_agents, "d_x": system.dx}
     variants = dict(FAMILIES)[part]
     if part not in fams:
@@ -294,22 +306,28 @@ def network_part(part: str, system: LinearGaussianSystem, cost: TeamCost, graph:
     tuned = (_fmt_options(best.options), bool(best.diverging)) if len(res.tried) > 1 else None
     raw = [
         _explain(
-            _raw(part, "honest", "published defaults", "", pub.stage_costs, pub.realizable, pub.seconds), part, pub.options, system, graph, tuned
+            _raw(part, "honest", "published defaults", "", pub.stage_costs, pub.realizable, pub.seconds),
+            part,
+            pub.options,
+            system,
+            graph,
+            tuned,
+            cost,
         )
     ]
     if len(res.tried) > 1:
         row = _raw(part, "honest", "tuned", _fmt_options(best.options) or "(published defaults)", best.stage_costs, best.realizable, best.seconds)
-        raw.append(_explain(row, part, best.options, system, graph, tuned))
+        raw.append(_explain(row, part, best.options, system, graph, tuned, cost))
     for c in res.tried:  # the heard-count ICF / HCMCI beside the published count
         if c.options.get("count") == "heard" and set(c.options) == {"count", "variant"} and c.error is None:
             row = _raw(part, "honest", "heard-count", "count=heard", c.stage_costs, c.realizable, c.seconds)
-            raw.append(_explain(row, part, c.options, system, graph, tuned))
+            raw.append(_explain(row, part, c.options, system, graph, tuned, cost))
     for v in variants:
         if v == "honest":
             continue
         c = evaluate(part, system, cost, graph, T, {"variant": v})
         if c.error is None:
-            raw.append(_explain(_raw(part, v, "published", "", c.stage_costs, c.realizable, c.seconds), part, c.options, system, graph, tuned))
+            raw.append(_explain(_raw(part, v, "published", "", c.stage_costs, c.realizable, c.seconds), part, c.options, system, graph, tuned, cost))
     return {"raw": raw, "tried": tried}
 
 
@@ -396,17 +414,24 @@ def _announce(ranked: list[str], left: dict[str, str], what: str) -> str:
 
 
 def _explain(
-    row: dict[str, Any], family: str, options: dict[str, Any], system: LinearGaussianSystem, graph: CommGraph, tuned: tuple[str, bool] | None
+    row: dict[str, Any],
+    family: str,
+    options: dict[str, Any],
+    system: LinearGaussianSystem,
+    graph: CommGraph,
+    tuned: tuple[str, bool] | None,
+    cost: TeamCost | None = None,
 ) -> dict[str, Any]:
-    """``row`` with its "why diverging" (None unless its stage costs diverge; :func:`~teamkf.experiments.divergence.why_diverging`)."""
+    """``row`` with its "why diverging" (None unless its stage costs diverge or the divergence theorem forces them to;
+    :func:`~teamkf.experiments.divergence.why_diverging`)."""
     from .divergence import forced, why_diverging
 
     sc = np.asarray(row["stage_costs"], dtype=float)
     if _diverging(sc):
-        row["why diverging"] = why_diverging(family, options, system, graph, tuned=tuned)
-    elif forced(family, options, system, graph):  # a theorem, whatever the horizon shows
-        why = why_diverging(family, options, system, graph, tuned=tuned)
-        row["why diverging"] = why + " (by the detectability test: the error grows without bound, slowly on this horizon)"
+        row["why diverging"] = why_diverging(family, options, system, graph, tuned=tuned, cost=cost)
+    elif forced(family, options, system, graph, cost):  # a theorem, whatever the horizon shows
+        why = why_diverging(family, options, system, graph, tuned=tuned, cost=cost)
+        row["why diverging"] = why + " (by the divergence theorem: the cost grows without bound, slowly on this horizon)"
     else:
         row["why diverging"] = None
     return row

@@ -64,11 +64,39 @@ def candidates(family: str, graph: Any) -> list[dict[str, Any]]:
     return [{}, *(grid(graph) if callable(grid) else grid)]
 
 
+def _slope(y: np.ndarray) -> float:
+    """Least-squares slope of ``y`` against 0, 1, ..., len(y) - 1."""
+    t = np.arange(len(y), dtype=float)
+    t -= t.mean()
+    return float(np.dot(t, y - y.mean()) / np.dot(t, t))
+
+
 def diverging(stage: Any) -> bool:
-    """Still growing at the end of the horizon: non-finite, or the last three stage costs above 1.5× the one at 3T/4."""
+    """Still growing at the end of the horizon T (the numeric test; the divergence theorem is :mod:`~teamkf.experiments.divergence`).
+
+    Either rule flags a row:
+
+    * **fast growth**: a stage cost is not finite, or the last three are all above 1.5 times the one at 3T/4;
+    * **sustained growth** (T >= 16; linear growth, which the first rule misses: a random walk's cost goes from
+      300 to 400 over the last quarter of T = 400): the least-squares slope of the stage costs over the last
+      quarter is positive, at least 3/4 of the slope over the third quarter (the growth does not slow down, as a
+      converging transient's does: over a quarter it shrinks by rho^(T/4)), and the rise it gives over the second
+      half, slope × T/2, is at least 10 % of the mean stage cost of the last quarter.
+
+    A transient that converges more slowly than rho^(T/4) >= 3/4 (a time constant beyond about T steps) is still
+    growing on this horizon and is flagged too.
+    """
     sc = np.asarray(stage, dtype=float)
     T = len(sc)
-    return (not np.all(np.isfinite(sc))) or bool(np.min(sc[-3:]) > 1.5 * sc[(3 * T) // 4])
+    if T == 0:
+        return False
+    if (not np.all(np.isfinite(sc))) or bool(np.min(sc[-3:]) > 1.5 * sc[(3 * T) // 4]):
+        return True
+    if T < 16:
+        return False
+    q = T // 4
+    s3, s4 = _slope(sc[T - 2 * q : T - q]), _slope(sc[T - q :])
+    return bool(s4 > 0.0 and s4 >= 0.75 * s3 and s4 * (T / 2) >= 0.1 * float(np.mean(sc[T - q :])))
 
 
 @dataclass
