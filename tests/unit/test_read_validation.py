@@ -70,8 +70,10 @@ def base(tmp_path_factory) -> dict[str, Path]:
     rows = [f"{t},{i},{rng.normal():.6f}" for t in range(T) for i in range(N)]
     (d / "log.csv").write_text("step,agent,y0\n" + "\n".join(rows) + "\n")
     (d / "truth.csv").write_text("step,x0,x1,x2\n" + "".join(f"{t},0.1,0.2,0.3\n" for t in range(T)))
-    rc = main(["--quiet", "deploy", str(d / "tiny.toml"), "--measurements", str(d / "log.csv"), "--out", str(d / "est.csv")]
-              + ["--record", str(d / "drops.json"), "--transport", "queue"])
+    rc = main(
+        ["--quiet", "deploy", str(d / "tiny.toml"), "--measurements", str(d / "log.csv"), "--out", str(d / "est.csv")]
+        + ["--record", str(d / "drops.json"), "--transport", "queue"]
+    )
     assert rc == 0
     rec = json.loads((d / "drops.json").read_text())
     assert rec["scenario"] == "tiny" and len(rec["fingerprint"]) == 16 and rec["agents"] == N and rec["steps"] == T
@@ -81,9 +83,7 @@ def base(tmp_path_factory) -> dict[str, Path]:
 
 
 def _snapshot(*folders: Path) -> dict[str, str]:
-    return {
-        str(p): hashlib.sha256(p.read_bytes()).hexdigest() for f in folders for p in sorted(f.rglob("*")) if p.is_file()
-    }
+    return {str(p): hashlib.sha256(p.read_bytes()).hexdigest() for f in folders for p in sorted(f.rglob("*")) if p.is_file()}
 
 
 # ---------------------------------------------------------------------------
@@ -149,7 +149,16 @@ def _record(change: Callable[[dict], Any], scenario: str = "tiny.toml") -> Calla
         d = copy.deepcopy(json.loads(b["drops"].read_text()))
         change(d)
         (tmp / "drops.json").write_text(json.dumps(d))
-        return ["filter", str(b["dir"] / scenario), "--measurements", str(b["log"]), "--drops", str(tmp / "drops.json"), "--out", str(tmp / "replay.csv")]
+        return [
+            "filter",
+            str(b["dir"] / scenario),
+            "--measurements",
+            str(b["log"]),
+            "--drops",
+            str(tmp / "drops.json"),
+            "--out",
+            str(tmp / "replay.csv"),
+        ]
 
     return build
 
@@ -176,7 +185,11 @@ DROP_ROWS: list[tuple[str, Callable[..., list[str]], list[str]]] = [
     ("stopped-too-large", _record(lambda d: d.__setitem__("stopped", {"0": T})), ["stopped['0']", f"0..{T - 1}"]),
     ("stopped-unknown-agent", _record(lambda d: d.__setitem__("stopped", {"5": 1})), ["stopped['5']", "agent 0..2"]),
     ("stopped-not-a-table", _record(lambda d: d.__setitem__("stopped", [1])), ["stopped", "a table"]),
-    ("steps-shorter-than-the-log", _record(lambda d: d.__setitem__("steps", T - 2)), ["drops.json", "steps", f"{T - 2} steps", f"measurements {T}", "shorter"]),
+    (
+        "steps-shorter-than-the-log",
+        _record(lambda d: d.__setitem__("steps", T - 2)),
+        ["drops.json", "steps", f"{T - 2} steps", f"measurements {T}", "shorter"],
+    ),
     ("steps-longer-than-the-log", _record(lambda d: d.__setitem__("steps", T + 3)), ["steps", "longer"]),
     ("steps-zero", _record(lambda d: d.__setitem__("steps", 0)), ["steps", "integer >= 1"]),
     ("agents-other", _record(lambda d: d.__setitem__("agents", 4)), ["agents", "4 agents", "scenario 3"]),
@@ -238,7 +251,11 @@ FILE_ROWS: list[tuple[str, Callable[..., list[str]], list[str]]] = [
     ("parquet-y0-text", _parquet("text"), ["log.parquet", "column 'y0'", "numeric column", "text"]),
     ("parquet-y0-bytes", _parquet("bytes"), ["log.parquet", "column 'y0'", "expected a number", "dtype object"]),
     ("truth-parquet-x0-categorical", _truth_parquet_category, ["truth.parquet", "column 'x0'", "dtype category"]),
-    ("npz-booleans", _npz({"agent0": np.ones((T, 1), bool), "agent1": np.ones((T, 1)), "agent2": np.ones((T, 1))}), ["log.npz", "'agent0'", "dtype bool"]),
+    (
+        "npz-booleans",
+        _npz({"agent0": np.ones((T, 1), bool), "agent1": np.ones((T, 1)), "agent2": np.ones((T, 1))}),
+        ["log.npz", "'agent0'", "dtype bool"],
+    ),
     ("npz-not-a-zip", _garbage_npz, ["log.npz", "not an NPZ file"]),
     ("csv-text-in-y0", _csv_text, ["log.csv", "row 2 (line 3), column 'y0'", "expected a number", "'abc'"]),
 ]
@@ -305,10 +322,16 @@ def test_a_bad_file_is_one_line_naming_the_entry(build, words, base, tmp_path, c
 
 def test_the_good_record_replays_and_the_deployment_round_trips(base, tmp_path, capsys):
     """The rows above fail for their one mistake: the record they start from replays; a record as written replays to the deployment's file."""
-    assert main(["filter", str(base["scenario"]), "--measurements", str(base["log"]), "--drops", str(base["drops"]), "--out", str(tmp_path / "r.csv")]) == 0
+    assert (
+        main(["filter", str(base["scenario"]), "--measurements", str(base["log"]), "--drops", str(base["drops"]), "--out", str(tmp_path / "r.csv")])
+        == 0
+    )
     rec = tmp_path / "rec.json"
     args = ["--measurements", str(base["log"]), "--p-drop", "0.3", "--seed", "2"]
-    assert main(["deploy", str(base["scenario"]), *args[:2], "--out", str(tmp_path / "d.csv"), "--record", str(rec), "--transport", "queue", *args[2:]]) == 0
+    assert (
+        main(["deploy", str(base["scenario"]), *args[:2], "--out", str(tmp_path / "d.csv"), "--record", str(rec), "--transport", "queue", *args[2:]])
+        == 0
+    )
     assert json.loads(rec.read_text())["missed"]  # something was dropped
     assert main(["filter", str(base["scenario"]), *args[:2], "--drops", str(rec), "--out", str(tmp_path / "r2.csv")]) == 0
     assert (tmp_path / "d.csv").read_bytes() == (tmp_path / "r2.csv").read_bytes()
