@@ -27,7 +27,7 @@ from .codec import Frame, FrameError, decode_frame, encode_frame
 from .launcher import ChildResult, launch
 from .replay import DropRecord, replay
 from .roster import Roster, free_ports
-from .transport import QueueHub, QueueTransport, Transport, ZenohTransport
+from .transport import QueueHub, QueueTransport, Transport, TransportError, ZenohTransport
 
 __all__ = [
     "AgentCore",
@@ -42,6 +42,7 @@ __all__ = [
     "QueueTransport",
     "Roster",
     "Transport",
+    "TransportError",
     "ZenohTransport",
     "check_deployable",
     "decode_frame",

@@ -23,8 +23,14 @@ import threading
 from typing import Any, Callable, Mapping
 
 from .._validation import require
+from ..exceptions import TeamkfError
 
-__all__ = ["Transport", "ZenohTransport", "QueueHub", "QueueTransport", "zenoh_module"]
+__all__ = ["Transport", "TransportError", "ZenohTransport", "QueueHub", "QueueTransport", "zenoh_module"]
+
+
+class TransportError(TeamkfError, ConnectionError):
+    """The network refused an agent's session (Zenoh's error, on one line, naming the agent and its endpoint)."""
+
 
 Handler = Callable[[bytes], None]
 
@@ -83,14 +89,30 @@ class ZenohTransport(Transport):
         return c
 
     def open(self) -> None:
+        """Open the Zenoh session; a :class:`TransportError` names the agent and its endpoint when Zenoh refuses it."""
         if self._session is None:
             z = zenoh_module()
             self._z = z
-            self._session = z.open(self._config(z))
+            try:
+                self._session = z.open(self._config(z))
+            except Exception as exc:  # noqa: BLE001 - zenoh.ZError (or a config error): one line, never the Rust trace
+                from .roster import zenoh_reason
+
+                raise TransportError(
+                    f"agent {self.me}: Zenoh could not open a session listening on {self.endpoints.get(self.me)!r} "
+                    f"and connecting to the others ({zenoh_reason(exc)}); check the roster's endpoints"
+                ) from None
 
     def start(self, on_frame: Handler) -> None:
         self.open()
-        self._sub = self._session.declare_subscriber(f"{self.prefix}/{self.me}", lambda s: on_frame(bytes(s.payload.to_bytes())))
+        key = f"{self.prefix}/{self.me}"
+        try:
+            self._sub = self._session.declare_subscriber(key, lambda s: on_frame(bytes(s.payload.to_bytes())))
+        except Exception as exc:  # noqa: BLE001 - zenoh.ZError: an invalid key expression
+            from .roster import zenoh_reason
+
+            self.close()
+            raise TransportError(f"agent {self.me}: Zenoh refused the key {key!r} ({zenoh_reason(exc)}); check the roster's prefix") from None
 
     def send(self, receiver: int, data: bytes) -> None:
         self.open()

@@ -56,7 +56,9 @@ cached (their source may change between runs).
 
 Each network's rows are cached on disk (``$TEAMKF_CACHE_DIR``, default
 ``~/.cache/teamkf``; ``TEAMKF_CACHE_DIR=off`` disables it), keyed by the
-network's arrays, T and the source of the estimators and of this module, and
+network's arrays, T and the source of the estimators and of this module; a
+part that does not read back as what it was written (truncated JSON, wrong keys
+or types, another version) is recomputed with one ``teamkf: warning:`` line; and
 networks run in parallel processes (``TEAMKF_WORKERS``, default: the number
 of cores).
 """
@@ -67,6 +69,7 @@ import hashlib
 import json
 import math
 import os
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -476,7 +479,7 @@ def _part_job(index: int, part: str, quick: bool, T: int) -> dict[str, Any]:
     _, build = networks(quick)[index]
     system, cost, graph = build()
     key = f"leaderboard-{'quick' if quick else 'full'}-T{T}-{_fingerprint(system, cost, graph)}-{part}"
-    return _cached(key, lambda: network_part(part, system, cost, graph, T, quick))
+    return _cached(key, lambda: network_part(part, system, cost, graph, T, quick), lambda out: _part_problem(out, part, T, system.n_agents))
 
 
 def _lossy_job(index: int, quick: bool, tuned: dict[str, list[dict[str, Any]]], plugins: list[str] | None = None) -> dict[str, Any]:
@@ -489,23 +492,37 @@ def _lossy_job(index: int, quick: bool, tuned: dict[str, list[dict[str, Any]]], 
         return {"rows": rows, "failed": failed, "cached": False}
     tag = hashlib.sha256(json.dumps(tuned, sort_keys=True).encode()).hexdigest()[:12]
     key = f"leaderboard-lossy-{'quick' if quick else 'full'}-{_fingerprint(system, cost, graph)}-{tag}"
-    return _cached(key, lambda: {"rows": lossy_network_rows(name, system, cost, graph, quick, tuned)})
+    return _cached(key, lambda: {"rows": lossy_network_rows(name, system, cost, graph, quick, tuned)}, _lossy_problem)
 
 
-def _cached(key: str, compute: Any) -> dict[str, Any]:
-    """``compute()`` (a JSON-ready dict), stored as ``<cache>/<key>.json`` and read back from there when present."""
+#: what a cache part says it is (``format``, ``version``: :data:`ROWS_VERSION`)
+CACHE_FORMAT = "teamkf-leaderboard-part"
+
+
+def _cached(key: str, compute: Any, problem: Any = None) -> dict[str, Any]:
+    """``compute()`` (a JSON-ready dict), stored as ``<cache>/<key>.json`` and read back from there when present.
+
+    A part that does not read back as one (unreadable or truncated JSON, another format or version, or what
+    ``problem(out)`` finds wrong: a string, else None) is recomputed and overwritten, with one warning line.
+    """
     cache = _cache_dir()
     path = cache / f"{key}.json" if cache is not None else None
     if path is not None and path.is_file():
+        why: str | None
         try:
-            out: dict[str, Any] = json.loads(path.read_text())
+            out: dict[str, Any] = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as exc:  # truncated, not UTF-8, unreadable
+            why = f"not readable JSON ({type(exc).__name__}: {' '.join(str(exc).split())[:120]})"
+        else:
+            why = _common_problem(out) or (problem(out) if problem is not None else None)
+        if why is None:
             out["cached"] = True
             return out
-        except (OSError, ValueError):
-            pass
+        print(f"teamkf: warning: leaderboard cache part {path}: {why}; recomputing it", file=sys.stderr, flush=True)
     t0 = time.perf_counter()
     out = compute()
     out["network seconds"] = time.perf_counter() - t0
+    out["format"], out["version"] = CACHE_FORMAT, ROWS_VERSION
     if path is not None:
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
@@ -516,6 +533,83 @@ def _cached(key: str, compute: Any) -> dict[str, Any]:
             pass
     out["cached"] = False
     return out
+
+
+def _kind(v: Any) -> str:
+    return "null" if v is None else type(v).__name__
+
+
+def _is(v: Any, t: str) -> bool:
+    """``v`` is of schema type ``t``: str, num (int or float, not bool), int, bool, list, dict; ``?`` allows null."""
+    if t.endswith("?"):
+        return v is None or _is(v, t[:-1])
+    if t == "num":
+        return isinstance(v, (int, float)) and not isinstance(v, bool)
+    if t == "int":
+        return isinstance(v, int) and not isinstance(v, bool)
+    return isinstance(v, {"str": str, "bool": bool, "list": list, "dict": dict}[t])
+
+
+def _fields(d: Any, schema: dict[str, str], where: str) -> str | None:
+    """What is wrong with the dict ``d`` against ``schema`` (key -> type), or None."""
+    if not isinstance(d, dict):
+        return f"{where}: expected an object, found {_kind(d)}"
+    for k, t in schema.items():
+        if k not in d:
+            return f"{where}: missing {k!r}"
+        if not _is(d[k], t):
+            return f"{where}.{k}: expected {t.rstrip('?')}{' or null' if t.endswith('?') else ''}, found {_kind(d[k])}"
+    return None
+
+
+def _common_problem(out: Any) -> str | None:
+    if not isinstance(out, dict):
+        return f"expected an object, found {_kind(out)}"
+    if out.get("format") != CACHE_FORMAT or out.get("version") != ROWS_VERSION:
+        return f"expected format {CACHE_FORMAT!r} version {ROWS_VERSION}, found {out.get('format')!r} version {out.get('version')!r}"
+    return _fields(out, {"network seconds": "num"}, "part")
+
+
+_RAW = {"estimator": "str", "variant": "str", "form": "str", "options": "str", "stage_costs": "list", "realizable": "bool", "seconds": "num?"}
+_TRIED = {"options": "str", "J_T": "num", "diverging": "bool", "error": "str?"}
+_LOSSY_ROW = {
+    **{k: "str" for k in ("network", "estimator", "variant", "form", "options", "ci95 (MC)")},
+    **{k: "num" for k in ("p_drop", "J_T", "J / J*")},
+    **{k: "num?" for k in ("J_T exact", "last / last*", "J*_avg (steady)", "seconds")},
+    **{"n_agents": "int", "d_x": "int", "diverging": "bool", "realizable": "bool", "beats MTMSE at some step": "bool?", "why diverging": "str?"},
+}
+
+
+def _part_problem(out: dict[str, Any], part: str, T: int, n_agents: int) -> str | None:
+    """What is wrong with an exact part read from the cache (see :func:`network_part`), or None."""
+    schema = {"raw": "list", "steady": "num?", "n_agents": "int", "d_x": "int"} if part == "base" else {"raw": "list", "tried": "list?"}
+    why = _fields(out, schema, "part")
+    if why:
+        return why
+    if part == "base" and (out["n_agents"] != n_agents or not out["raw"] or out["raw"][0].get("estimator") != "mtmse"):
+        return f"part: expected the base rows of a network of {n_agents} agents, MTMSE first"
+    for q, r in enumerate(out["raw"]):
+        why = _fields(r, {**_RAW, "why diverging": "str?"}, f"raw[{q}]")
+        if why:
+            return why
+        sc = r["stage_costs"]
+        if len(sc) != T or not all(_is(v, "num") for v in sc):
+            return f"raw[{q}].stage_costs: expected {T} numbers, found {len(sc)} entries"
+    for q, c in enumerate(out.get("tried") or []):
+        why = _fields(c, _TRIED, f"tried[{q}]")
+        if why:
+            return why
+    return None
+
+
+def _lossy_problem(out: dict[str, Any]) -> str | None:
+    """What is wrong with a lossy part read from the cache (see :func:`lossy_network_rows`), or None."""
+    why = _fields(out, {"rows": "list"}, "part")
+    for q, r in enumerate(out["rows"] if why is None else []):
+        why = _fields(r, _LOSSY_ROW, f"rows[{q}]")
+        if why:
+            break
+    return why
 
 
 def _workers(n_jobs: int) -> int:

@@ -26,6 +26,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from ..deploy import AgentResult, DropRecord, QueueHub, Roster, ZenohTransport, check_deployable, free_ports, launch, replay, run_agent
+from ..deploy.transport import TransportError
 from ..estimators.base import check_measurements
 from ..exceptions import ArgumentError, UnsupportedOperationError
 from . import measurements as M
@@ -40,6 +41,7 @@ __all__ = [
     "cmd_deploy",
     "cmd_agent",
     "cmd_filter_drops",
+    "scenario_fingerprint",
 ]
 
 
@@ -58,6 +60,22 @@ class Prepared:
     graph: Any = None  # the graph the agents talk over
     n_agents: int = 0
     dz: int = 0  # estimate width per agent
+    scenario: str | None = None  # the scenario's name and fingerprint, for the drop record
+    fingerprint: str | None = None
+
+
+def scenario_fingerprint(scenario: Any, estimator: str) -> str | None:
+    """16 hex digits of the SHA-256 of the scenario's tables and the deployed family (canonical JSON; None for a scenario built in Python without them).
+
+    A drop record carries it, so that ``teamkf filter --drops`` refuses a record of another scenario or estimator.
+    """
+    raw = getattr(scenario, "raw", None)
+    if not raw:
+        return None
+    import hashlib
+
+    text = json.dumps({"scenario": raw, "estimator": estimator}, sort_keys=True, separators=(",", ":"), allow_nan=True, default=str)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
 
 
 def deploy_estimator(scenario: Any, name: str | None) -> str:
@@ -99,9 +117,9 @@ def prepare(scenario: Any, log: Any, estimator: str | None = None, *, design: An
     ``design_here=False``: do not design (the agent processes design for themselves and refuse what
     they cannot run); ``Prepared.design`` is then None.
     """
-    if not hasattr(scenario, "designs"):
+    if getattr(scenario, "kind", "team") != "team":
         raise ArgumentError(
-            "SCENARIO: deployment needs a scenario with [system], [[agents]] and a graph, found a population scenario", argument="SCENARIO"
+            f"SCENARIO: deployment needs a scenario with [system], [[agents]] and a graph, found a {scenario.kind} scenario", argument="SCENARIO"
         )
     name = deploy_estimator(scenario, estimator)
     if not isinstance(log, M.MeasurementLog):
@@ -115,13 +133,14 @@ def prepare(scenario: Any, log: Any, estimator: str | None = None, *, design: An
         )
     n, dz = int(scenario.system.n_agents), int(scenario.cost.dz)
     ys, offs = _means(scenario, log)
+    ident = (getattr(scenario, "name", None), scenario_fingerprint(scenario, name))
     if not design_here:
         _refuse_early(scenario, name)
-        return Prepared(name, None, [], offs, log.n_steps, scenario.graph, n, dz)
+        return Prepared(name, None, [], offs, log.n_steps, scenario.graph, n, dz, *ident)
     d = design if design is not None else scenario.design(name)
     graph = check_deployable(d, scenario.graph)
     batch = check_measurements([np.asarray(y, dtype=float)[None] for y in ys], d.system, d.horizon)[0]
-    return Prepared(name, d, batch, offs, log.n_steps, graph, n, dz)
+    return Prepared(name, d, batch, offs, log.n_steps, graph, n, dz, *ident)
 
 
 def _refuse_early(scenario: Any, name: str) -> None:
@@ -180,7 +199,7 @@ def _merge(prep: Prepared, results: Sequence[AgentResult | None], **info: Any) -
         reports.append(r.to_json())
         if r.steps_done < T or r.error:
             failed[i] = r.error or f"stopped after {r.steps_done} of {T} steps"
-    rec = DropRecord.from_results(prep.estimator, results, T, **info)
+    rec = DropRecord.from_results(prep.estimator, results, T, scenario=prep.scenario, fingerprint=prep.fingerprint, **info)
     return DeployResult(prep.estimator, z, reports, rec, failed)
 
 
@@ -308,18 +327,25 @@ def deploy_processes(args: Any, prep: Prepared, on_start: Callable[[list[int]], 
 
 def _read_agent(run_dir: Path, i: int, prep: Prepared) -> AgentResult | None:
     rp, zp = run_dir / f"agent-{i}.json", run_dir / f"agent-{i}.npz"
-    if not rp.exists() or not zp.exists():  # killed: what it streamed before it died
-        part = run_dir / f"agent-{i}.f8"
-        if not part.exists():
-            return None
-        raw = part.read_bytes()
-        rows = min(len(raw) // (8 * prep.dz), prep.n_steps)
-        z = np.full((prep.n_steps, prep.dz), np.nan)
-        z[:rows] = np.frombuffer(raw[: rows * 8 * prep.dz], dtype="<f8").reshape(rows, prep.dz)
-        return AgentResult(i, prep.n_steps, z, rows, error="no report (the process died)")
+    if rp.exists() and zp.exists():
+        try:
+            return _read_report(rp, zp, i, prep)
+        except Exception:  # noqa: BLE001 - a report cut short (the process died writing it): what it streamed, as a killed agent
+            pass
+    part = run_dir / f"agent-{i}.f8"  # killed: what it streamed before it died
+    if not part.exists():
+        return None
+    raw = part.read_bytes()
+    rows = min(len(raw) // (8 * prep.dz), prep.n_steps)
+    z = np.full((prep.n_steps, prep.dz), np.nan)
+    z[:rows] = np.frombuffer(raw[: rows * 8 * prep.dz], dtype="<f8").reshape(rows, prep.dz)
+    return AgentResult(i, prep.n_steps, z, rows, error="no report (the process died)")
+
+
+def _read_report(rp: Path, zp: Path, i: int, prep: Prepared) -> AgentResult:
     d = json.loads(rp.read_text(encoding="utf-8"))
-    with np.load(zp) as f:
-        z = np.array(f["z"])
+    with np.load(zp, allow_pickle=False) as f:
+        z = np.array(f["z"], dtype=float).reshape(prep.n_steps, prep.dz)
         lat = [float(x) for x in f["latency"]] if "latency" in f else []
     r = AgentResult(i, prep.n_steps, z, int(d["steps_done"]), [(int(j), int(s), str(w)) for j, s, w in d["missed"]], dict(d["counts"]))
     r.failed_neighbours = list(d["failed_neighbours"])
@@ -332,17 +358,26 @@ def _read_agent(run_dir: Path, i: int, prep: Prepared) -> AgentResult | None:
 # ---------------------------------------------------------------------------
 # the commands (teamkf.study.deploy_args adds their parsers)
 # ---------------------------------------------------------------------------
-def _load(arg: str) -> Any:
+def _load(arg: str, what: str = "deploy") -> Any:
+    """The scenario ``arg`` (a file or a packaged name); a population scenario is refused: it has no agents to ``what``."""
     from .scenario import load_packaged, load_scenario, packaged_scenarios
 
     p = Path(arg)
     if p.exists() and not p.is_dir():
-        return load_scenario(p)
-    if arg in packaged_scenarios():
-        return load_packaged(arg)
-    from ..exceptions import ScenarioError
+        sc = load_scenario(p)
+    elif arg in packaged_scenarios():
+        sc = load_packaged(arg)
+    else:
+        from ..exceptions import ScenarioError
 
-    raise ScenarioError(f"{arg}: no such scenario file (packaged scenarios: {', '.join(packaged_scenarios())})")
+        raise ScenarioError(f"{arg}: no such scenario file (packaged scenarios: {', '.join(packaged_scenarios())})")
+    if getattr(sc, "kind", "team") != "team":
+        raise ArgumentError(
+            f"SCENARIO: {arg} is a {sc.kind} scenario ([{sc.kind}]): it has no agents to {what}; "
+            "deployment needs a scenario with [system], [[agents]] and a graph (e.g. platoon-4)",
+            argument="SCENARIO",
+        )
+    return sc
 
 
 def _out_suffix(path: str, flag: str, allowed: Sequence[str]) -> str:
@@ -441,12 +476,13 @@ def _stdin_source(prep_ybar: np.ndarray | None, d_y: int, T: int) -> Callable[[i
 
 def cmd_agent(args: Any) -> int:
     """``teamkf agent``: exit 0 when it completed its steps, 1 on an error, 130 on Ctrl-C."""
-    sc = _load(args.scenario)
+    sc = _load(args.scenario, "run")
     n = sc.system.n_agents
     if not 0 <= args.id < n:
         raise ArgumentError(f"--id: expected an agent id in 0..{n - 1}, found {args.id}", argument="--id")
     roster = Roster.read(args.roster)
     roster.check(n)
+    roster.check_network(args.id)  # every host resolves, this agent's endpoint is free here: one line, before any work
     if args.out and args.out != "-":
         _out_suffix(args.out, "--out", (".csv", ".parquet", ".npz"))
     i = args.id
@@ -475,6 +511,11 @@ def cmd_agent(args: Any) -> int:
         def source(k: int) -> Any:
             return yi[:, k]
 
+    transport = ZenohTransport(i, roster.endpoints, prefix=roster.prefix)
+    try:
+        transport.open()  # what Zenoh still refuses (the roster was checked): one line naming the roster and the endpoint
+    except TransportError as exc:
+        raise ArgumentError(f"{roster.source}: {exc}", argument="--roster") from None
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
@@ -494,7 +535,6 @@ def cmd_agent(args: Any) -> int:
         for f in sinks:
             f(k, z)
 
-    transport = ZenohTransport(i, roster.endpoints, prefix=roster.prefix)
     res = run_agent(
         design,
         i,
@@ -554,10 +594,14 @@ def cmd_filter_drops(args: Any) -> int:
         raise ArgumentError(f"--estimators: the drop record is of {rec.estimator!r}; drop --estimators or name only it", argument="--estimators")
     if getattr(args, "truth", None):
         raise ArgumentError("--truth: not available with --drops (the replay writes the estimates only)", argument="--truth")
-    sc = _load(args.scenario)
+    sc = _load(args.scenario, "replay")
+    from ..estimators.registry import get_family
+
+    get_family(rec.estimator, f"{rec.source}: estimator")  # a family of another installation: named as the record's entry
+    rec.check(n_agents=sc.system.n_agents, n_steps=rec.n_steps, scenario=sc.name, fingerprint=scenario_fingerprint(sc, rec.estimator))
     log = M.read_measurements(args.measurements, sc.system, sc.horizon)
     prep = prepare(sc, log, rec.estimator)
-    z = replay(prep.design, prep.ys, rec, prep.offsets, graph=prep.graph)
+    z = replay(prep.design, prep.ys, rec, prep.offsets, graph=prep.graph)  # checks the record's steps against the log's, its misses against the graph
     M.write_estimates(args.out, {rec.estimator: z}, prep.n_agents)
     if args.json:
         print(json.dumps({"scenario": sc.name, "out": args.out, "estimator": rec.estimator, "steps": rec.n_steps, "missed": len(rec.missed)}))

@@ -53,6 +53,21 @@ def _seconds(text: str) -> float:
     return v
 
 
+def _count(least: int, what: str) -> Callable[[str], int]:
+    """An argparse type: an integer >= ``least`` (``what`` names it in the message)."""
+
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what}, an integer >= {least}, found {text!r}") from None
+        if v < least:
+            raise argparse.ArgumentTypeError(f"expected {what}, an integer >= {least}, found {v}")
+        return v
+
+    return parse
+
+
 def _seed(text: str) -> int:
     try:
         v = int(text)
@@ -103,7 +118,7 @@ def add_parsers(add: Callable[[str, str], Any]) -> None:
 
     p = add("agent", "run one agent of a scenario on this machine: it talks to the others through the roster's Zenoh endpoints")
     p.add_argument("scenario", metavar="SCENARIO")
-    p.add_argument("--id", type=int, required=True, metavar="I", help="this agent's id (0-based, as in the scenario)")
+    p.add_argument("--id", type=_count(0, "an agent id"), required=True, metavar="I", help="this agent's id (0-based, as in the scenario)")
     p.add_argument("--roster", required=True, metavar="FILE", help="the roster (TOML/JSON): run_id, prefix, [[agents]] id and endpoint")
     p.add_argument(
         "--measurements",
@@ -118,7 +133,7 @@ def add_parsers(add: Callable[[str, str], Any]) -> None:
         metavar="FILE",
         help="append every estimate to FILE as it is computed, one row of raw little-endian float64 per step (survives a crash)",
     )
-    p.add_argument("--steps", type=int, metavar="T", help="steps to run (default: the log's, or the horizon for stdin)")
+    p.add_argument("--steps", type=_count(1, "a number of steps"), metavar="T", help="steps to run (default: the log's, or the horizon for stdin)")
     _run_flags(p)
-    p.add_argument("--kill-at", type=int, metavar="STEP", help="fault injection: the process kills itself (SIGKILL) before STEP")
+    p.add_argument("--kill-at", type=_count(0, "a step"), metavar="STEP", help="fault injection: the process kills itself (SIGKILL) before STEP")
     p.set_defaults(func=_command("cmd_agent"))

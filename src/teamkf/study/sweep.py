@@ -620,8 +620,9 @@ def run_sweep(
     done = _check_out(spec, out, resume)
     created = not out.exists()  # a folder this run makes is removed again when it ends with no point in it
     points = spec.points
-    todo = [p for p in points if p.point_id not in done]
     writer = _Writer(spec, out, pa)
+    done = _readable_parts(out, done, writer.schema)
+    todo = [p for p in points if p.point_id not in done]
     bar = _progress_bar(len(points), initial=len(points) - len(todo), enabled=False, desc=f"sweep {spec.name}", unit="point")
     n_ok = 0
 
@@ -796,6 +797,31 @@ def _check_out(spec: SweepSpec, out: Path, resume: bool) -> set[str]:
         )
     ids = {p.point_id for p in spec.points}
     return {e.name[len("part-") : -len(".parquet")] for e in entries if e.name.startswith("part-") and e.name.endswith(".parquet")} & ids
+
+
+def _readable_parts(out: Path, done: set[str], schema: Any) -> set[str]:
+    """The parts of ``done`` that read back as this sweep wrote them (its columns and types, at least one row);
+    a truncated or foreign part is recomputed (overwritten), with one ``teamkf: warning:`` line."""
+    import sys
+
+    import pyarrow.parquet as pq
+
+    ok = set()
+    for pid in sorted(done):
+        part = out / f"part-{pid}.parquet"
+        try:
+            meta = pq.read_metadata(part)
+            found = meta.schema.to_arrow_schema()
+            why = None if found.remove_metadata().equals(schema.remove_metadata()) else "its columns or their types differ from this sweep's"
+            if why is None and meta.num_rows == 0:
+                why = "it has no rows"
+        except Exception as exc:  # noqa: BLE001 - pyarrow's own error types (ArrowInvalid, OSError)
+            why = f"not readable as Parquet ({type(exc).__name__}: {' '.join(str(exc).split())[:120]})"
+        if why is None:
+            ok.add(pid)
+        else:
+            print(f"teamkf: warning: sweep part {part}: {why}; recomputing that grid point", file=sys.stderr, flush=True)
+    return ok
 
 
 class _Writer:

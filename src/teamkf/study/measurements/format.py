@@ -261,12 +261,69 @@ def _read_table(path: Path, suffix: str) -> Any:
     return coerce_numeric(df, path, suffix == ".csv")
 
 
+def _is_real(v: Any) -> bool:
+    """A real number as a Parquet object column holds it (float, int, Decimal), not a bool or text."""
+    import decimal
+    import numbers
+
+    return isinstance(v, (numbers.Real, decimal.Decimal)) and not isinstance(v, (bool, np.bool_))
+
+
+def _numeric_text(v: Any) -> bool:
+    """Text that reads as a number ("1.5")."""
+    if not isinstance(v, str):
+        return False
+    try:
+        float(v)
+    except ValueError:
+        return False
+    return True
+
+
+def _parquet_types(df: Any, path: Path, row0: int) -> None:
+    """A Parquet file's columns are numeric: integers or floats (nullable ones too), or decimals or all null;
+    a categorical or text column is refused naming its dtype (CSV cells are checked one by one instead)."""
+    pd = _pandas()
+    for col in df.columns:
+        s = df[col]
+        if isinstance(s.dtype, pd.CategoricalDtype):
+            raise file_error(
+                path,
+                f"column {col!r}",
+                f"expected a numeric column (integers or floats), found dtype category (categorical values, categories of "
+                f"dtype {s.cat.categories.dtype}); store it as float64 (df[{col!r}].astype(float)) before writing the Parquet file",
+            )
+        if s.dtype.kind in "OSU" or isinstance(s.dtype, pd.StringDtype):
+            vals = s.to_numpy(dtype=object)
+            present = [r for r, v in enumerate(vals) if v is not None and not (isinstance(v, float) and np.isnan(v)) and v is not pd.NA]
+            other = [r for r in present if not _is_real(vals[r]) and not isinstance(vals[r], (bool, np.bool_))]  # true/false: below
+            if not other:
+                continue  # all null, or numbers as objects (decimals): coerced below
+            r = next((q for q in other if not _numeric_text(vals[q])), other[0])
+            v = vals[r]
+            if _numeric_text(v):
+                raise file_error(
+                    path,
+                    f"column {col!r}",
+                    f"expected a numeric column (integers or floats), found text (dtype {s.dtype}), e.g. {v!r} in row {r + 1 + row0}; "
+                    "store the numbers as float64 before writing the Parquet file",
+                )
+            raise file_error(path, cell_location(r + row0, col, False), f"expected a number, found {v!r} (a column of dtype {s.dtype})")
+
+
 def coerce_numeric(df: Any, path: Path, csv: bool, row0: int = 0) -> Any:
-    """Every column numeric; the first string is reported with its row (``row0``: rows before this chunk) and column."""
+    """Every column numeric; the first string is reported with its row (``row0``: rows before this chunk) and column.
+
+    A Parquet file (``csv`` False) must also have numeric column types: a categorical or text column is refused
+    naming its dtype.
+    """
     pd = _pandas()
     for col in df.columns:
         if not isinstance(col, str):
             raise file_error(path, f"column {col!r}", "expected string column names")
+    if not csv:
+        _parquet_types(df, path, row0)
+    for col in df.columns:
         s = df[col]
         if s.dtype.kind == "b" or (s.dtype.kind == "O" and s.map(lambda v: isinstance(v, (bool, np.bool_))).any()):
             raise file_error(path, f"column {col!r}", "expected numbers, found true/false values; write measurements as numbers (1.0, 0.0)")
@@ -518,12 +575,26 @@ def _read_u_columns(df: Any, ucols: list[str], step: np.ndarray, T: int, p: Path
 
 def _npz_arrays(p: Path) -> dict[str, np.ndarray]:
     try:
+        with open(p, "rb") as fh:
+            magic = fh.read(4)
+    except OSError:
+        magic = b"PK"  # np.load below says what is wrong
+    if not magic.startswith(b"PK"):
+        raise file_error(
+            p,
+            "",
+            f"not an NPZ file (a zip archive of arrays, as np.savez writes), found {'an empty file' if not magic else repr(magic)} at its start",
+        )
+    try:
         with np.load(p, allow_pickle=False) as z:
             return {k: z[k] for k in z.files}
     except ValueError as exc:
         raise file_error(p, "", f"not a readable NPZ file of numeric arrays ({exc})") from None
     except Exception as exc:  # zipfile.BadZipFile, OSError on a truncated file
         raise file_error(p, "", f"not a readable NPZ file ({type(exc).__name__}: {exc})") from None
+
+
+_NPZ_FIX = "; save float arrays (np.savez(path, agent0=y.astype(float), ...))"
 
 
 def read_npz(p: Path, system: LinearGaussianSystem, horizon: int | None) -> MeasurementLog:
@@ -544,8 +615,8 @@ def read_npz(p: Path, system: LinearGaussianSystem, horizon: int | None) -> Meas
     opt: dict[str, Any] = {}
     for key in ("u", "b", *[f"d_agent{i}" for i in range(n)]):
         a = arrs.pop(key, None)
-        if a is not None and a.dtype.kind not in "fiub":
-            raise file_error(p, f"key {key!r}", f"expected numbers, found dtype {a.dtype}")
+        if a is not None and a.dtype.kind not in "fiu":
+            raise file_error(p, f"key {key!r}", f"expected numbers (integers or floats), found dtype {a.dtype}{_NPZ_FIX}")
         opt[key] = None if a is None else a.astype(float)
     extra = [k for k in arrs if k not in names]
     if extra:
@@ -559,8 +630,8 @@ def read_npz(p: Path, system: LinearGaussianSystem, horizon: int | None) -> Meas
     ys = []
     for k in names:
         a = arrs[k]
-        if a.dtype.kind not in "fiub":
-            raise file_error(p, f"key {k!r}", f"expected numbers, found dtype {a.dtype}")
+        if a.dtype.kind not in "fiu":
+            raise file_error(p, f"key {k!r}", f"expected numbers (integers or floats), found dtype {a.dtype}{_NPZ_FIX}")
         ys.append(a.astype(float))
     return MeasurementLog.from_arrays(ys, system, horizon, source=str(p), u=opt["u"], b=opt["b"], d=d)
 
@@ -578,8 +649,8 @@ def read_truth(path: str | Path, dx: int, n_steps: int) -> FloatArray:
                 p, "key 'x'", f"missing; expected the states as an array 'x' of shape ({n_steps}, {dx}) (found {', '.join(arrs) or 'none'})"
             )
         x = arrs["x"]
-        if x.dtype.kind not in "fiub":
-            raise file_error(p, "key 'x'", f"expected numbers, found dtype {x.dtype}")
+        if x.dtype.kind not in "fiu":
+            raise file_error(p, "key 'x'", f"expected numbers (integers or floats), found dtype {x.dtype}{_NPZ_FIX}")
         x = x.astype(float)
         if x.ndim != 2 or x.shape != (n_steps, dx):
             raise file_error(p, "key 'x'", f"expected shape ({n_steps}, {dx}) (steps of the measurements, d_x), found {x.shape}")
