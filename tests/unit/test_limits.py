@@ -20,7 +20,7 @@ import pytest
 from teamkf import _budget, _validation, scenario_from_dict
 from teamkf.cli import main
 from teamkf.exceptions import ArgumentError, ResourceError, ScenarioError
-from teamkf.study import _size
+from teamkf.study import _limits, _size
 from teamkf.study import measurements as M
 
 GIB = 1024**3
@@ -188,8 +188,8 @@ def test_agent_applies_the_limit_and_checks_steps(monkeypatch: Any, capsys: Any,
     assert "--steps: expected a whole number of steps >= 1, found 0" in _err(capsys)
     assert main([*base, "--steps", str(10**15)]) == 2  # huge: its work exceeds the limit
     assert "--steps: teamkf agent 0: 4 agents over T = 1,000,000,000,000,000 steps needs at least" in _err(capsys)
-    assert main([*base, "--steps", str(10**5)]) == 2  # fits the work limit, but not its worst case: 10^5 x 4 x 2 s
-    assert "--deadline: the run's worst case, 60 s to join + 100,000 steps x 4 x 2 s" in _err(capsys)
+    assert main([*base, "--steps", str(10**5)]) == 2  # fits the work limit, but not its worst case: 10^5 x 2 s
+    assert "--deadline: the run's worst case, 60 s to join + 100,000 steps x 2 s = 2.3 days" in _err(capsys)
     monkeypatch.setenv("TEAMKF_MAX_HOURS", "1e-9")
     assert main([*base, "--deadline", "1e-3", "--join-timeout", "1e-3"]) == 2  # the horizon (100 steps)
     assert "teamkf agent 0: 4 agents over T = 100 steps" in _err(capsys)
@@ -204,7 +204,7 @@ def test_agent_applies_the_limit_and_checks_steps(monkeypatch: Any, capsys: Any,
         (["--deadline", "1e300"], "--deadline: 1e+300 s is beyond the work limit of 2.0 hours"),
         (["--join-timeout", "1e300"], "--join-timeout: 1e+300 s is beyond the work limit"),
         (["--timeout", "1e300"], "--timeout: 1e+300 s is beyond the work limit"),
-        (["--deadline", "100"], "--deadline: the run's worst case, 60 s to join + 20 steps x 4 x 100 s"),
+        (["--deadline", "400"], "--deadline: the run's worst case, 60 s to join + 20 steps x 400 s = 2.2 hours, exceeds the work limit"),
     ],
 )
 def test_deadline_extremes_refused(monkeypatch: Any, capsys: Any, log4: Any, flags: list[str], expected: str) -> None:
@@ -217,8 +217,10 @@ def test_deadline_extremes_refused(monkeypatch: Any, capsys: Any, log4: Any, fla
 
 
 def test_small_deploy_still_runs(log4: Any, capsys: Any) -> None:
-    """The checks do not refuse an ordinary run (queue transport, 20 steps)."""
+    """The checks do not refuse an ordinary run (queue transport, 20 steps), nor a long deadline that --timeout bounds."""
     d, log = log4
+    _limits.check_deploy(200, 6, deadline=10.0, join_timeout=60.0)  # test_deploy's generous deadline: 2060 s worst case
+    _limits.check_deploy(20, 4, deadline=400.0, join_timeout=60.0, timeout=600.0)
     assert main(["deploy", "platoon-4", "--measurements", str(log), "--out", str(d / "ok.csv"), "--transport", "queue", "--json"]) == 0
     assert (d / "ok.csv").exists()
 
@@ -306,3 +308,15 @@ def test_lossy_estimate_tracks_the_measured_peaks() -> None:
 def test_lossy_small_horizon_still_designs() -> None:
     d = _lossy(8).design("mtmse_lossy")
     assert d.horizon == 8
+
+
+def test_monte_carlo_under_drops_counts_its_python_steps(monkeypatch: Any) -> None:
+    """path="runtime" (unreliable links, --p-drop): each agent's step runs in Python per block of runs and step."""
+    from teamkf.simulation import monte_carlo as mc
+    from teamkf.study.scenario import load_packaged
+
+    d = load_packaged("platoon-4").design("kcf")
+    monkeypatch.setenv("TEAMKF_MAX_HOURS", "0.01")  # 36 s
+    mc._check_work({"kcf": d}, d.system, 10**6, 2)  # the batched estimate alone: about 20 s
+    with pytest.raises(ResourceError, match=r"n_runs: a Monte Carlo of 2 runs x 1000000 steps"):
+        mc._check_work({"kcf": d}, d.system, 10**6, 2, blocks=1)  # + 4 agents x 10^6 steps x 10 us

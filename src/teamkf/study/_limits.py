@@ -10,9 +10,10 @@ time exceeds :func:`teamkf._budget.work_limit_s` (``teamkf --max-hours H`` or
   (:data:`~teamkf._budget.STEP_LOOPS` per agent and step);
 * ``filter`` of a steady-state scenario (streamed): the designs, and at least one
   measurement row per :data:`ROW_BYTES` bytes of the file;
-* ``deploy`` and ``agent``: the design, the agents' steps, and the run's **worst case in wall
-  time**: join timeout + :math:`T \\max(2, n)` deadlines (a step waits at most
-  :math:`\\max(2, n)` deadlines for a live neighbour). A deadline below :data:`MIN_SECONDS`
+* ``deploy`` and ``agent``: the agents' steps, and the run's **worst case in wall time**:
+  join timeout + :math:`T` deadlines (what ``deploy``'s default ``--timeout`` allows, less the
+  120 s of starting the processes), or ``--timeout`` when it is smaller; each of ``--deadline``,
+  ``--join-timeout`` and ``--timeout`` alone within the limit. A value below :data:`MIN_SECONDS`
   (the heartbeats run every deadline / 4) is refused when the arguments are read.
 """
 
@@ -81,13 +82,14 @@ def check_deploy(
             raise ResourceError(
                 f"{flag}: {v:g} s is beyond the work limit of {_budget.format_seconds(limit)}; use a smaller {flag}{how}", argument=flag
             )
-    waits = max(2, n_agents)
-    worst = join_timeout + float(n_steps) * waits * deadline
+    worst = join_timeout + float(n_steps) * deadline  # what deploy's default --timeout allows (plus 120 s to start the processes)
+    if timeout is not None and timeout < worst:
+        return  # the run is killed at --timeout, within the limit
     if worst > limit:
         raise ResourceError(
-            f"--deadline: the run's worst case, {join_timeout:g} s to join + {n_steps:,} steps x {waits} x {deadline:g} s "
-            f"(a step waits up to {waits} deadlines for a live neighbour) = {_budget.format_seconds(worst)}, exceeds the work limit of "
-            f"{_budget.format_seconds(limit)}; use a smaller --deadline or fewer steps{how}",
+            f"--deadline: the run's worst case, {join_timeout:g} s to join + {n_steps:,} steps x {deadline:g} s = "
+            f"{_budget.format_seconds(worst)}, exceeds the work limit of {_budget.format_seconds(limit)}; use a smaller --deadline, "
+            f"fewer steps or a --timeout within the limit{how}",
             argument="--deadline",
         )
 
