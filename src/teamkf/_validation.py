@@ -270,6 +270,8 @@ ENVIRONMENT = {
     "TEAMKF_WORKERS": "processes of teamkf reproduce leaderboard (a whole number >= 1; default: the number of cores)",
     "TEAMKF_PLUGINS": "plug-in modules or .py files to import, separated by the path separator",
 }
+#: variables the scripts in examples/ read (not the package): never warned about
+EXAMPLES_ENVIRONMENT = ("TEAMKF_RUNS", "TEAMKF_T")
 #: the values of a yes/no setting (TEAMKF_PROGRESS)
 ENV_OFF = ("0", "false", "no", "off")
 ENV_ON = ("1", "true", "yes", "on")
@@ -365,8 +367,8 @@ def check_environment() -> list[str]:
         raise _env_error("TEAMKF_PLUGINS", "module names or .py files", plugins, "remove the NUL character")
     notes = []
     for key in sorted(os.environ):
-        if key.upper().startswith("TEAMKF") and key not in ENVIRONMENT:
-            close = difflib.get_close_matches(key.upper(), list(ENVIRONMENT), n=1, cutoff=0.8)
+        if key.upper().startswith("TEAMKF") and key not in ENVIRONMENT and key not in EXAMPLES_ENVIRONMENT:
+            close = difflib.get_close_matches(key.upper(), list(ENVIRONMENT), n=1, cutoff=0.9)
             if close:
                 notes.append(f"{key} is not a setting teamkf reads, so it is ignored; did you mean {close[0]}?")
     return notes

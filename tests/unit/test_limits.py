@@ -89,8 +89,12 @@ def test_progress_values_and_a_misspelled_variable(monkeypatch: Any, capsys: Any
     for ok in ("0", "off", "YES", "1", ""):
         monkeypatch.setenv("TEAMKF_PROGRESS", ok)
         assert main(["families"]) == 0
-    monkeypatch.setenv("TEAMKF_MAX_HOUR", "3")
+    for name in ("TEAMKF_RUNS", "TEAMKF_T", "TEAMKF_SOMETHING"):  # the examples' variables, and names not close to a setting
+        monkeypatch.setenv(name, "3")
     capsys.readouterr()
+    assert main(["families"]) == 0
+    assert "warning" not in capsys.readouterr().err
+    monkeypatch.setenv("TEAMKF_MAX_HOUR", "3")
     assert main(["families"]) == 0
     assert (
         "teamkf: warning: TEAMKF_MAX_HOUR is not a setting teamkf reads, so it is ignored; did you mean TEAMKF_MAX_HOURS?" in capsys.readouterr().err
