@@ -42,6 +42,7 @@ __all__ = [
     "check_size",
     "check_sweep",
     "check_work",
+    "command_settings",
     "format_bytes",
     "format_seconds",
     "hours_argument",
@@ -101,13 +102,10 @@ def format_seconds(s: float) -> str:
 
 
 def work_limit_s() -> float:
-    """The longest optimistic run time accepted, in seconds (``TEAMKF_MAX_HOURS``, default 2 h)."""
-    text = os.environ.get("TEAMKF_MAX_HOURS", "")
-    try:
-        hours = float(text) if text.strip() else DEFAULT_MAX_HOURS
-    except ValueError:
-        hours = DEFAULT_MAX_HOURS
-    return (hours if math.isfinite(hours) and hours > 0 else DEFAULT_MAX_HOURS) * 3600.0
+    """The longest optimistic run time accepted, in seconds (``TEAMKF_MAX_HOURS``, default 2 h; not a finite number > 0: ArgumentError)."""
+    from ._validation import env_hours
+
+    return env_hours("TEAMKF_MAX_HOURS", DEFAULT_MAX_HOURS) * 3600.0  # a bad value is one ArgumentError naming it, never ignored
 
 
 def hours_argument(text: str) -> float:
@@ -119,7 +117,9 @@ def hours_argument(text: str) -> float:
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number of hours > 0 (e.g. 24), found {text!r}") from None
     if not (math.isfinite(hours) and hours > 0):
-        raise argparse.ArgumentTypeError(f"expected a finite number of hours > 0 (e.g. 24), found {text!r}")
+        raise argparse.ArgumentTypeError(
+            f"expected a finite number of hours > 0 (e.g. 24; for no practical limit a large number such as 1e6), found {text!r}"
+        )
     return hours
 
 
@@ -141,6 +141,25 @@ def max_hours(hours: float | None) -> Iterator[None]:
             os.environ.pop("TEAMKF_MAX_HOURS", None)
         else:
             os.environ["TEAMKF_MAX_HOURS"] = old
+
+
+@contextmanager
+def command_settings(hours: float | None) -> Iterator[None]:
+    """The settings of one ``teamkf`` command: ``--max-hours`` (over ``TEAMKF_MAX_HOURS``), then every ``TEAMKF_*`` variable checked.
+
+    A bad value (``TEAMKF_MAX_HOURS=abc``, ``TEAMKF_PROGRESS=maybe``, ...) is one
+    :class:`~teamkf.exceptions.ArgumentError` naming the variable before any work
+    (:func:`teamkf._validation.check_environment`); a set variable whose name is close to one teamkf reads
+    (``TEAMKF_MAX_HOUR``) is one ``teamkf: warning:`` line on stderr.
+    """
+    import sys
+
+    from ._validation import check_environment
+
+    with max_hours(hours):
+        for note in check_environment():
+            print(f"teamkf: warning: {note}", file=sys.stderr)
+        yield
 
 
 def check_memory(estimate: float, what: str, *, argument: str, fix: str, available: int | None = None) -> None:

@@ -6,7 +6,7 @@ every one of these holds:
 
 * ``enabled`` is not False (the ``progress=`` argument of the calling function),
 * the output stream (stderr) is a terminal,
-* the environment variable ``TEAMKF_PROGRESS`` is not ``0`` / ``false`` / ``no`` / ``off``,
+* the environment variable ``TEAMKF_PROGRESS`` is not ``0`` / ``false`` / ``no`` / ``off`` (another value than these and ``1`` / ``true`` / ``yes`` / ``on`` is an error),
 * :func:`set_quiet` has not been called with True (the CLI's ``--quiet``), and
 * tqdm is installed (it comes with ``pip install 'teamkf[dask]'``).
 
@@ -22,7 +22,6 @@ True
 
 from __future__ import annotations
 
-import os
 import sys
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
@@ -36,7 +35,6 @@ T = TypeVar("T")
 DELAY = 2.0
 
 _QUIET = False
-_OFF = {"0", "false", "no", "off"}
 
 
 def set_quiet(value: bool = True) -> bool:
@@ -67,7 +65,9 @@ def progress_enabled(enabled: bool | None = None, stream: Any = None) -> bool:
     """Whether a bar would be shown on ``stream`` (default stderr) with ``progress=enabled``."""
     if enabled is False or _QUIET:
         return False
-    if os.environ.get("TEAMKF_PROGRESS", "").strip().lower() in _OFF:
+    from ._validation import env_switch
+
+    if env_switch("TEAMKF_PROGRESS") is False:  # a value that is not yes or no: one ArgumentError naming it
         return False
     if enabled is not True and not _is_tty(sys.stderr if stream is None else stream):  # True: asked for, shown anyway
         return False

@@ -257,3 +257,118 @@ def describe(x: Any) -> str:
     if isinstance(x, Mapping):
         return "a table"
     return type(x).__name__
+
+
+# ---------------------------------------------------------------------------
+# environment settings: every TEAMKF_* variable teamkf reads, checked where it is read
+# ---------------------------------------------------------------------------
+#: the environment variables teamkf reads, and what each holds (``teamkf`` checks them all before a command runs)
+ENVIRONMENT = {
+    "TEAMKF_MAX_HOURS": "the work limit in hours (a finite number > 0; default 2)",
+    "TEAMKF_PROGRESS": "progress bars on a terminal (0/false/no/off hides them; 1/true/yes/on or empty shows them)",
+    "TEAMKF_CACHE_DIR": "the folder of the leaderboard's cache (off/0/none/no: no cache; default ~/.cache/teamkf)",
+    "TEAMKF_WORKERS": "processes of teamkf reproduce leaderboard (a whole number >= 1; default: the number of cores)",
+    "TEAMKF_PLUGINS": "plug-in modules or .py files to import, separated by the path separator",
+}
+#: variables the scripts in examples/ read (not the package): never warned about
+EXAMPLES_ENVIRONMENT = ("TEAMKF_RUNS", "TEAMKF_T")
+#: the values of a yes/no setting (TEAMKF_PROGRESS)
+ENV_OFF = ("0", "false", "no", "off")
+ENV_ON = ("1", "true", "yes", "on")
+
+
+def _env_error(name: str, expected: str, text: str, fix: str) -> ArgumentError:
+    return ArgumentError(f"{name}: expected {expected}, found {text!r}; {fix} (or unset it: unset {name})", argument=name)
+
+
+def env_hours(name: str = "TEAMKF_MAX_HOURS", default: float = 2.0) -> float:
+    """The number of hours in ``name`` (``default`` when unset or empty): finite and > 0, else one :class:`ArgumentError`.
+
+    ``inf`` is refused on purpose, like ``--max-hours inf``: a job with no limit at all is written as a large
+    number (``TEAMKF_MAX_HOURS=1e6``), so that a typo never lifts the limit.
+    """
+    import math
+    import os
+
+    text = os.environ.get(name, "")
+    if not text.strip():
+        return default
+    try:
+        hours = float(text)
+    except ValueError:
+        hours = math.nan
+    if not (math.isfinite(hours) and hours > 0):
+        inf = "; for no practical limit use a large number (1e6)" if not math.isnan(hours) and hours > 0 else ""
+        raise _env_error(name, "a positive number of hours (e.g. 24)", text, f"set it to a finite number > 0{inf}")
+    return hours
+
+
+def env_switch(name: str) -> bool | None:
+    """A yes/no setting: False for 0/false/no/off, True for 1/true/yes/on, None when unset or empty; else one :class:`ArgumentError`."""
+    import os
+
+    text = os.environ.get(name, "")
+    word = text.strip().lower()
+    if not word:
+        return None
+    if word in ENV_OFF or word in ENV_ON:
+        return word in ENV_ON
+    raise _env_error(name, "one of " + "/".join(ENV_OFF + ENV_ON), text, f"set {name}=0 to turn it off")
+
+
+def env_count(name: str) -> int | None:
+    """A whole number >= 1 in ``name`` (None when unset or empty); else one :class:`ArgumentError`."""
+    import os
+
+    text = os.environ.get(name, "")
+    if not text.strip():
+        return None
+    try:
+        v = int(text.strip())
+    except ValueError:
+        v = 0
+    if v < 1:
+        raise _env_error(name, "a whole number >= 1", text, "set it to e.g. 4")
+    return v
+
+
+def env_folder(name: str, off: Sequence[str] = ("off", "0", "none", "no")) -> str | None:
+    """A folder in ``name``: "" when unset (the caller's default), None for one of ``off``; a path naming a file is an :class:`ArgumentError`."""
+    import os
+
+    text = os.environ.get(name, "")
+    if text.strip().lower() in off:
+        return None
+    if "\0" in text:
+        raise _env_error(name, "a folder path", text, "remove the NUL character")
+    if text and os.path.exists(text) and not os.path.isdir(text):
+        raise _env_error(name, f"a folder (or {'/'.join(off)})", text, "it names a file: give a folder")
+    return text
+
+
+def check_environment() -> list[str]:
+    """Check every TEAMKF_* variable teamkf reads (one :class:`ArgumentError` for the first bad one).
+
+    Returns
+    -------
+    list of str
+        One warning line for each set ``TEAMKF_*`` variable teamkf does not read whose name is close to
+        one it does (a typo such as ``TEAMKF_MAX_HOUR`` would otherwise be ignored without a word).
+    """
+    import difflib
+    import os
+
+    env_hours("TEAMKF_MAX_HOURS")
+    env_switch("TEAMKF_PROGRESS")
+    env_folder("TEAMKF_CACHE_DIR")
+    env_count("TEAMKF_WORKERS")
+    plugins = os.environ.get("TEAMKF_PLUGINS", "")
+    if "\0" in plugins:
+        raise _env_error("TEAMKF_PLUGINS", "module names or .py files", plugins, "remove the NUL character")
+    notes = []
+    for key in sorted(os.environ):
+        if key.upper().startswith("TEAMKF") and key not in ENVIRONMENT and key not in EXAMPLES_ENVIRONMENT:
+            close = difflib.get_close_matches(key.upper(), list(ENVIRONMENT), n=1, cutoff=0.9)
+            if close:
+                notes.append(f"{key} is not a setting teamkf reads, so it is ignored; did you mean {close[0]}?")
+    return notes

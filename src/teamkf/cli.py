@@ -870,12 +870,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _error(str(exc))
     import warnings
 
-    from ._budget import max_hours as _max_hours
+    from ._budget import command_settings as _settings  # --max-hours, and every TEAMKF_* variable checked
     from ._progress import quiet
 
     try:
         # numpy's RuntimeWarnings: one summary line, never raw; --quiet holds for this command only
-        with warnings.catch_warnings(record=True) as caught, quiet(getattr(args, "quiet", False)), _max_hours(getattr(args, "max_hours", None)):
+        with warnings.catch_warnings(record=True) as caught, quiet(getattr(args, "quiet", False)), _settings(getattr(args, "max_hours", None)):
             warnings.simplefilter("always", RuntimeWarning)
             rc = int(args.func(args))
         _report_warnings(caught)

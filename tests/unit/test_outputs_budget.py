@@ -87,7 +87,10 @@ def test_check_memory_and_work_refuse_with_the_estimate(monkeypatch: Any) -> Non
     monkeypatch.setenv("TEAMKF_MAX_HOURS", "4")
     assert _budget.work_limit_s() == 4 * 3600
     _budget.check_work(0.0, "w", argument="iterations", fix="f", loops=3 * 3600 * _budget.LOOPS)
-    monkeypatch.setenv("TEAMKF_MAX_HOURS", "nonsense")
+    monkeypatch.setenv("TEAMKF_MAX_HOURS", "nonsense")  # never ignored (round 4): one error naming the variable
+    with pytest.raises(ArgumentError, match="TEAMKF_MAX_HOURS: expected a positive number of hours"):
+        _budget.work_limit_s()
+    monkeypatch.setenv("TEAMKF_MAX_HOURS", "")
     assert _budget.work_limit_s() == _budget.DEFAULT_MAX_HOURS * 3600
     assert _budget.format_bytes(3 * 2**60) == "3.0 EiB" and _budget.format_bytes(2.0**80).endswith("bytes")
     assert _budget.format_seconds(90) == "90 s" and _budget.format_seconds(5400) == "90.0 minutes" and "years" in _budget.format_seconds(1e12)

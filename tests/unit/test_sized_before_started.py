@@ -44,7 +44,7 @@ def test_ten_thousand_agents_refused_from_the_raw_tables_at_once(monkeypatch: An
     monkeypatch.setattr(_budget, "available_memory", lambda: 16 * GIB)
     data = _team(10**4, "complete", estimators=("local",))
     t0 = time.process_time()
-    with pytest.raises(ResourceError, match=r"agents: reading a team of 10,000 agents .* needs about 18\.6 GiB .* use fewer agents") as info:
+    with pytest.raises(ResourceError, match=r"agents: reading a team of 10,000 agents .* needs about 27\.9 GiB .* use fewer agents") as info:
         scenario_from_dict(data)
     assert time.process_time() - t0 < 1.0
     assert info.value.argument == "agents"
@@ -58,7 +58,7 @@ def test_bytes_per_pair_by_graph_kind_never_premature(monkeypatch: Any) -> None:
     _size.check_team_size(_team(10**4, "star", estimators=("local",)), 10, {})
     edges = {**_team(10**4, "line", estimators=("local",)), "graph": {"edges": [[i, (i + 1) % 10**4, 1] for i in range(10**4)]}}
     _size.check_team_size(edges, 10, {})
-    with pytest.raises(ResourceError, match="150 bytes for each"):
+    with pytest.raises(ResourceError, match="250 bytes for each"):
         _size.check_team_size(_team(15_000, "line", estimators=("local",)), 10, {})
 
 

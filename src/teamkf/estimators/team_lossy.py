@@ -86,6 +86,7 @@ from .._validation import FloatArray
 from ..exceptions import ArgumentError, ShapeError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
+from . import _lossy_size
 from ._arrivals import ArrivalModel
 from .base import Design, check_paths
 from .checks import check_graph, check_model
@@ -734,6 +735,7 @@ def design_mtmse_lossy(
     if coords == "auto":
         coords = "measurements" if _stable(system, T) else "innovations"
     arr = ArrivalModel.build(graph, p, J)
+    _lossy_size.check(system, arr, T, mem, cost.dz, prefix=mem is None and not cost.is_time_varying)  # sized before anything is allocated
     with blas_threads(threads):
         mom = local_filter_moments(system, T)
         if coords == "measurements":  # items are the raw y_j(s) = Σ_t B(s, t) ν_j(t)

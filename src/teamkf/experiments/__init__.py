@@ -175,6 +175,23 @@ def get(name: str) -> Experiment:
     return _REGISTRY[name]
 
 
+#: lower bounds of a reproduction's computing time in seconds, full size (about a third of the time measured on the
+#: project's 2-core machine: docs/baselines.md, docs/bulk.md); every other one, and every ``quick`` one, at least :data:`MIN_SECONDS`
+FULL_SECONDS = {"leaderboard": 30.0, "leaderboard-drops": 100.0, "bulk-lq-cost": 120.0, "bulk-stationarity": 20.0}
+#: the least any reproduction computes, in seconds (each designs at least one estimator of a small team)
+MIN_SECONDS = 0.01
+
+
+def _check_work(name: str, quick: bool) -> None:
+    """Refuse, before it starts, a reproduction whose estimated time exceeds the work limit (``--max-hours``, ``TEAMKF_MAX_HOURS``)."""
+    from .. import _budget
+
+    secs = MIN_SECONDS if quick else FULL_SECONDS.get(name, MIN_SECONDS)
+    what = f"the reproduction {name!r}" + (" (--quick)" if quick else "")
+    fix = "run the smaller version with --quick" if not quick else "it is already the smallest version"
+    _budget.check_work(0.0, what, argument=name, fix=fix, loops=secs * _budget.LOOPS)
+
+
 def run(name: str, out_dir: str | Path | None = None, *, quick: bool = False, scheduler: Any = None) -> ExperimentResult:
     """Run one experiment; with ``out_dir`` write its CSV (and PNG plots when matplotlib is installed).
 
@@ -186,6 +203,7 @@ def run(name: str, out_dir: str | Path | None = None, *, quick: bool = False, sc
     from ..simulation.parallel import _open_client, use_scheduler
 
     exp = get(name)
+    _check_work(name, quick)
     out = Path(out_dir) if out_dir is not None else None
     owned: list[Any] = []
     sched: Any = "serial"

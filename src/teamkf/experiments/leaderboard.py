@@ -220,8 +220,10 @@ def _fingerprint(system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph)
 
 
 def _cache_dir() -> Path | None:
-    where = os.environ.get("TEAMKF_CACHE_DIR", "")
-    if where.lower() in ("off", "0", "none", "no"):
+    from .._validation import env_folder
+
+    where = env_folder("TEAMKF_CACHE_DIR")  # a file's path is one ArgumentError naming the variable
+    if where is None:
         return None
     return Path(where) if where else Path.home() / ".cache" / "teamkf"
 
@@ -613,13 +615,10 @@ def _lossy_problem(out: dict[str, Any]) -> str | None:
 
 
 def _workers(n_jobs: int) -> int:
-    env = os.environ.get("TEAMKF_WORKERS")
-    if env:
-        try:
-            return max(1, min(n_jobs, int(env)))
-        except ValueError:
-            pass
-    return max(1, min(n_jobs, os.cpu_count() or 1))
+    from .._validation import env_count
+
+    env = env_count("TEAMKF_WORKERS")  # not a whole number >= 1: one ArgumentError naming the variable
+    return max(1, min(n_jobs, env if env is not None else os.cpu_count() or 1))
 
 
 def _parallel(jobs: list[tuple[Any, tuple[Any, ...]]]) -> list[dict[str, Any]]:

@@ -435,12 +435,14 @@ def _check_memory(designs: Mapping[str, Any], system: Any, T: int, R_: int, batc
     )
 
 
-def _check_work(designs: Mapping[str, Any], system: Any, T: int, R_: int) -> None:
+def _check_work(designs: Mapping[str, Any], system: Any, T: int, R_: int, blocks: int = 0) -> None:
     """Refuse up front (with the estimate) a Monte Carlo whose run time exceeds the limit (:func:`teamkf._budget.check_work`).
 
     Per run and step: sampling (:math:`d_x^2 + d_x d_y`), each design's online step
     (:math:`d_z (d_x + d_y)` with :math:`d_z` its team estimate size) and a fixed overhead of
-    50 operations, at :data:`teamkf._budget.BATCHED_OPS` operations per second.
+    50 operations, at :data:`teamkf._budget.BATCHED_OPS` operations per second. ``blocks`` > 0 (``path="runtime"``,
+    unreliable links under ``--p-drop``): each agent's online step also runs in Python once per block of runs and step
+    (:data:`teamkf._budget.STEP_LOOPS` each).
     """
     from .. import _budget
 
@@ -452,6 +454,7 @@ def _check_work(designs: Mapping[str, Any], system: Any, T: int, R_: int) -> Non
         argument="n_runs",
         fix="use fewer runs (the 95 % interval only shrinks like 1/sqrt(runs)) or a shorter horizon",
         rate=_budget.BATCHED_OPS,
+        loops=float(blocks) * T * system.n_agents * len(designs) * _budget.STEP_LOOPS,
     )
 
 
@@ -557,7 +560,7 @@ def monte_carlo(
         if not links.trivial:
             raise ArgumentError('links: unreliable links act on the online agents; use path="runtime"', argument="links")
         links = None  # reliable links on the error recursions: nothing to count
-    _check_work(designs, system, T, R_)
+    _check_work(designs, system, T, R_, -(-R_ // B) if path == "runtime" else 0)
     n_blocks = -(-R_ // B)
     if chunk is None:  # at most 16 blocks a task, and some 32 tasks when there are enough blocks (balance)
         per_chunk = max(1, min(DEFAULT_BLOCKS_PER_CHUNK, -(-n_blocks // 32)))

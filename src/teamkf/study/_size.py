@@ -34,8 +34,10 @@ from .. import _budget
 __all__ = ["check_team_size", "PAIR_BYTES", "PAIR_BYTES_BY_KIND", "PAIR_SECONDS", "PAIR_STEP_SECONDS", "SMALL_TEAM"]
 
 #: bytes per agent pair while a scenario is read, at peak (graph edges, geodesic delays, windows), by graph kind; measured
-#: at n = 300: line 199, ring 166, complete 226, star 26; an edge list counts as 24 (three 8-byte all-pairs arrays)
-PAIR_BYTES_BY_KIND = {"line": 150.0, "ring": 150.0, "complete": 200.0, "star": 24.0}
+#: (peak RSS of scenario_from_dict, one "local" estimator) at n = 1000 and 2000: line 273 and 255, ring 271 and 254,
+#: complete 312 and 314, star 62 and 34 (at n = 300 the interpreter's baseline hid part of it: 199, 166, 226, 26);
+#: an edge list counts as 24 (three 8-byte all-pairs arrays)
+PAIR_BYTES_BY_KIND = {"line": 250.0, "ring": 250.0, "complete": 300.0, "star": 24.0}
 #: bytes per agent pair of an edge list or an unknown kind (a lower bound)
 PAIR_BYTES = 24.0
 #: CPU seconds per agent pair to build and check the graph and the information structure (measured 10 to 15 us at n = 300)

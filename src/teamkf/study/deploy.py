@@ -29,6 +29,7 @@ from ..deploy import AgentResult, DropRecord, QueueHub, Roster, ZenohTransport, 
 from ..deploy.transport import TransportError
 from ..estimators.base import check_measurements
 from ..exceptions import ArgumentError, UnsupportedOperationError
+from . import _limits
 from . import measurements as M
 
 __all__ = [
@@ -402,6 +403,7 @@ def cmd_deploy(args: Any) -> int:
     _out_suffix(args.out, "--out", (".csv", ".parquet"))
     sc = _load(args.scenario)
     log = M.read_measurements(args.measurements, sc.system, sc.horizon)
+    _limits.check_deploy(log.n_steps, sc.system.n_agents, deadline=args.deadline, join_timeout=args.join_timeout, timeout=args.timeout)
     name = deploy_estimator(sc, args.estimator)
     if args.kill is not None and not 0 <= args.kill[0] < sc.system.n_agents:
         raise ArgumentError(f"--kill: agent {args.kill[0]} is out of range 0..{sc.system.n_agents - 1}", argument="--kill")
@@ -487,6 +489,7 @@ def cmd_agent(args: Any) -> int:
         _out_suffix(args.out, "--out", (".csv", ".parquet", ".npz"))
     i = args.id
     name = deploy_estimator(sc, args.estimator)
+    _limits.check_agent(args, sc)  # --steps, --deadline and the work limit, before the design
     design = sc.design(name)
     check_deployable(design, sc.graph)
     dz = int(design.cost.dz)
@@ -502,6 +505,7 @@ def cmd_agent(args: Any) -> int:
         source = _stdin_source(ybar, int(sc.system.dy[i]), T)
     else:
         log = M.read_measurements(args.measurements, sc.system, sc.horizon)
+        _limits.check_agent(args, sc, min(log.n_steps, args.steps or log.n_steps))
         prep = prepare(sc, log, name, design=design)
         T = prep.n_steps if args.steps is None else min(args.steps, prep.n_steps)
         yi = prep.ys[i]  # only this agent's column is kept
@@ -600,6 +604,7 @@ def cmd_filter_drops(args: Any) -> int:
     get_family(rec.estimator, f"{rec.source}: estimator")  # a family of another installation: named as the record's entry
     rec.check(n_agents=sc.system.n_agents, n_steps=rec.n_steps, scenario=sc.name, fingerprint=scenario_fingerprint(sc, rec.estimator))
     log = M.read_measurements(args.measurements, sc.system, sc.horizon)
+    _limits.check_filter(log.n_steps, sc.system.n_agents, [rec.estimator], what="teamkf filter --drops")
     prep = prepare(sc, log, rec.estimator)
     z = replay(prep.design, prep.ys, rec, prep.offsets, graph=prep.graph)  # checks the record's steps against the log's, its misses against the graph
     M.write_estimates(args.out, {rec.estimator: z}, prep.n_agents)

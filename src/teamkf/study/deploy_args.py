@@ -50,6 +50,8 @@ def _seconds(text: str) -> float:
         raise argparse.ArgumentTypeError(f"expected a number of seconds > 0, found {text!r}") from None
     if not v > 0 or not math.isfinite(v):
         raise argparse.ArgumentTypeError(f"expected a number of seconds > 0, found {v}")
+    if v < 1e-3:  # heartbeats every deadline / 4: a shorter one floods the links (teamkf.study._limits.MIN_SECONDS)
+        raise argparse.ArgumentTypeError(f"expected at least 0.001 s (1 ms; heartbeats run every deadline / 4), found {v:g}")
     return v
 
 

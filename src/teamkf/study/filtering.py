@@ -15,6 +15,7 @@ import numpy as np
 
 from ..exceptions import ArgumentError
 from . import measurements as M
+from ._limits import check_filter, check_streamed
 from .outputs import write_atomic
 
 __all__ = ["FilterRun", "filter_to_files"]
@@ -52,6 +53,7 @@ def filter_to_files(
     if scenario.horizon is None:  # steady-state designs: stream the file in chunks (bounded memory)
         return _streamed(scenario, measurements, out, fmt, names, truth, cost_out, chunk_rows, head)
     log = M.read_measurements(measurements, scenario.system, scenario.horizon)
+    check_filter(log.n_steps, log.n_agents, names)  # sized before any design (the work limit: --max-hours)
     x = M.read_truth(truth, scenario.system.dx, log.n_steps) if truth is not None else None
     res = M.filter_log(scenario, log, estimators=names, truth=x)
     write_atomic(out, lambda fh: M.write_estimates(fh, res.estimates, res.n_agents, fmt=fmt))
@@ -76,6 +78,7 @@ def _streamed(
 ) -> FilterRun:
     from .stream import stream_filter
 
+    check_streamed(measurements, scenario.system.n_agents, names, max(int(d) for d in scenario.system.dy))
     done: dict[str, Any] = {}
 
     def run(fh: Any, ch: Any = None) -> None:
