@@ -40,6 +40,7 @@ from typing import Any
 
 import numpy as np
 
+from .._progress import bar
 from . import ExperimentResult, plotting_available, register, save_figure
 
 P_FULL = (0.0, 0.01, 0.05, 0.1, 0.2, 0.5, 1.0)
@@ -93,56 +94,59 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
     rows: list[dict[str, Any]] = []
     notes_skipped: dict[str, str] = {}
     curves: dict[tuple[str, int, str], list[tuple[float, float, float, float]]] = {}
-    for sname in SCENARIOS:
-        sc = load_packaged(sname).updated({"horizon": T})
-        for J in Js:
-            designs, skipped = _designs(sc, J)
-            notes_skipped.update({f"{sname}: {k}": v for k, v in skipped.items()})
-            for p in P:
-                here = dict(designs)
-                lossy = None
-                if LOSSY in families():
-                    lossy = design_mtmse_lossy(sc.system, sc.cost, sc.graph, T, p_drop=p, jitter=J)
-                    here[LOSSY] = lossy
-                mc = monte_carlo(here, T, runs, rng=seed, path="runtime", graph=sc.graph, links=LinkModel(p_drop=p, jitter=J))
-                if lossy is not None:
-                    for name, val in ((f"{LOSSY} (exact)", float(lossy.require_cost())), ("lower bound", lossy.lower_bound)):
+    # one bar over the grid (each point's Monte Carlo is too short for a bar of its own)
+    with bar(len(SCENARIOS) * len(Js) * len(P), desc="robustness", unit="point") as grid:
+        for sname in SCENARIOS:
+            sc = load_packaged(sname).updated({"horizon": T})
+            for J in Js:
+                designs, skipped = _designs(sc, J)
+                notes_skipped.update({f"{sname}: {k}": v for k, v in skipped.items()})
+                for p in P:
+                    here = dict(designs)
+                    lossy = None
+                    if LOSSY in families():
+                        lossy = design_mtmse_lossy(sc.system, sc.cost, sc.graph, T, p_drop=p, jitter=J)
+                        here[LOSSY] = lossy
+                    mc = monte_carlo(here, T, runs, rng=seed, path="runtime", graph=sc.graph, links=LinkModel(p_drop=p, jitter=J))
+                    if lossy is not None:
+                        for name, val in ((f"{LOSSY} (exact)", float(lossy.require_cost())), ("lower bound", lossy.lower_bound)):
+                            rows.append(
+                                {
+                                    "scenario": sname,
+                                    "jitter": J,
+                                    "p_drop": p,
+                                    "estimator": name,
+                                    "J_T (MC)": val,
+                                    "ci95 low": val,
+                                    "ci95 high": val,
+                                    "J_T analytic (reliable)": None,
+                                    "packets sent": None,
+                                    "dropped": None,
+                                }
+                            )
+                            curves.setdefault((sname, J, name), []).append((p, val, val, val))
+                    for name, r in mc.items():
+                        lo, hi = r.ci95
+                        counts = r.links.counts.values() if r.links is not None else []
+                        sent = sum(c["sent"] for c in counts)
+                        lost = sum(c["dropped"] for c in counts)
+                        d = here[name]
                         rows.append(
                             {
                                 "scenario": sname,
                                 "jitter": J,
                                 "p_drop": p,
                                 "estimator": name,
-                                "J_T (MC)": val,
-                                "ci95 low": val,
-                                "ci95 high": val,
-                                "J_T analytic (reliable)": None,
-                                "packets sent": None,
-                                "dropped": None,
+                                "J_T (MC)": r.total_mean,
+                                "ci95 low": lo,
+                                "ci95 high": hi,
+                                "J_T analytic (reliable)": d.total_cost,
+                                "packets sent": sent,
+                                "dropped": lost,
                             }
                         )
-                        curves.setdefault((sname, J, name), []).append((p, val, val, val))
-                for name, r in mc.items():
-                    lo, hi = r.ci95
-                    counts = r.links.counts.values() if r.links is not None else []
-                    sent = sum(c["sent"] for c in counts)
-                    lost = sum(c["dropped"] for c in counts)
-                    d = here[name]
-                    rows.append(
-                        {
-                            "scenario": sname,
-                            "jitter": J,
-                            "p_drop": p,
-                            "estimator": name,
-                            "J_T (MC)": r.total_mean,
-                            "ci95 low": lo,
-                            "ci95 high": hi,
-                            "J_T analytic (reliable)": d.total_cost,
-                            "packets sent": sent,
-                            "dropped": lost,
-                        }
-                    )
-                    curves.setdefault((sname, J, name), []).append((p, r.total_mean, lo, hi))
+                        curves.setdefault((sname, J, name), []).append((p, r.total_mean, lo, hi))
+                    grid.update()
     figures: list[str] = []
     if out_dir is not None and plotting_available():
         from ..plotting import _pyplot, family_style
