@@ -12,7 +12,7 @@ delays τ + J (:func:`~teamkf.simulation.links.robust_graph`): with p = 0 it
 meets every deadline and costs exactly its analytic cost. ``mtmse_lossy`` is
 the drop-aware design (:mod:`teamkf.estimators.team_lossy`), designed for each
 (p, J); its exact expected cost and the certified lower bound (the MTMSE cost
-of the full information) are drawn as black dashed and dotted lines. Team cost J_T by
+of the full information) are drawn dashed and dotted in its colour. Team cost J_T by
 Monte Carlo with 95 % intervals; all estimators see the same sampled paths
 and the same link events (common random numbers, one link stream per run).
 
@@ -154,8 +154,9 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
         plt = _pyplot()
         fig, axes = plt.subplots(len(SCENARIOS), len(Js), figsize=(4.2 * len(Js), 3.6 * len(SCENARIOS)), squeeze=False)
 
-        # one colour per family (its variants by line style) and one marker per estimator, in every panel;
-        # the legend is ranked: the lowest geometric-mean cost over every panel and drop probability first
+        # one colour per family (its variants by line style: mtmse-robust dash-dot; the drop-aware design's exact
+        # cost dashed and its lower bound dotted) and one marker per estimator, in every panel; the legend, beside
+        # the panels, is ranked: the lowest geometric-mean cost over every panel and drop probability first
         def mean_log(name: str) -> float:
             vals = [q[1] for (_, _, n), pts in curves.items() if n == name for q in pts]
             return float(np.mean(np.log10(vals))) if vals and all(np.isfinite(v) and v > 0 for v in vals) else np.inf
@@ -172,8 +173,8 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
                     pts.sort()
                     x = np.array([q[0] for q in pts])
                     color, marker, dash = style[name]
-                    if name in (LOSSY, f"{LOSSY} (exact)", "lower bound"):  # the drop-aware design in black
-                        color = "black"
+                    if name in (LOSSY, f"{LOSSY} (exact)", "lower bound"):  # the drop-aware design: its family's colour
+                        color = family_style(LOSSY)["color"]
                         dash = {LOSSY: "-", "lower bound": ":"}.get(name, "--")
                     (line,) = ax.plot(x, [q[1] for q in pts], dash, marker=marker, color=color, label=name, ms=3)
                     ax.fill_between(x, [q[2] for q in pts], [q[3] for q in pts], alpha=0.15, color=color)
@@ -182,9 +183,15 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
                 ax.set_xlabel("packet-drop probability p")
                 ax.set_ylabel("J_T (Monte Carlo, 95 % CI)")
                 ax.set_title(f"{sname}, jitter <= {J}")
-        fig.tight_layout(rect=(0, 0, 0.8, 1))
-        fig.legend(
-            [handles[k] for k in names], [f"{k + 1}. {n}" for k, n in enumerate(names)], loc="center right", fontsize=9, frameon=False, title="ranked"
+        fig.tight_layout()
+        fig.legend(  # beside the panels, never over them (the saved image widens to hold it)
+            [handles[k] for k in names],
+            [f"{k + 1}. {n}" for k, n in enumerate(names)],
+            loc="center left",
+            bbox_to_anchor=(1.0, 0.5),
+            fontsize=9,
+            frameon=False,
+            title="ranked",
         )
         save_figure(fig, out_dir, "robustness", figures)
     skipped_txt = "; ".join(f"{k} ({v})" for k, v in notes_skipped.items())
