@@ -211,3 +211,21 @@ def test_sweep_refuses_a_grid_key_that_a_scenario_file_refuses(tmp_path):
 
     assert main(["sweep", str(tmp_path / "s.toml"), "--scheduler", "serial", "--out", str(tmp_path / "r")]) == 2
     assert not (tmp_path / "r").exists()
+
+
+# ---------------------------------------------------------------------------
+# a family that sends nothing
+# ---------------------------------------------------------------------------
+def test_local_is_not_labelled_with_an_exchange_variant():
+    """Old: 'local [honest]', though local's agents send nothing."""
+    from teamkf import families
+    from teamkf.experiments.leaderboard import _label
+    from teamkf.study.evaluation import evaluate
+
+    sc = load_packaged("platoon-4").updated({"horizon": 6, "estimators": ["local", "kcf"]})
+    labels = [r["label"] for r in evaluate(sc).rows]
+    assert labels == ["local", "kcf [honest]"]
+    assert families()["local"].design(sc.system, sc.cost, sc.graph, 6).label == "local"
+    row = {"estimator": "local", "variant": "honest", "form": "published defaults", "diverging": False}
+    assert _label(row) == "local"
+    assert _label({**row, "estimator": "kcf"}) == "kcf honest"

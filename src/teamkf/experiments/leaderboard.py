@@ -435,12 +435,15 @@ def _rank(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 #: short plot labels of the rows' forms (published rows: none)
+#: families whose agents send nothing: no exchange to be honest or ideal about, so no variant in their label
+SENDS_NOTHING = frozenset({"local"})
+
 _SHORT = {"tuned": "tuned", "heard-count": "heard-count", "drop-aware design": "drop-aware"}
 
 
 def _label(r: dict[str, Any]) -> str:
     """``estimator variant form`` for the plot, the form shortened."""
-    parts = [r["estimator"], "" if r["variant"] == "bound" else r["variant"], _SHORT.get(r["form"], "")]
+    parts = [r["estimator"], "" if r["variant"] == "bound" or r["estimator"] in SENDS_NOTHING else r["variant"], _SHORT.get(r["form"], "")]
     return " ".join(x for x in parts if x) + (" (diverging)" if r["diverging"] else "")
 
 
