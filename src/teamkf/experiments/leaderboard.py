@@ -409,15 +409,25 @@ def _workers(n_jobs: int) -> int:
 
 def _parallel(jobs: list[tuple[Any, tuple[Any, ...]]]) -> list[dict[str, Any]]:
     """``[f(*args) for f, args in jobs]``, in parallel processes when there are several cores (the last jobs start first)."""
+    from .._progress import bar
+
     workers = _workers(len(jobs))
     if workers == 1:
-        return [f(*args) for f, args in jobs]
+        out = []
+        with bar(len(jobs), desc="leaderboard", unit="job") as done:
+            for f, args in jobs:
+                out.append(f(*args))
+                done.update()
+        return out
     import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures import ProcessPoolExecutor, as_completed
 
     ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as ex:
         futs = {a: ex.submit(f, *args) for a, (f, args) in reversed(list(enumerate(jobs)))}  # the larger networks are listed last
+        with bar(len(jobs), desc="leaderboard", unit="job") as done:  # after the workers forked: the bar's thread stays here
+            for _ in as_completed(futs.values()):
+                done.update()
         return [futs[a].result() for a in range(len(jobs))]
 
 
