@@ -623,15 +623,25 @@ def _workers(n_jobs: int) -> int:
 
 def _parallel(jobs: list[tuple[Any, tuple[Any, ...]]]) -> list[dict[str, Any]]:
     """``[f(*args) for f, args in jobs]``, in parallel processes when there are several cores (the last jobs start first)."""
+    from .._progress import bar
+
     workers = _workers(len(jobs))
     if workers == 1:
-        return [f(*args) for f, args in jobs]
+        out = []
+        with bar(len(jobs), desc="leaderboard", unit="job") as done:
+            for f, args in jobs:
+                out.append(f(*args))
+                done.update()
+        return out
     import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures import ProcessPoolExecutor, as_completed
 
     ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as ex:
         futs = {a: ex.submit(f, *args) for a, (f, args) in reversed(list(enumerate(jobs)))}  # the larger networks are listed last
+        with bar(len(jobs), desc="leaderboard", unit="job") as done:  # after the workers forked: the bar's thread stays here
+            for _ in as_completed(futs.values()):
+                done.update()
         return [futs[a].result() for a in range(len(jobs))]
 
 
@@ -649,12 +659,15 @@ def _rank(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 #: short plot labels of the rows' forms (published rows: none)
+#: families whose agents send nothing: no exchange to be honest or ideal about, so no variant in their label
+SENDS_NOTHING = frozenset({"local"})
+
 _SHORT = {"tuned": "tuned", "heard-count": "heard-count", "drop-aware design": "drop-aware"}
 
 
 def _label(r: dict[str, Any]) -> str:
     """``estimator variant form`` for the plot, the form shortened."""
-    parts = [r["estimator"], "" if r["variant"] == "bound" else r["variant"], _SHORT.get(r["form"], "")]
+    parts = [r["estimator"], "" if r["variant"] == "bound" or r["estimator"] in SENDS_NOTHING else r["variant"], _SHORT.get(r["form"], "")]
     return " ".join(x for x in parts if x) + (" (diverging)" if r["diverging"] else "")
 
 
