@@ -24,6 +24,7 @@ True
 
 from __future__ import annotations
 
+import os
 import sys
 import threading
 import weakref
