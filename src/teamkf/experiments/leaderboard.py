@@ -63,6 +63,7 @@ import numpy as np
 
 from ..estimators import design_centralized, design_mtmse
 from ..estimators.registry import families, get_family
+from ..exceptions import TeamkfError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network import CommGraph
 from . import ExperimentResult, plotting_available, register, save_figure
@@ -201,6 +202,21 @@ def _cache_dir() -> Path | None:
     if where.lower() in ("off", "0", "none", "no"):
         return None
     return Path(where) if where else Path.home() / ".cache" / "teamkf"
+
+
+def _check_cache_dir() -> None:
+    """Refuse, before any work, a ``TEAMKF_CACHE_DIR`` that is a file, an input, or lies in a missing folder (the output guard)."""
+    where = os.environ.get("TEAMKF_CACHE_DIR", "")
+    if where and _cache_dir() is not None:
+        from ..study.outputs import check_output_dir
+
+        check_output_dir(where, "TEAMKF_CACHE_DIR")
+
+
+def _make_cache_dir(cache: Path) -> None:
+    """The cache folder: a named one (``TEAMKF_CACHE_DIR``) only itself, never a missing parent; the default
+    ``~/.cache/teamkf`` with ``~/.cache`` when missing (the XDG base-directory rule for a cache no one named)."""
+    cache.mkdir(parents=not os.environ.get("TEAMKF_CACHE_DIR"), exist_ok=True)
 
 
 def _fmt_options(opts: dict[str, Any]) -> str:
@@ -385,13 +401,14 @@ def _cached(key: str, compute: Any) -> dict[str, Any]:
     t0 = time.perf_counter()
     out = compute()
     out["network seconds"] = time.perf_counter() - t0
-    if path is not None:
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = path.with_suffix(f".{os.getpid()}.tmp")
-            tmp.write_text(json.dumps(out))
-            tmp.replace(path)
-        except OSError:
+    if path is not None and cache is not None:
+        from ..study.outputs import write_atomic
+
+        try:  # best effort: a cache that cannot be written costs time, never a result
+            _make_cache_dir(cache)
+            text = json.dumps(out)
+            write_atomic(path, lambda fh: fh.write(text), text=True)
+        except (OSError, TeamkfError):
             pass
     out["cached"] = False
     return out
@@ -552,6 +569,7 @@ COLUMNS = [
 
 def _exact_results(quick: bool, T: int, which: list[int]) -> list[dict[str, Any]]:
     """The exact rows and tuning records of networks ``which`` (their parts in parallel, each cached); ``"cached"``: every part was."""
+    _check_cache_dir()
     nets = networks(quick)
     jobs = [(i, part) for i in which for part in PARTS]
     done = _parallel([(_part_job, (i, part, quick, T)) for i, part in jobs])
