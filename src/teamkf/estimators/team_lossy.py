@@ -795,6 +795,7 @@ FAMILY = _register_builtin(
         uses="graph",
         horizons=frozenset({"finite"}),
         analytic_cost=True,
+        lossy_links=True,  # capabilities (registry.Family): its agents run over links that drop
         strongly_connected=True,
         options=(
             Option(name="p_drop", default=None, check=_check_p, doc="drop probability (default: the scenario's [network] p_drop)"),
