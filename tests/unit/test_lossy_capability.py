@@ -125,3 +125,62 @@ def test_mtmse_lossy_deploys_and_replays(lossy_files, capsys):
     assert main(["filter", *common, "--drops", str(d / "rec.json"), "--out", str(d / "rep.csv"), "--estimators", "mtmse_lossy"]) == 0
     assert (d / "dep.csv").read_bytes() == (d / "rep.csv").read_bytes()
     capsys.readouterr()
+
+
+# ---------------------------------------------------------------------------
+# honest tables: every analytic cost says which links it is under; the link model is recorded
+# ---------------------------------------------------------------------------
+def test_table_marks_perfect_link_costs_and_json_records_the_links(lossy_files, capsys):
+    d, scen = lossy_files
+    with open(scen, "a") as fh:
+        fh.write("\n[network]\np_drop = 0.5\n")
+    assert main(["evaluate", str(scen)]) == 0
+    text = capsys.readouterr().out
+    assert "links: p_drop 0.5 on every edge" in text
+    rows = {ln.split()[0]: ln for ln in text.splitlines() if ln.strip().startswith(("mtmse", "local"))}
+    assert "(perfect links)" in rows["mtmse"] and "(perfect links)" not in rows["mtmse_lossy"] and "(perfect links)" not in rows["local"]
+    assert rows["mtmse_lossy"].split()[-1] == "-"  # no comparison of its expected cost under drops with mtmse's perfect-link cost
+    assert "(perfect links): the analytic cost on links that never drop" in text
+    assert main(["evaluate", str(scen), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["links"] == {"perfect": False, "p_drop": 0.5, "jitter": 0, "outages": [], "failures": {}}
+    est = out["estimators"]
+    assert (est["mtmse"]["cost_links"], est["mtmse_lossy"]["cost_links"], est["local"]["cost_links"]) == ("perfect", "lossy", "lossy")
+    # with Monte Carlo, "vs mtmse" compares costs under the links: the lossy design's exact cost against mtmse's MC mean
+    ev = evaluate(load_packaged("platoon-4").updated({"horizon": 8, "network": {"p_drop": 0.5}}), ["mtmse", "mtmse_lossy"], runs=40, seed=1)
+    from teamkf.study.report import evaluation_table
+
+    line = next(ln for ln in evaluation_table(ev).splitlines() if ln.strip().startswith("mtmse_lossy"))
+    want = 100.0 * (ev.row("mtmse_lossy")["total_cost"] - ev.row("mtmse")["mc_cost"]) / ev.row("mtmse")["mc_cost"]
+    assert f"{want:+.2f} %" in line
+    assert ev.row("mtmse")["links"] == "p_drop 0.5 on every edge"
+
+
+def test_reliable_links_and_a_design_for_other_links(lossy_files, capsys):
+    d, scen = lossy_files
+    assert main(["evaluate", str(scen), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["links"]["perfect"] and {e["cost_links"] for e in out["estimators"].values()} == {"perfect"}
+    assert main(["evaluate", str(scen)]) == 0
+    assert "perfect links" not in capsys.readouterr().out  # nothing to mark
+    with open(scen, "a") as fh:
+        fh.write("\n[network]\np_drop = [[0, 1, 0.4]]\njitter = 1\n[mtmse_lossy]\np_drop = 0.2\n")
+    assert main(["evaluate", str(scen), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["links"]["p_drop"] == {"0->1": 0.4} and out["links"]["jitter"] == 1
+    assert out["estimators"]["mtmse_lossy"]["cost_links"] == "assumed"
+
+
+def test_sweep_rows_record_the_links(lossy_files, capsys):
+    d, scen = lossy_files
+    sweep = d / "sweep.toml"
+    sweep.write_text('scenario = "s.toml"\nruns = 0\nseed = 5\n[grid]\n"network.p_drop" = [0.0, 0.4]\n')
+    assert main(["sweep", str(sweep), "--scheduler", "serial", "--out", str(d / "r"), "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)["rows"]
+    got = {(r["network.p_drop"], r["estimator"]): (r["cost_links"], r["links"]) for r in rows}
+    assert got[(0.4, "mtmse")] == ("perfect", "p_drop 0.4 on every edge") and got[(0.4, "mtmse_lossy")][0] == "lossy"
+    assert got[(0.0, "mtmse")] == ("perfect", "perfect")
+    assert main(["sweep", str(sweep), "--scheduler", "serial", "--out", str(d / "r"), "--resume"]) == 0
+    text = capsys.readouterr().out
+    line = next(ln.split() for ln in text.splitlines() if ln.strip().startswith("0.4"))
+    assert "*: an analytic cost on perfect links" in text and line[2].endswith("*") and not line[1].endswith("*")  # mtmse_lossy, mtmse

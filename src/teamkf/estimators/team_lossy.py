@@ -478,6 +478,11 @@ class LossyTeamDesign(Design):
     def tolerates_losses(self) -> bool:
         return True
 
+    @property
+    def cost_link_model(self) -> dict[str, Any]:
+        """The links its exact expected cost is under: ``{"p_drop", "jitter"}`` (a number, or {(a, b): value})."""
+        return {"p_drop": self.p_drop, "jitter": self.jitter}
+
     # --- Monte Carlo ---------------------------------------------------------------------
     def errors(self, paths: Any, *, p_drop: Any = None, jitter: Any = None, rng: Any = None, arrived: Any = None) -> FloatArray:
         """Team errors e(k) = L x(k) - ẑ(k), (n_runs, T', n d_z), with sampled link events.
