@@ -49,26 +49,17 @@ def _load(arg: str) -> Any:
     raise ScenarioError(f"{arg}: no such scenario file (packaged scenarios: {', '.join(packaged)})")
 
 
+# the formatting lives in teamkf.study.report (imported on first use: --help starts without numpy)
 def _cost_label(horizon: int | None) -> str:
-    return "J_T" if horizon is not None else "average cost"
+    from .study.report import cost_label
+
+    return cost_label(horizon)
 
 
 def _fmt(x: float | None) -> str:
-    if x is None:
-        return "-"
-    if not np.isfinite(x):
-        return "diverged"
-    ax = abs(x)
-    if ax != 0 and (ax >= 1e7 or ax < 1e-3):
-        return f"{x:.4e}"
-    return f"{x:.2f}" if ax >= 100 else f"{x:.4f}"
+    from .study.report import fmt
 
-
-def _pct(p: float) -> str:
-    """A relative difference in percent; huge ones (a diverging estimator) in e-notation, not 40 digits."""
-    if not np.isfinite(p):
-        return "diverged"
-    return f"{p:+.3e} %" if abs(p) >= 1e5 else f"{p:+.2f} %"
+    return fmt(x)
 
 
 def _header(sc: Any) -> str:
@@ -77,9 +68,12 @@ def _header(sc: Any) -> str:
     else:
         what = "infinite horizon (steady state), average cost per step"
     info = "reduced information structure from [information]" if sc.has_reduced_information else "full information structure of the graph"
+    from .study.report import link_record, link_text
+
+    links = f"\n  links: {link_text(link_record(sc.links))} ([network])" if sc.links is not None else ""
     return (
         f"scenario {sc.name}: {sc.n_agents} agents, d_x = {sc.system.dx}, {what}\n"
-        f"  graph: {sc.graph!r}; {info} (common lag {sc.information.common_lag})"
+        f"  graph: {sc.graph!r}; {info} (common lag {sc.information.common_lag}){links}"
     )
 
 
@@ -196,69 +190,17 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def _evaluation_json(ev: Any) -> dict[str, Any]:
-    """``teamkf evaluate --json``: the evaluation's rows under ``estimators`` (the contract of scenario-and-cli.md).
+    """``teamkf evaluate --json`` (:func:`teamkf.study.report.evaluation_json`)."""
+    from .study.report import evaluation_json
 
-    Each entry is the row (:data:`teamkf.study.evaluation.ROW_KEYS`, strict JSON; keys that do not apply to it
-    left out) with ``stage_costs``, and the contract's list forms ``ci95`` = [ci95_low, ci95_high] and
-    ``mc_ci95`` = [mc_ci95_low, mc_ci95_high] beside the row's own keys.
-    """
-    out: dict[str, Any] = {"scenario": ev.scenario, "horizon": ev.horizon, "teamkf_version": __version__, "schema_version": ev.schema_version}
-    if ev.details.get("control"):
-        out["control"] = ev.details["control"]
-    if ev.monte_carlo:  # what repeats the Monte Carlo: seed, runs, block and chunk sizes, teamkf version
-        first = next(iter(ev.monte_carlo.values()))
-        out["monte_carlo"] = {"runs": ev.runs, "seed": ev.seed, "batch": first.batch, "chunk": first.chunk, "teamkf_version": __version__}
-    out["estimators"] = {}
-    for row in ev.json_rows():
-        name = row["estimator"]
-        entry: dict[str, Any] = {"method": row["method"], ev.cost_key: row[ev.cost_key]}
-        if row["method"] == "monte-carlo":
-            entry.update(ci95=[row["ci95_low"], row["ci95_high"]], ci95_low=row["ci95_low"], ci95_high=row["ci95_high"])
-        if row["mc_cost"] is not None or row["mc_ci95_low"] is not None:
-            entry.update(mc_cost=row["mc_cost"], mc_ci95=[row["mc_ci95_low"], row["mc_ci95_high"]])
-            entry.update(mc_ci95_low=row["mc_ci95_low"], mc_ci95_high=row["mc_ci95_high"])
-        entry.update({k: row[k] for k in ("runs", "seed", "label") if row[k] is not None})
-        d = ev.designs.get(name)
-        if d is not None and "variant" in d.info:
-            entry["variant"] = d.info["variant"]
-        entry["diverged"] = row["diverged"]
-        if "non_finite" in row:
-            entry["non_finite"] = row["non_finite"]
-        if ev.horizon is not None:
-            stages = ev.stage_costs(name)
-            if stages is not None:
-                entry["stage_costs"] = [_json_float(c) for c in stages]
-        out["estimators"][name] = entry
-    return out
-
-
-def _json_float(x: float) -> float | None:
-    return float(x) if np.isfinite(x) else None
+    return evaluation_json(ev, __version__)
 
 
 def _evaluation_table(ev: Any) -> str:
-    """The text table of an evaluation: cost (analytic, or MC marked), vs mtmse, Monte Carlo mean and interval."""
-    key = ev.cost_key
-    ref = next((r[key] for r in ev.rows if r["estimator"] == "mtmse"), None)
-    headers = ["estimator", _cost_label(ev.horizon)]
-    if ref is not None:
-        headers.append("vs mtmse")
-    if ev.runs:
-        headers += ["MC mean", "MC 95% CI"]
-    rows = []
-    for r in ev.rows:
-        v, mc = r[key], r["method"] == "monte-carlo"
-        shown = "diverged" if r["diverged"] and (v is None or not np.isfinite(v)) else _fmt(v) + (" (MC)" if mc else "")
-        row = [r["label"], shown]
-        if ref is not None:
-            ok = v is not None and np.isfinite(v) and np.isfinite(ref) and ref != 0
-            row.append(_pct(100.0 * (v - ref) / ref) if ok else "-")
-        if ev.runs:
-            lo, hi = (r["ci95_low"], r["ci95_high"]) if mc else (r["mc_ci95_low"], r["mc_ci95_high"])
-            mean = v if mc else r["mc_cost"]
-            row += ["", ""] if mean is None else [_fmt(mean), f"[{_fmt(lo)}, {_fmt(hi)}]"]
-        rows.append(row)
-    return format_table(headers, rows)
+    """The text table of an evaluation (:func:`teamkf.study.report.evaluation_table`)."""
+    from .study.report import evaluation_table
+
+    return evaluation_table(ev)
 
 
 _PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
@@ -286,7 +228,10 @@ def _plot_stage_costs(designs: Mapping[str, Any], mc: Mapping[str, Any], sc: Any
 
     # analytic curves, and every Monte Carlo mean with its 95 % band (markers where an analytic curve is drawn)
     analytic = [d for d in designs.values() if d.has_analytic_cost]
-    ax = stage_cost_axes(analytic, title=f"{sc.name}: stage costs", monte_carlo={name: mc[name] for name in designs if name in mc})
+    from .study.report import link_record, link_text
+
+    links = f" (links: {link_text(link_record(sc.links))})" if sc.has_lossy_links else ""
+    ax = stage_cost_axes(analytic, title=f"{sc.name}: stage costs{links}", monte_carlo={name: mc[name] for name in designs if name in mc})
     fig = ax.figure
     _write_atomic(out, lambda fh: fig.savefig(fh, dpi=120, format=out.suffix.lstrip(".").lower().replace("jpg", "jpeg")))
     import matplotlib.pyplot as plt
@@ -400,19 +345,21 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         f"runs {spec.runs}, seed {spec.seed}; {where}"
     )
     print()
+    from .study.report import SWEEP_NOTE, sweep_cell
+
     by_point: dict[str, dict[str, Any]] = {}
+    cells = {(r["point_id"], r["estimator"]): sweep_cell(r, key) for r in res.rows}  # "*": a perfect-link cost at a lossy point
     for r in res.rows:
-        by_point.setdefault(r["point_id"], {k: r[k] for k in res.grid_keys})[r["estimator"]] = r.get(key)
+        by_point.setdefault(r["point_id"], {k: r[k] for k in res.grid_keys})[r["estimator"]] = cells[(r["point_id"], r["estimator"])][0]
     limit = 30
-    table = [
-        [*(p[k] for k in res.grid_keys), *(_fmt(p[e]) if p.get(e) is not None else "-" for e in spec.estimators)]
-        for p in list(by_point.values())[:limit]
-    ]
+    table = [[*(p[k] for k in res.grid_keys), *(p.get(e, "-") for e in spec.estimators)] for p in list(by_point.values())[:limit]]
     print(format_table([*res.grid_keys, *spec.estimators], table, align="r" * (len(res.grid_keys) + len(spec.estimators))))
     if len(by_point) > limit:
         print(f"  ... and {len(by_point) - limit} more points")
     mc = " (Monte Carlo means for estimators without one; analytic estimators also have mc_cost)" if spec.runs else ""
     print(f"\n  {_cost_label(spec.base.horizon) if key == 'total_cost' else 'average cost'} per estimator{mc}")
+    if any(marked for _, marked in cells.values()):
+        print(f"  {SWEEP_NOTE}")
     print(
         f"\nresults: {out} ({len(res.rows)} rows; {res.n_computed} points computed now, {res.n_resumed} already there); "
         f"read them with pandas.read_parquet({str(out)!r}) or teamkf.study.results.SweepResult.load"
@@ -466,7 +413,7 @@ def _apply_network_flags(sc: Any, args: argparse.Namespace) -> Any:
         return sc
     sc.require_simulation("unreliable links (--p-drop/--jitter)", "--p-drop")
     if not getattr(args, "monte_carlo", None):
-        _warn("--p-drop/--jitter act on the simulated agents; add --monte-carlo RUNS (analytic costs assume reliable links)")
+        _warn("--p-drop/--jitter act on the simulated agents; add --monte-carlo RUNS (analytic costs other than mtmse_lossy's assume reliable links)")
     return sc.updated(vals)
 
 

@@ -65,7 +65,7 @@ def test_evaluate_table(capsys):
 def test_evaluate_json_in_process(capsys):
     assert main(["evaluate", str(PACKAGED / "platoon-4.toml"), "--json"]) == 0
     data = json.loads(capsys.readouterr().out)
-    assert list(data) == ["scenario", "horizon", "teamkf_version", "schema_version", "estimators"]
+    assert list(data) == ["scenario", "horizon", "teamkf_version", "schema_version", "links", "estimators"]
     assert data["scenario"] == "platoon-4" and data["horizon"] == 100
     assert list(data["estimators"]) == ["mtmse", "mmse", "centralized"]
     for entry in data["estimators"].values():
@@ -80,7 +80,7 @@ def test_evaluate_json_subprocess():
     res = run_cli("evaluate", str(PACKAGED / "platoon-4.toml"), "--json")
     assert res.returncode == 0, res.stderr
     data = json.loads(res.stdout)
-    assert set(data) == {"scenario", "horizon", "teamkf_version", "schema_version", "estimators"}
+    assert set(data) == {"scenario", "horizon", "teamkf_version", "schema_version", "links", "estimators"}
     assert data["horizon"] == 100
     for entry in data["estimators"].values():
         assert {"method", "total_cost", "stage_costs"} <= set(entry)
@@ -92,7 +92,14 @@ def test_evaluate_json_steady_state(capsys):
     data = json.loads(capsys.readouterr().out)
     assert data["horizon"] is None
     for name, entry in data["estimators"].items():
-        assert entry == {"method": "analytic", "average_cost": pytest.approx(entry["average_cost"]), "runs": 0, "label": name, "diverged": False}
+        assert entry == {
+            "method": "analytic",
+            "average_cost": pytest.approx(entry["average_cost"]),
+            "runs": 0,
+            "label": name,
+            "cost_links": "perfect",
+            "diverged": False,
+        }
         assert "stage_costs" not in entry and "total_cost" not in entry
     e = data["estimators"]
     assert e["centralized"]["average_cost"] <= e["mtmse"]["average_cost"] <= e["mmse"]["average_cost"]

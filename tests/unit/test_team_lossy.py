@@ -116,3 +116,23 @@ def test_validation(platoon):
         design_mtmse_lossy(sysm, cost, g, None, p_drop=0.1)
     with pytest.raises(ArgumentError, match="p_drop"):
         design_mtmse_lossy(sysm, cost, g, 5, p_drop=1.5)
+
+
+def test_auto_items_keeps_the_lower_exact_cost():
+    """An unstable A on a short horizon: raw measurements stay bounded and cost less than innovations; "auto" keeps them.
+
+    (Before: "auto" picked innovations for every unstable A.) On a long horizon the measurements would grow like
+    ρ^(2T) and "auto" designs innovations only.
+    """
+    A = np.array([[1.3, 0.1], [0.0, 0.8]])
+    C = [np.array([[1.0, 0.0]]), np.array([[1.0, 1.0]]), np.array([[0.0, 1.0]])]
+    R = [np.array([[0.05]]), np.array([[1.0]]), np.array([[2.0]])]
+    sysm, cost, g = LinearGaussianSystem(A, np.eye(2), np.eye(2), C, R), TeamCost.common_target(3, 2, 1.0), CommGraph.line(3)
+    cheap = {it: design_mtmse_lossy(sysm, cost, g, 6, p_drop=0.3, items=it, bound=False).total_cost for it in ("measurements", "innovations")}
+    assert cheap["measurements"] < 0.9 * cheap["innovations"]  # 56.8 against 67.1
+    auto = design_mtmse_lossy(sysm, cost, g, 6, p_drop=0.3, bound=False)
+    assert auto.info["items"] == auto.coordinates == "measurements"
+    assert auto.total_cost == pytest.approx(cheap["measurements"], rel=1e-12)
+    assert auto.info["items_costs"] == pytest.approx(cheap)
+    long = design_mtmse_lossy(sysm, cost, g, 40, p_drop=0.3, bound=False)  # 1.3^80 > AUTO_GROWTH: the rule
+    assert long.info["items"] == "innovations" and list(long.info["items_costs"]) == ["innovations"]

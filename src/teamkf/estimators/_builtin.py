@@ -91,7 +91,7 @@ DECLARED: tuple[Declared, ...] = (
         "local",
         "Local Kalman filters on own measurements only (no communication): the floor",
         True,
-        ("analytic_cost",),
+        ("analytic_cost", "lossy_links"),
         "design_local(system, cost, graph, horizon=100)",
     ),
     Declared(
@@ -99,7 +99,7 @@ DECLARED: tuple[Declared, ...] = (
         "diffusion",
         "ATC diffusion Kalman filter, information form (Cattivelli & Sayed 2010), honest = delay-compensated",
         True,
-        ("analytic_cost",),
+        ("analytic_cost", "lossy_links"),
         "design_diffusion(system, cost, graph, horizon=100, weights='metropolis', variant='honest')",
     ),
     Declared(
@@ -107,7 +107,7 @@ DECLARED: tuple[Declared, ...] = (
         "ci",
         "Local Kalman filters fused by covariance intersection, trace-minimizing weights (Julier & Uhlmann 1997)",
         True,
-        ("analytic_cost",),
+        ("analytic_cost", "lossy_links"),
         "design_ci(system, cost, graph, horizon=100, variant='honest')",
     ),
     Declared(
@@ -115,7 +115,7 @@ DECLARED: tuple[Declared, ...] = (
         "icf",
         "Information-weighted consensus filter (Kamal, Farrell & Roy-Chowdhury 2013), honest = one delay-compensated exchange per step",
         True,
-        ("analytic_cost",),
+        ("analytic_cost", "lossy_links"),
         "design_icf(system, cost, graph, horizon=100, iterations=5, variant='ideal')",
     ),
     Declared(
@@ -123,7 +123,7 @@ DECLARED: tuple[Declared, ...] = (
         "hcmci",
         "Hybrid consensus on measurements and information (Battistelli et al. 2015), honest = one delay-compensated exchange per step",
         True,
-        ("analytic_cost",),
+        ("analytic_cost", "lossy_links"),
         "design_hcmci(system, cost, graph, horizon=100, iterations=5, variant='ideal')",
     ),
     Declared(
@@ -131,7 +131,7 @@ DECLARED: tuple[Declared, ...] = (
         "team_lossy",
         "drop-aware team filter: minimum expected team MSE for links that drop packets with a known probability (exact cost, certified bound)",
         True,
-        ("analytic_cost",),
+        ("analytic_cost", "lossy_links"),
         "design_mtmse_lossy(system, cost, graph, horizon=50, p_drop=0.2)",
     ),
 )

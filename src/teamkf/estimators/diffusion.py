@@ -189,6 +189,7 @@ FAMILY = _register_builtin(
         uses="graph",
         horizons=frozenset({"finite"}),
         analytic_cost=True,
+        lossy_links=True,  # capabilities (registry.Family): its agents run over links that drop
         options=(
             Option(
                 name="weights", default="metropolis", check=check_weights, doc="'metropolis' | 'uniform' | an n×n column-stochastic matrix c[l, k]"

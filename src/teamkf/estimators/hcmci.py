@@ -290,6 +290,7 @@ FAMILY = _register_builtin(
         uses="graph",
         horizons=frozenset({"finite"}),
         analytic_cost=True,
+        lossy_links=True,  # capabilities (registry.Family): its agents run over links that drop
         options=(
             Option(name="iterations", default=5, check=check_iterations, doc="consensus iterations L per step (ideal variant)"),
             Option(

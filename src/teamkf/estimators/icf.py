@@ -294,6 +294,7 @@ FAMILY = _register_builtin(
         uses="graph",
         horizons=frozenset({"finite"}),
         analytic_cost=True,
+        lossy_links=True,  # capabilities (registry.Family): its agents run over links that drop
         options=(
             Option(name="iterations", default=5, check=check_iterations, doc="consensus iterations K per step (ideal variant)"),
             Option(

@@ -95,6 +95,7 @@ FAMILY = _register_builtin(
         uses="graph",
         horizons=frozenset({"finite"}),
         analytic_cost=True,
+        lossy_links=True,  # capabilities (registry.Family): its agents run over links that drop
         options=(
             Option(
                 name="variant",

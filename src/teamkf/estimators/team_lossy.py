@@ -479,6 +479,11 @@ class LossyTeamDesign(Design):
     def tolerates_losses(self) -> bool:
         return True
 
+    @property
+    def cost_link_model(self) -> dict[str, Any]:
+        """The links its exact expected cost is under: ``{"p_drop", "jitter"}`` (a number, or {(a, b): value})."""
+        return {"p_drop": self.p_drop, "jitter": self.jitter}
+
     # --- Monte Carlo ---------------------------------------------------------------------
     def errors(self, paths: Any, *, p_drop: Any = None, jitter: Any = None, rng: Any = None, arrived: Any = None) -> FloatArray:
         """Team errors e(k) = L x(k) - ẑ(k), (n_runs, T', n d_z), with sampled link events.
@@ -693,8 +698,12 @@ def design_mtmse_lossy(
         What the agents flood and the gains act on: the raw measurements y_j(s), or the innovations
         ν_j(s) of the sender's own Kalman filter. Both give MTMSE at p = 0 and the own-history optimum
         at p = 1; in between they are different classes (a missed raw measurement is predicted well
-        from the agent's own ones when the agents measure alike). "auto": measurements when every A(k)
-        is stable (spectral radius < 1), else innovations (bounded second moments on unstable processes).
+        from the agent's own ones when the agents measure alike). "auto": by exact cost where both kinds
+        stay bounded and the design is cheap — both are designed and the lower exact expected cost is kept
+        (``info["items_costs"]`` has both) — when the growth of A over the horizon, ρ(A)^(2T), is at most
+        :data:`AUTO_GROWTH` and the estimated work at most :data:`AUTO_WORK` flops; otherwise measurements
+        when every A(k) is stable (spectral radius < 1), else innovations (bounded second moments on
+        unstable processes).
     fill : bool
         Replace a missed item by its predictor from the agent's own innovations (else by zero, its mean).
     threads : int or None
@@ -732,16 +741,15 @@ def design_mtmse_lossy(
     J = _jitter_value(jitter, "jitter")
     mem = None if memory is None else V.positive_int(memory, "memory")
     coords = V.choice(items, "items", ("auto", "measurements", "innovations"))
-    if coords == "auto":
-        coords = "measurements" if _stable(system, T) else "innovations"
     arr = ArrivalModel.build(graph, p, J)
     _lossy_size.check(system, arr, T, mem, cost.dz, prefix=mem is None and not cost.is_time_varying)  # sized before anything is allocated
+    candidates = _auto_items(system, arr, T, mem) if coords == "auto" else (coords,)
     with blas_threads(threads):
-        mom = local_filter_moments(system, T)
-        if coords == "measurements":  # items are the raw y_j(s) = Σ_t B(s, t) ν_j(t)
-            B = innovations_to_measurements(system, mom.K, T)
-            mom = LocalMoments(mom.K, B @ mom.Sigma @ B.T, [Th @ B[: Th.shape[1], : Th.shape[1]].T for Th in mom.Theta], mom.Pe)
-        held, gains, fills, stage, local = _solve_all(system, cost, arr, mom, T, mem, fill, progress)
+        mom0 = local_filter_moments(system, T)
+        tried = {c: _solve_all(system, cost, arr, _item_moments(system, mom0, T, c), T, mem, fill, progress) for c in candidates}
+    coords = min(candidates, key=lambda c: float(np.sum(tried[c][3])))  # the lower exact expected cost (ties: the first)
+    held, gains, fills, stage, local = tried[coords]
+    mom = mom0
     if bound:
         from .registry import get_family  # the registered MTMSE family (families do not import each other)
 
@@ -756,7 +764,14 @@ def design_mtmse_lossy(
         system=system,
         cost=cost,
         stage_costs=stage,
-        info={"p_drop": p, "jitter": J, "memory": mem, "items": coords, "local_kf_cost": float(local.sum())},
+        info={
+            "p_drop": p,
+            "jitter": J,
+            "memory": mem,
+            "items": coords,
+            "items_costs": {c: float(np.sum(tried[c][3])) for c in candidates},
+            "local_kf_cost": float(local.sum()),
+        },
         graph=graph,
         p_drop=p,
         jitter=J,
@@ -775,10 +790,35 @@ def design_mtmse_lossy(
     return d
 
 
-def _stable(system: LinearGaussianSystem, T: int) -> bool:
-    """True when every A(k), k < T, has spectral radius < 1 (raw measurements keep bounded second moments)."""
+#: ``items="auto"`` designs both kinds only while raw measurements stay bounded: ρ(A)^(2T) at most this
+AUTO_GROWTH = 1e8
+#: ... and while the estimated work of one design (flops of its factorizations) is at most this
+AUTO_WORK = 2e9
+
+
+def _item_moments(system: LinearGaussianSystem, mom: LocalMoments, T: int, coords: str) -> LocalMoments:
+    """The moments of the items: the innovations as they are, or the raw y_j(s) = Σ_t B(s, t) ν_j(t)."""
+    if coords != "measurements":
+        return mom
+    B = innovations_to_measurements(system, mom.K, T)
+    return LocalMoments(mom.K, B @ mom.Sigma @ B.T, [Th @ B[: Th.shape[1], : Th.shape[1]].T for Th in mom.Theta], mom.Pe)
+
+
+def _auto_items(system: LinearGaussianSystem, arr: ArrivalModel, T: int, memory: int | None) -> tuple[str, ...]:
+    """The item kinds ``items="auto"`` designs: both when raw measurements stay bounded and it is cheap, else the rule."""
     steps = range(T) if system.is_time_varying else range(1)
-    return all(float(np.max(np.abs(np.linalg.eigvals(system.A_at(k))))) < 1.0 for k in steps)
+    rho = max(float(np.max(np.abs(np.linalg.eigvals(system.A_at(k))))) for k in steps)
+    rule = ("measurements",) if rho < 1.0 else ("innovations",)
+    if 2 * T * np.log10(max(rho, 1e-300)) > np.log10(AUTO_GROWTH):
+        return rule
+    dy = [system.C_at(j, 0).shape[0] for j in range(system.n_agents)]
+    n = system.n_agents
+    if memory is None:  # one factorization of R = Σ_i Σ_j d_y^j (T − ℓ_ji) slot rows
+        rows = sum(dy[j] * max(T - int(arr.ell[j, i]), 0) for i in range(n) for j in range(n))
+        work = rows**3 / 3.0
+    else:  # one factorization per step of size n m Σ_j d_y^j
+        work = T * (n * memory * sum(dy)) ** 3 / 3.0
+    return ("measurements", "innovations") if work <= AUTO_WORK else rule
 
 
 def _check_p(v: Any, key: str) -> Any:
@@ -797,6 +837,7 @@ FAMILY = _register_builtin(
         uses="graph",
         horizons=frozenset({"finite"}),
         analytic_cost=True,
+        lossy_links=True,  # capabilities (registry.Family): its agents run over links that drop
         strongly_connected=True,
         options=(
             Option(name="p_drop", default=None, check=_check_p, doc="drop probability (default: the scenario's [network] p_drop)"),

@@ -29,6 +29,15 @@ Rows
 ``diverged``
     True when a cost of the row is not finite (the number is then inf or NaN here, null in JSON, and
     the JSON row names the column in ``non_finite``).
+``cost_links``
+    the links the row's cost is under: ``"perfect"`` (an analytic cost on links that never drop; with a
+    ``[network]`` table that drops, the design costs more over the scenario's links: see its ``mc_cost``),
+    ``"lossy"`` (the expected cost under the scenario's links: the drop-aware design's exact cost, a design
+    that uses no link, any Monte Carlo cost) or ``"assumed"`` (the drop-aware design's cost under the
+    links of its own table); :func:`teamkf.study.report.cost_links`. None for a population scenario.
+``links``
+    the scenario's link model in one line (``"perfect"``, ``"p_drop 0.5 on every edge"``, ...;
+    :func:`teamkf.study.report.link_text`); :attr:`Evaluation.links` has it as a mapping.
 
 Runs and seeds
 --------------
@@ -83,6 +92,8 @@ ROW_KEYS = (
     "runs",
     "seed",
     "diverged",
+    "cost_links",
+    "links",
 )
 #: Monte Carlo runs for estimators without a closed form when none are asked for (the paper uses 1000)
 DEFAULT_MC_RUNS = 1000
@@ -115,6 +126,9 @@ class Evaluation:
     details : dict
         Kind-specific facts: a population's exact statistics (``gains``, ``stationarity_index``, ...), a
         ``[control]`` table's LQG costs under ``"control"``.
+    links : dict or None
+        The scenario's link model (:func:`teamkf.study.report.link_record`: per-edge drop probabilities,
+        jitter, outages, failures); None for a population scenario.
     """
 
     scenario: str
@@ -128,6 +142,7 @@ class Evaluation:
     monte_carlo: Mapping[str, Any] = field(default_factory=dict, repr=False)
     details: Mapping[str, Any] = field(default_factory=dict, repr=False)
     schema_version: int = SCHEMA_VERSION
+    links: Mapping[str, Any] | None = None
 
     def row(self, estimator: str) -> dict[str, Any]:
         """The row of ``estimator`` (KeyError naming the estimators otherwise)."""
@@ -267,7 +282,11 @@ def _evaluate_team(scenario: Any, estimators: Sequence[str] | None, runs: int, s
                 progress=progress,
                 **scenario.monte_carlo_options(),
             )
+    from .report import cost_links, link_record, link_text
+
     key = "total_cost" if scenario.horizon is not None else "average_cost"
+    links = scenario.links
+    record = link_record(links)
     rows = []
     for name, d in designs.items():
         row: dict[str, Any] = {"estimator": name, "label": d.label}
@@ -286,6 +305,8 @@ def _evaluate_team(scenario: Any, estimators: Sequence[str] | None, runs: int, s
             row.update({"mc_cost": None, "mc_ci95_low": None, "mc_ci95_high": None})
         row.update({"runs": mc_runs if r is not None else 0, "seed": seed if r is not None else None})
         row["diverged"] = bool(d.diverged) or any(isinstance(v, float) and not math.isfinite(v) for v in row.values())
+        row["cost_links"] = cost_links(d, links, scenario.graph, row["method"])
+        row["links"] = link_text(record)
         rows.append(row)
     details: dict[str, Any] = {}
     control = _control_summary(scenario, runs, seed)
@@ -302,6 +323,7 @@ def _evaluate_team(scenario: Any, estimators: Sequence[str] | None, runs: int, s
         designs=designs,
         monte_carlo=mc,
         details=details,
+        links=record,
     )
 
 
@@ -357,5 +379,7 @@ def _evaluate_population(scenario: Any, seed: int | None) -> Evaluation:
         "runs": 0,
         "seed": None,
         "diverged": not math.isfinite(cost) or bool(out.get("diverged")),
+        "cost_links": None,
+        "links": None,
     }
     return Evaluation(scenario.name, "population", scenario.horizon, "average_cost", (row,), details=out)

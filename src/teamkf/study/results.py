@@ -210,6 +210,7 @@ class SweepResult:
             100 (J − J_baseline) / J_baseline in % of every other estimator
         ax : matplotlib axes to draw on (default: a new figure)
         logx : True, False or "auto" (log scale when x spans two decades or more)
+        title : the axes title (default: the link model when every point shares one whose links drop)
 
         Returns
         -------
@@ -220,7 +221,8 @@ class SweepResult:
         Each estimator keeps its family's colour (:func:`~teamkf.plotting.family_color`), the same in
         every plot; the other grid keys' values differ by marker and line style. Monte Carlo values
         get error bars (their 95 % interval); an axis of integer values gets integer ticks; the legend
-        sits to the right of the axes, off the data.
+        sits to the right of the axes, off the data. An estimator whose analytic cost is its perfect-link cost at points whose
+        links drop (row ``cost_links == "perfect"``) is labelled "(perfect links)".
         """
         from ..plotting import _pyplot, family_style, legend_outside
 
@@ -253,6 +255,8 @@ class SweepResult:
             xs = [p[0] for p in pts]
             ys = [float(p[1][ycol]) for p in pts]
             label = gkey[0] + (f" ({', '.join(f'{k}={v}' for k, v in zip(others, gkey[1:]))})" if others else "")
+            if y != "mc_cost" and any(r.get("cost_links") == "perfect" and r.get("links") not in (None, "perfect") for _, r in pts):
+                label += " (perfect links)"  # its analytic cost where the links drop: not the cost over them
             v = variants.index(gkey[1:])
             style = {**family_style(gkey[0]), "marker": markers[v % len(markers)]}
             if others:
@@ -286,6 +290,9 @@ class SweepResult:
         ax.set_xlabel(x)
         label = {"total_cost": "J_T", "average_cost": "average cost", "mc_cost": "Monte Carlo J_T"}.get(y, y)
         ax.set_ylabel(f"100 ({label} − {label}[{baseline}]) / {label}[{baseline}]  [%]" if baseline is not None else label)
+        shared = {r.get("links") for r in self.rows}
+        if title is None and len(shared) == 1 and shared != {None} and shared != {"perfect"}:
+            title = f"links: {shared.pop()}"  # the link model every point shares (a swept one is on an axis)
         if title:
             ax.set_title(title)
         ax.grid(True, color="0.92")

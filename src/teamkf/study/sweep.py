@@ -848,6 +848,8 @@ class _Writer:
             pa.field("runs", pa.int64()),
             pa.field("seed", pa.int64()),
             pa.field("diverged", pa.bool_()),
+            pa.field("cost_links", pa.string()),  # "perfect" | "lossy" | "assumed": the links the cost is under (teamkf.study.report)
+            pa.field("links", pa.string()),  # the point's link model in one line ("perfect", "p_drop 0.3 on every edge", ...)
             pa.field("non_finite", pa.string()),  # JSON {column: "inf" | "-inf" | "nan"} naming the non-finite numbers; null when all are finite
             pa.field("sweep_seed", pa.int64()),
             pa.field("teamkf_version", pa.string()),
