@@ -6,7 +6,8 @@
     teamkf design   SCENARIO [--json] [--out GAINS.npz]
     teamkf demo     [--out DIR] [--quick]
     teamkf reproduce ...      (a later version)
-    teamkf filter   SCENARIO --measurements FILE [--truth FILE] --out FILE [--estimators ...] [--json]
+    teamkf filter   SCENARIO --measurements FILE [--map MAP.toml] [--truth FILE] --out FILE [--estimators ...] [--json]
+    teamkf measurements convert IN --map MAP.toml --out OUT      (a ROS 2 recording, .mcap, to a table or back)
     teamkf sweep    SWEEP.toml [--scheduler ADDRESS|local|serial] [--out RESULTS] [--resume] [--json]
     teamkf families [--json]
     teamkf --version
@@ -478,13 +479,13 @@ def _cmd_filter(args: argparse.Namespace) -> int:
     from . import get_family
     from .study.filtering import filter_to_files
 
-    inputs = [args.scenario, args.measurements, args.truth, args.drops]
-    out_path = _check_output(args.out, "--out", (".csv", ".parquet"), inputs=inputs)
+    inputs = [args.scenario, args.measurements, args.truth, args.drops, args.map]
+    out_path = _check_output(args.out, "--out", (".csv", ".parquet", ".mcap"), inputs=inputs)
     if args.drops:  # replay a deployment's drop record (teamkf deploy --record)
         from .study.deploy import cmd_filter_drops
 
         return cmd_filter_drops(args)
-    cost_path = out_path.with_name(f"{out_path.stem}-cost{out_path.suffix}") if args.truth else None
+    cost_path = out_path.with_name(f"{out_path.stem}-cost{out_path.suffix}") if args.truth and out_path.suffix.lower() != ".mcap" else None
     if cost_path is not None:
         _check_output(str(cost_path), "--out (its cost file)", (".csv", ".parquet"), inputs=inputs)
     sc = _load(args.scenario)
@@ -492,14 +493,16 @@ def _cmd_filter(args: argparse.Namespace) -> int:
     names = list(args.estimators) if args.estimators else list(sc.estimators)
     for k, name in enumerate(names):
         get_family(name, f"--estimators[{k}]")
-    run = filter_to_files(sc, args.measurements, out_path, estimators=names, truth=args.truth, cost_out=cost_path, chunk_rows=args.chunk_rows)
+    run = filter_to_files(
+        sc, args.measurements, out_path, estimators=names, truth=args.truth, cost_out=cost_path, chunk_rows=args.chunk_rows, topic_map=args.map
+    )
     if args.json:
         print(dumps_json(run.summary))
         return 0
     print("\n".join(run.lines))
     if run.total_costs is not None:
         print(format_table(["estimator", "realized team cost (sum over steps)"], [[k, _fmt(v)] for k, v in run.total_costs.items()], align="lr"))
-        print(f"per-step realized costs written to {cost_path}")
+        print(f"per-step realized costs written to {cost_path or out_path}")
     return 0
 
 
@@ -518,32 +521,6 @@ def _apply_network_flags(sc: Any, args: argparse.Namespace) -> Any:
     if not getattr(args, "monte_carlo", None):
         _warn("--p-drop/--jitter act on the simulated agents; add --monte-carlo RUNS (analytic costs assume reliable links)")
     return sc.updated(vals)
-
-
-def _add_filter_parser(add: Any) -> None:
-    p = add("filter", "filter recorded measurements with every estimator of a scenario (CSV, Parquet or NPZ in; CSV or Parquet out)")
-    p.add_argument("scenario", metavar="SCENARIO")
-    p.add_argument(
-        "--measurements",
-        required=True,
-        metavar="FILE",
-        help="long form step,agent,y0,... (.csv/.parquet) or one array per agent (.npz); NaN or absent = missing",
-    )
-    p.add_argument("--truth", metavar="FILE", help="the true states step,x0,... (.csv/.parquet) or .npz key 'x': adds the realized team cost")
-    p.add_argument(
-        "--out",
-        required=True,
-        metavar="FILE",
-        help="estimates step,agent,estimator,z0,... (.csv or .parquet); with --truth also FILE-cost.csv/.parquet",
-    )
-    p.add_argument("--estimators", nargs="+", metavar="NAME", help="estimators to run (default: the scenario's)")
-    p.add_argument("--json", action="store_true", help="print one JSON object (steps, estimators, realized total costs)")
-    p.add_argument(
-        "--chunk-rows", type=_positive_int, default=400_000, metavar="N", help="steady-state scenarios are streamed N rows at a time (default 400000)"
-    )
-    drops_help = "replay a deployment in-process from its drop record (teamkf deploy --record): the same estimates, bit for bit"
-    p.add_argument("--drops", metavar="DROPS", help=drops_help)
-    p.set_defaults(func=_cmd_filter)
 
 
 # ---------------------------------------------------------------------------
@@ -757,7 +734,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON object (counts and every row)")
     p.set_defaults(func=_cmd_sweep)
 
-    _add_filter_parser(add)
+    from .study.recording import add_filter_parser  # filter; measurements convert (MCAP)
+    from .study.recording import add_parsers as add_measurements_parsers
+
+    add_filter_parser(add, _cmd_filter, _positive_int)
+    add_measurements_parsers(add)
 
     p = add("families", "list the registered estimator families: name, cost, capabilities, options (built-in and plug-ins)")
     p.add_argument("--json", action="store_true", help="print one JSON object: name -> record")

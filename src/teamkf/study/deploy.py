@@ -278,6 +278,8 @@ def _agent_command(args: Any, scenario: str, i: int, roster: Path, run_dir: Path
     cmd += ["--quiet", "agent", scenario, "--id", str(i), "--roster", str(roster), "--measurements", str(Path(args.measurements).resolve())]
     cmd += ["--out", str(run_dir / f"agent-{i}.npz"), "--report", str(run_dir / f"agent-{i}.json"), "--stream", str(run_dir / f"agent-{i}.f8")]
     cmd += ["--estimator", estimator]
+    if getattr(args, "map", None):
+        cmd += ["--map", str(Path(args.map).resolve())]
     cmd += ["--deadline", repr(args.deadline), "--join-timeout", repr(args.join_timeout), "--p-drop", repr(args.p_drop)]
     if args.seed is not None:
         cmd += ["--seed", str(args.seed)]
@@ -401,7 +403,7 @@ def cmd_deploy(args: Any) -> int:
     """``teamkf deploy``: exit 0 when every agent completed, 1 when one failed (the report names it)."""
     _out_suffix(args.out, "--out", (".csv", ".parquet"))
     sc = _load(args.scenario)
-    log = M.read_measurements(args.measurements, sc.system, sc.horizon)
+    log = M.read_log(args.measurements, sc.system, sc.horizon, getattr(args, "map", None))
     name = deploy_estimator(sc, args.estimator)
     if args.kill is not None and not 0 <= args.kill[0] < sc.system.n_agents:
         raise ArgumentError(f"--kill: agent {args.kill[0]} is out of range 0..{sc.system.n_agents - 1}", argument="--kill")
@@ -501,7 +503,7 @@ def cmd_agent(args: Any) -> int:
             ybar, offs = yb[i], np.stack([sc.cost.L_at(k) @ mean[k] for k in range(T)])[:, i * dz : (i + 1) * dz]
         source = _stdin_source(ybar, int(sc.system.dy[i]), T)
     else:
-        log = M.read_measurements(args.measurements, sc.system, sc.horizon)
+        log = M.read_log(args.measurements, sc.system, sc.horizon, args.map, agents=[i])  # a recording: its own topics only
         prep = prepare(sc, log, name, design=design)
         T = prep.n_steps if args.steps is None else min(args.steps, prep.n_steps)
         yi = prep.ys[i]  # only this agent's column is kept
@@ -599,7 +601,7 @@ def cmd_filter_drops(args: Any) -> int:
 
     get_family(rec.estimator, f"{rec.source}: estimator")  # a family of another installation: named as the record's entry
     rec.check(n_agents=sc.system.n_agents, n_steps=rec.n_steps, scenario=sc.name, fingerprint=scenario_fingerprint(sc, rec.estimator))
-    log = M.read_measurements(args.measurements, sc.system, sc.horizon)
+    log = M.read_log(args.measurements, sc.system, sc.horizon, getattr(args, "map", None))
     prep = prepare(sc, log, rec.estimator)
     z = replay(prep.design, prep.ys, rec, prep.offsets, graph=prep.graph)  # checks the record's steps against the log's, its misses against the graph
     M.write_estimates(args.out, {rec.estimator: z}, prep.n_agents)

@@ -46,7 +46,19 @@ from ... import _validation as V
 from ..._validation import FloatArray
 from .format import MeasurementFileError, MeasurementLog, file_error
 
-__all__ = ["TopicEntry", "TopicMap", "Recording", "read_map", "read_recording", "read_log", "is_mcap", "require_ros", "ns_of_seconds"]
+__all__ = [
+    "TopicEntry",
+    "TopicMap",
+    "Recording",
+    "read_map",
+    "read_recording",
+    "read_recorded_truth",
+    "check_sizes",
+    "read_log",
+    "is_mcap",
+    "require_ros",
+    "ns_of_seconds",
+]
 
 _SEGMENT = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)((?:\[\d+\])*)$")
 
@@ -154,10 +166,16 @@ def _entries(path: str, data: dict[str, Any], key: str, with_agent: bool) -> tup
                 raise _map_error(path, f"{where}.agent", f"expected an agent id, an integer >= 0, found {V.describe(agent)}")
         fields = t["fields"]
         if not isinstance(fields, list) or not fields or not all(isinstance(f, str) for f in fields):
-            raise _map_error(path, f"{where}.fields", f"expected a non-empty list of message fields like ['point.x', 'point.y'], found {V.describe(fields)}")
+            raise _map_error(
+                path, f"{where}.fields", f"expected a non-empty list of message fields like ['point.x', 'point.y'], found {V.describe(fields)}"
+            )
         for f in fields:
             if not all(_SEGMENT.match(p) for p in f.split(".")):
-                raise _map_error(path, f"{where}.fields", f"{f!r} is not a field path; expected names joined by '.', with [i] for an array element (pose.position.x, data[2])")
+                raise _map_error(
+                    path,
+                    f"{where}.fields",
+                    f"{f!r} is not a field path; expected names joined by '.', with [i] for an array element (pose.position.x, data[2])",
+                )
         out.append(TopicEntry(topic, agent, tuple(fields), where))
     return tuple(out)
 
@@ -199,7 +217,9 @@ def read_map(path: str | Path, flag: str = "--map") -> TopicMap:
     if not topics:
         raise _map_error(src, "topics", "no [[topics]] entry; give at least one (topic, agent, fields)")
     truth = _entries(src, data, "truth", False)
-    tm = TopicMap(src, float(period), period_ns, None if start is None else float(start), None if start is None else ns_of_seconds(start), topics, truth)
+    tm = TopicMap(
+        src, float(period), period_ns, None if start is None else float(start), None if start is None else ns_of_seconds(start), topics, truth
+    )
     for i, size in enumerate(tm.sizes()):
         if size == 0:
             raise _map_error(src, "topics", f"agent {i} has no [[topics]] entry (agents are numbered 0..{tm.n_agents - 1}); give its topics")
@@ -208,12 +228,11 @@ def read_map(path: str | Path, flag: str = "--map") -> TopicMap:
 
 @dataclass(frozen=True, eq=False)
 class Recording:
-    """What a recording gives through a map: per-agent measurements (NaN = missing), the truth, the time of step 0."""
+    """What a recording gives through a map: per-agent measurements (NaN = missing) and the time of step 0 (ns)."""
 
     y: list[FloatArray]
     start_ns: int
     period_ns: int
-    truth: FloatArray | None = None
 
     @property
     def n_steps(self) -> int:
@@ -231,47 +250,54 @@ def _stamp(msg: Any) -> int | None:
     return None
 
 
+class _Absent(Exception):
+    """A field path that does not lead to a value (the message says what is missing)."""
+
+
 def _field(msg: Any, segs: list[tuple[str, tuple[int, ...]]]) -> Any:
     v = msg
     for name, idx in segs:
-        if isinstance(v, dict):
-            if name not in v:
-                raise KeyError(name)
+        if isinstance(v, dict) and name in v:
             v = v[name]
-        else:
-            if not hasattr(v, name):
-                raise KeyError(name)
+        elif not isinstance(v, dict) and hasattr(v, "__dict__") and hasattr(v, name):
             v = getattr(v, name)
+        else:
+            raise _Absent(f"no {name!r}; its fields: {_fields_of(v)}")
         for i in idx:
-            try:
-                v = v[i]
-            except (IndexError, TypeError, KeyError):
-                raise IndexError(i) from None
+            if isinstance(v, (str, bytes)) or not hasattr(v, "__len__"):
+                raise _Absent(f"{name!r} is {_kind(v)}, not an array; drop the [{i}]")
+            if i >= len(v):
+                raise _Absent(f"no element [{i}] of {name!r} (it has {len(v)})")
+            v = v[i]
     return v
 
 
+def _kind(v: Any) -> str:
+    if hasattr(v, "__dict__"):
+        return f"a message ({type(v).__name__})"
+    if isinstance(v, (bool, np.bool_)):
+        return "a boolean"
+    if isinstance(v, (int, float, np.integer, np.floating)):
+        return "a number"
+    if isinstance(v, str):
+        return f"the text {v[:40]!r}"
+    if hasattr(v, "__len__"):
+        return f"an array of {len(v)} values"
+    return type(v).__name__
+
+
 def _fields_of(v: Any) -> str:
-    names = [k for k in vars(v) if not k.startswith("_")] if hasattr(v, "__dict__") else list(getattr(v, "__slots__", ()))
-    return ", ".join(names) or "none"
+    names = list(v) if isinstance(v, dict) else [k for k in vars(v) if not k.startswith("_")] if hasattr(v, "__dict__") else []
+    return ", ".join(names) or "none (it is not a message)"
 
 
 def _value(src: str, e: TopicEntry, f: str, segs: Any, msg: Any, k: int, type_name: str) -> float:
     try:
         v = _field(msg, segs)
-    except KeyError as exc:
-        parent: Any = msg
-        for name, idx in segs:
-            if not hasattr(parent, name):
-                break
-            parent = getattr(parent, name)
-            for i in idx:
-                parent = parent[i]
-        raise _map_error(src, f"{e.where}, field {f!r}", f"absent in {type_name} (at step {k}): no {exc.args[0]!r}; its fields: {_fields_of(parent)}") from None
-    except IndexError as exc:
-        raise _map_error(src, f"{e.where}, field {f!r}", f"absent in {type_name} at step {k}: no element [{exc.args[0]}] (the array is shorter)") from None
+    except _Absent as exc:
+        raise _map_error(src, f"{e.where}, field {f!r}", f"absent in {type_name} (at step {k}): {exc}") from None
     if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)):
-        what = type(v).__name__ if not hasattr(v, "__dict__") else "a message"
-        raise _map_error(src, f"{e.where}, field {f!r}", f"expected a number, found {what} {v!r:.60} in {type_name} at step {k}; name a numeric field")
+        raise _map_error(src, f"{e.where}, field {f!r}", f"expected a number, found {_kind(v)} in {type_name} at step {k}; name a numeric field")
     x = float(v)
     if math.isinf(x):
         raise _map_error(src, f"{e.where}, field {f!r}", f"expected a finite number or NaN (missing), found {x} at step {k}")
@@ -307,13 +333,17 @@ def _scan(path: Path, wanted: set[str]) -> tuple[dict[str, list[tuple[int, Any]]
                     try:
                         decoders[channel.id] = factory.decoder_for(channel.message_encoding, schema)
                     except Exception as exc:  # a definition the vendored ROS parser refuses
-                        raise file_error(path, f"topic {topic!r}", f"cannot read the definition of {schema.name!r} ({' '.join(str(exc).split())})") from None
+                        raise file_error(
+                            path, f"topic {topic!r}", f"cannot read the definition of {schema.name!r} ({' '.join(str(exc).split())})"
+                        ) from None
                     types[topic] = schema.name
                 try:
                     msg = decoders[channel.id](message.data)
                 except Exception as exc:
                     raise file_error(
-                        path, f"topic {topic!r}", f"a message at log time {message.log_time} ns does not decode as {types[topic]} ({type(exc).__name__})"
+                        path,
+                        f"topic {topic!r}",
+                        f"a message at log time {message.log_time} ns does not decode as {types[topic]} ({type(exc).__name__})",
                     ) from None
                 t = _stamp(msg)
                 msgs[topic].append((message.log_time if t is None else t, msg))
@@ -331,9 +361,7 @@ def _step(t: int, start_ns: int, period_ns: int) -> int:
     return (2 * (t - start_ns) + period_ns) // (2 * period_ns)
 
 
-def read_recording(
-    path: str | Path, tmap: TopicMap, *, agents: Sequence[int] | None = None, truth: bool = False, horizon: int | None = None, flag: str = "--measurements"
-) -> Recording:
+def read_recording(path: str | Path, tmap: TopicMap, *, agents: Sequence[int] | None = None, horizon: int | None = None) -> Recording:
     """The per-agent measurements (and, with ``truth``, the true states) of an MCAP recording through ``tmap``.
 
     Parameters
@@ -343,20 +371,19 @@ def read_recording(
     agents : read the values of these agents' topics only (the others' are NaN); the times of every
         measurement topic still set step 0 (when the map has no ``start``) and the number of steps, so
         every agent agrees on them
-    truth : also read the map's ``[[truth]]`` topics (every step needs one)
     horizon : steps must be < horizon (None: any)
     """
     p = Path(path)
     if not p.exists():
         raise FileNotFoundError(2, "No such file or directory", str(p))
-    if truth and not tmap.truth:
-        raise _map_error(tmap.source, "truth", "no [[truth]] entry; --truth with a recording needs the truth topics (topic, fields) in the map")
-    wanted = {e.topic for e in tmap.topics} | ({e.topic for e in tmap.truth} if truth else set())
+    wanted = {e.topic for e in tmap.topics}
     msgs, types = _scan(p, wanted)
-    for e in (*tmap.topics, *(tmap.truth if truth else ())):
+    for e in tmap.topics:
         if not msgs[e.topic]:
             raise _map_error(
-                tmap.source, e.where, f"topic {e.topic!r} has no message in the recording {str(p)!r}; its topics: {', '.join(sorted(_topics(p))) or 'none'}"
+                tmap.source,
+                e.where,
+                f"topic {e.topic!r} has no message in the recording {str(p)!r}; its topics: {', '.join(sorted(_topics(p))) or 'none'}",
             )
     times = [t for e in tmap.topics for t, _ in msgs[e.topic]]
     start = tmap.start_ns if tmap.start_ns is not None else min(times)
@@ -364,12 +391,16 @@ def read_recording(
     steps = {e.topic: [_step(t, start, P) for t, _ in msgs[e.topic]] for e in tmap.topics}
     last = max(max(s) for s in steps.values())
     if last < 0:
-        raise _map_error(tmap.source, "start", f"every message lies before step 0 (start = {tmap.start}); set start to the recording's time or omit it")
+        raise _map_error(
+            tmap.source, "start", f"every message lies before step 0 (start = {tmap.start}); set start to the recording's time or omit it"
+        )
     T = last + 1
     if horizon is not None and T > horizon:
         e = next(e for e in tmap.topics if max(steps[e.topic]) == last)
         raise file_error(
-            p, f"topic {e.topic!r}, step {last}", f"beyond the scenario's horizon of {horizon} steps (steps 0..{horizon - 1}); raise horizon or crop the recording"
+            p,
+            f"topic {e.topic!r}, step {last}",
+            f"beyond the scenario's horizon of {horizon} steps (steps 0..{horizon - 1}); raise horizon or crop the recording",
         )
     keep = None if agents is None else set(agents)
     dy = tmap.sizes()
@@ -389,12 +420,31 @@ def read_recording(
                 continue
             if k in seen:
                 raise file_error(
-                    p, f"topic {e.topic!r}, step {k}", f"two messages on one step (times {seen[k]} and {t} ns, period {P} ns); keep one, or shorten period"
+                    p,
+                    f"topic {e.topic!r}, step {k}",
+                    f"two messages on one step (times {seen[k]} and {t} ns, period {P} ns); keep one, or shorten period",
                 )
             seen[k] = t
             ys[i][k, c0 : c0 + len(e.fields)] = [_value(tmap.source, e, f, segs, msg, k, types[e.topic]) for f, segs in zip(e.fields, paths)]
-    x = _truth(p, tmap, msgs, types, start, T) if truth else None
-    return Recording(ys, start, P, x)
+    return Recording(ys, start, P)
+
+
+def read_recorded_truth(path: str | Path, tmap: TopicMap, start_ns: int, n_steps: int) -> FloatArray:
+    """The true states x(0..n_steps-1) from the map's ``[[truth]]`` topics of a recording (step 0 at ``start_ns``)."""
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(2, "No such file or directory", str(p))
+    if not tmap.truth:
+        raise _map_error(tmap.source, "truth", "no [[truth]] entry; --truth with a recording needs the truth topics (topic, fields) in the map")
+    msgs, types = _scan(p, {e.topic for e in tmap.truth})
+    for e in tmap.truth:
+        if not msgs[e.topic]:
+            raise _map_error(
+                tmap.source,
+                e.where,
+                f"topic {e.topic!r} has no message in the recording {str(p)!r}; its topics: {', '.join(sorted(_topics(p))) or 'none'}",
+            )
+    return _truth(p, tmap, msgs, types, start_ns, n_steps)
 
 
 def _topics(path: Path) -> set[str]:
@@ -427,7 +477,11 @@ def _truth(p: Path, tmap: TopicMap, msgs: dict[str, Any], types: dict[str, str],
                     best[k] = (d, msg)
         gone = [k for k in range(T) if best[k] is None]
         if gone:
-            raise file_error(p, f"topic {e.topic!r}, step {gone[0]}", f"no truth message within half a period of step {gone[0]}; the truth needs every step 0..{T - 1}")
+            raise file_error(
+                p,
+                f"topic {e.topic!r}, step {gone[0]}",
+                f"no truth message within half a period of step {gone[0]}; the truth needs every step 0..{T - 1}",
+            )
         paths = e.paths
         cols.append(np.array([[_value(tmap.source, e, f, s, b[1], k, types[e.topic]) for f, s in zip(e.fields, paths)] for k, b in enumerate(best)]))  # type: ignore[index]
     x = np.concatenate(cols, axis=1)
@@ -469,6 +523,10 @@ def read_log(
     from .format import read_measurements
 
     if not is_mcap(path):
+        if map_path is not None:
+            raise MeasurementFileError(
+                f"--map: a topic map is for a ROS 2 recording (.mcap), found --measurements {path}; drop --map", argument="--map"
+            )
         return read_measurements(path, system, horizon)
     require_ros()
     if map_path is None:
@@ -477,5 +535,5 @@ def read_log(
         )
     tmap = read_map(map_path)
     check_sizes(tmap, system)
-    rec = read_recording(path, tmap, agents=agents, horizon=horizon, flag=flag)
+    rec = read_recording(path, tmap, agents=agents, horizon=horizon)
     return MeasurementLog.from_arrays(rec.y, system, horizon, source=str(path))

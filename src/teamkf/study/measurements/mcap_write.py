@@ -42,7 +42,18 @@ FLOAT64_MULTI_ARRAY = "\n".join(
     ]
 )
 _FLOAT64 = "float64 data"
-_HEADER = "\n".join([_SEP, "MSG: std_msgs/Header", "builtin_interfaces/Time stamp", "string frame_id", _SEP, "MSG: builtin_interfaces/Time", "int32 sec", "uint32 nanosec"])
+_HEADER = "\n".join(
+    [
+        _SEP,
+        "MSG: std_msgs/Header",
+        "builtin_interfaces/Time stamp",
+        "string frame_id",
+        _SEP,
+        "MSG: builtin_interfaces/Time",
+        "int32 sec",
+        "uint32 nanosec",
+    ]
+)
 
 
 def estimate_topic(estimator: str, i: int) -> str:
@@ -101,7 +112,9 @@ def _msgdef(j: int, fields: Sequence[str]) -> tuple[str, str]:
             assert m is not None
             name, idx = m.group(1), [int(v) for v in re.findall(r"\d+", m.group(2))]
             if len(idx) > 1 or (q == 0 and name == "header"):
-                raise MeasurementFileError(f"field {f!r}: cannot be written as a ROS 2 message (nested arrays, or a field of the header)", argument="--map")
+                raise MeasurementFileError(
+                    f"field {f!r}: cannot be written as a ROS 2 message (nested arrays, or a field of the header)", argument="--map"
+                )
             leaf = q == len(parts) - 1
             slot = node.setdefault(name, {"leaf": leaf, "array": bool(idx), "len": 0, "children": {}})
             if slot["leaf"] != leaf or slot["array"] != bool(idx):
