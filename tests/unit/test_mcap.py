@@ -9,7 +9,11 @@ those from the same numbers written as a CSV log.
 
 from __future__ import annotations
 
+import importlib.util
+import os
+import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -77,6 +81,7 @@ agent = 2
 fields = ["value"]
 """
 
+SRC = str(Path(__file__).resolve().parents[2] / "src")
 T = 12
 EXACT = {"float_precision": "round_trip"} if int(pd.__version__.split(".")[0]) < 3 else {}
 START = 1_700_000_000 * 10**9
@@ -346,10 +351,29 @@ def test_deploy_and_agent_read_the_recording(files, tmp_path, capsys):
     mp.write_text(MAP.replace('"point.y", "point.z"', '"point.y", "point.w"'))
     log = M.read_log(rec, _system(sc), 20, mp, agents=[0])
     np.testing.assert_array_equal(log.y[0], ys[0])
-    assert np.isnan(log.y[1]).all() and log.n_steps == T
+    assert not log.y[1].any() and log.n_steps == T  # not read: zeros
 
 
 def _system(path):
     from teamkf.study.scenario import load_scenario
 
     return load_scenario(str(path)).system
+
+
+@pytest.mark.slow  # ~6 s: three agent processes over Zenoh
+@pytest.mark.skipif(importlib.util.find_spec("zenoh") is None, reason="needs eclipse-zenoh (pip install 'teamkf[deploy]')")
+def test_deployed_agent_processes_read_their_own_topics(files, tmp_path, capsys):
+    """teamkf deploy over Zenoh: each `teamkf agent --map` process reads its own topics of the recording; the same file as the CSV log."""
+    sc, mp, rec, csv, ys = files
+    ys = [np.where(np.isnan(y), 0.5, y) for y in ys]
+    write_recording(rec, ys)
+    M.write_measurements(csv, ys)
+    rc, _, err = _run(
+        capsys, "deploy", sc, "--measurements", csv, "--transport", "queue", "--out", tmp_path / "ref.csv"
+    )  # the same numbers as Zenoh's
+    assert rc == 0, err
+    env = {**os.environ, "PYTHONPATH": f"{SRC}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
+    argv = [sys.executable, "-m", "teamkf", "deploy", str(sc), "--measurements", str(rec), "--map", str(mp), "--out", str(tmp_path / "got.csv")]
+    proc = subprocess.run([*argv, "--deadline", "10"], capture_output=True, text=True, env=env, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "got.csv").read_bytes() == (tmp_path / "ref.csv").read_bytes()

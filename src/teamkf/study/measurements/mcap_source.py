@@ -519,7 +519,8 @@ def read_log(
 ) -> MeasurementLog:
     """A recorded log: an MCAP recording through the map ``map_path``, or any file :func:`read_measurements` reads.
 
-    ``agents``: with a recording, read the values of these agents' topics only (``teamkf agent``)."""
+    ``agents``: with a recording, read the values of these agents' topics only (``teamkf agent``); the others'
+    measurements are zeros in the log returned (placeholders: an agent uses only its own)."""
     from .format import read_measurements
 
     if not is_mcap(path):
@@ -536,4 +537,5 @@ def read_log(
     tmap = read_map(map_path)
     check_sizes(tmap, system)
     rec = read_recording(path, tmap, agents=agents, horizon=horizon)
-    return MeasurementLog.from_arrays(rec.y, system, horizon, source=str(path))
+    ys = rec.y if agents is None else [y if i in agents else np.zeros_like(y) for i, y in enumerate(rec.y)]  # not read: placeholders, never used
+    return MeasurementLog.from_arrays(ys, system, horizon, source=str(path))
