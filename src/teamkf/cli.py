@@ -477,7 +477,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 def _cmd_filter(args: argparse.Namespace) -> int:
     """``teamkf filter SCENARIO --measurements FILE [--truth FILE] --out FILE [--estimators ...]`` (:mod:`teamkf.study.filtering`)."""
     from . import get_family
-    from .study.filtering import filter_to_files
+    from .study.recording import filter_to_files  # teamkf.study.filtering's, and MCAP (a ROS 2 recording, --map)
 
     inputs = [args.scenario, args.measurements, args.truth, args.drops, args.map]
     out_path = _check_output(args.out, "--out", (".csv", ".parquet", ".mcap"), inputs=inputs)
@@ -734,8 +734,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON object (counts and every row)")
     p.set_defaults(func=_cmd_sweep)
 
-    from .study.recording import add_filter_parser  # filter; measurements convert (MCAP)
-    from .study.recording import add_parsers as add_measurements_parsers
+    from .study.recording_args import add_filter_parser  # filter; measurements convert (MCAP)
+    from .study.recording_args import add_parsers as add_measurements_parsers
 
     add_filter_parser(add, _cmd_filter, _positive_int)
     add_measurements_parsers(add)

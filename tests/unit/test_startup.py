@@ -45,6 +45,7 @@ ALLOWED = {
     "teamkf.study",
     "teamkf.study.catalog",
     "teamkf.study.deploy_args",
+    "teamkf.study.recording_args",
 }
 
 

@@ -38,27 +38,9 @@ def filter_to_files(
     truth: str | Path | None = None,
     cost_out: Path | None = None,
     chunk_rows: int = 400_000,
-    topic_map: str | Path | None = None,
 ) -> FilterRun:
     """Filter ``measurements`` with every estimator, write the estimates to ``out`` (and, with ``truth``, the
-    per-step realized team costs to ``cost_out``), each through a temporary file renamed at the end.
-
-    ``topic_map``: the map (:mod:`~teamkf.study.measurements.mcap_source`) of an MCAP recording given as
-    ``measurements`` or ``truth``, and of an ``out`` ending in ``.mcap`` (estimates as ROS 2 topics; with a
-    truth, the truth and the realized costs go into the same file, ``cost_out`` is not used)."""
-    from .measurements.mcap_source import is_mcap
-
-    if is_mcap(measurements) or is_mcap(truth) or out.suffix.lower() == ".mcap":
-        from .recording import filter_recording
-
-        return filter_recording(
-            scenario, measurements, out, estimators=estimators, truth=truth, cost_out=cost_out, chunk_rows=chunk_rows, topic_map=topic_map
-        )
-    if topic_map is not None:
-        raise ArgumentError(
-            "--map: a topic map is for an MCAP recording (--measurements or --truth REC.mcap) or MCAP estimates (--out EST.mcap); drop it",
-            argument="--map",
-        )
+    per-step realized team costs to ``cost_out``), each through a temporary file renamed at the end."""
     names = list(estimators)
     for k, name in enumerate(names):
         if name in names[:k]:  # two columns of estimates under one name would be silently merged

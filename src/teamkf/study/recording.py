@@ -7,7 +7,7 @@ streamed; estimates asked as ``.mcap`` are written by that path as a temporary C
 read back exactly) and then as ROS 2 topics (:mod:`teamkf.study.measurements.mcap_write`). So the estimates
 from a recording equal, bit for bit, those from the same measurements as a table.
 
-:func:`add_parsers` adds ``teamkf measurements convert`` to the command line (the parser is light: nothing of
+The command-line parsers are in :mod:`teamkf.study.recording_args` (light: nothing of this module or of
 MCAP is imported until a command runs).
 """
 
@@ -17,12 +17,41 @@ import argparse
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any, Iterator, Sequence
 
 from ..exceptions import ArgumentError, TeamkfError
 from .outputs import check_output, write_atomic
 
-__all__ = ["filter_recording", "cmd_convert", "add_parsers", "add_filter_parser"]
+__all__ = ["filter_to_files", "filter_recording", "cmd_convert"]
+
+
+def filter_to_files(
+    scenario: Any,
+    measurements: str | Path,
+    out: Path,
+    *,
+    estimators: Sequence[str],
+    truth: str | Path | None = None,
+    cost_out: Path | None = None,
+    chunk_rows: int = 400_000,
+    topic_map: str | Path | None = None,
+) -> Any:
+    """:func:`teamkf.study.filtering.filter_to_files` (what ``teamkf filter`` runs), with MCAP: a recording as
+    ``measurements`` or ``truth``, or estimates ``out`` ending in ``.mcap``, through the topic map ``topic_map``
+    (:func:`filter_recording`)."""
+    from . import filtering
+    from .measurements.mcap_source import is_mcap
+
+    if is_mcap(measurements) or is_mcap(truth) or out.suffix.lower() == ".mcap":
+        return filter_recording(
+            scenario, measurements, out, estimators=estimators, truth=truth, cost_out=cost_out, chunk_rows=chunk_rows, topic_map=topic_map
+        )
+    if topic_map is not None:
+        raise ArgumentError(
+            "--map: a topic map is for an MCAP recording (--measurements or --truth REC.mcap) or MCAP estimates (--out EST.mcap); drop it",
+            argument="--map",
+        )
+    return filtering.filter_to_files(scenario, measurements, out, estimators=estimators, truth=truth, cost_out=cost_out, chunk_rows=chunk_rows)
 
 
 def _need_map(topic_map: Any, what: str) -> Any:
@@ -62,7 +91,7 @@ def filter_recording(
     import numpy as np
 
     from . import measurements as M
-    from .filtering import FilterRun, filter_to_files
+    from .filtering import FilterRun
     from .measurements.mcap_source import check_sizes, is_mcap, read_recorded_truth, read_recording
     from .measurements.mcap_write import write_estimates_mcap
 
@@ -93,7 +122,7 @@ def filter_recording(
         est_path = Path(tmp) / "estimates.csv" if mcap_out else out
         cost_path = (Path(tmp) / "estimates-cost.csv" if mcap_out else cost_out) if truth is not None else None
         with _renamed(str(Path(tmp) / "measurements.npz"), str(measurements)), _renamed(str(Path(tmp) / "truth.npz"), str(truth)):
-            run = filter_to_files(scenario, log_path, est_path, estimators=estimators, truth=truth_path, cost_out=cost_path, chunk_rows=chunk_rows)
+            run = _plain(scenario, log_path, est_path, estimators=estimators, truth=truth_path, cost_out=cost_path, chunk_rows=chunk_rows)
         if not mcap_out:
             return _relabel(run, {log_path: str(measurements)}, FilterRun)
         z, costs = _read_back(est_path, cost_path, sys_.n_agents)
@@ -109,6 +138,12 @@ def filter_recording(
             f"{topics} written to {out} (ROS 2 std_msgs/msg/Float64MultiArray, step k at {start_ns / 1e9:.9f} s + k x {tmap.period} s)",
         ]
         return FilterRun(summary, lines, run.total_costs)
+
+
+def _plain(scenario: Any, log: str, out: Path, **kw: Any) -> Any:
+    from .filtering import filter_to_files as plain
+
+    return plain(scenario, log, out, **kw)
 
 
 def _relabel(run: Any, names: dict[str, str], cls: Any) -> Any:
@@ -190,55 +225,3 @@ def cmd_convert(args: argparse.Namespace) -> int:
         f"{src}: {log.n_steps} steps of {len(dy)} agents written to {out} as {len(tmap.topics)} ROS 2 topics ({', '.join(e.topic for e in tmap.topics)})"
     )
     return 0
-
-
-def add_filter_parser(add: Callable[[str, str], Any], func: Callable[[Any], int], positive_int: Callable[[str], int]) -> None:
-    """``teamkf filter`` (its command is :func:`teamkf.cli._cmd_filter`)."""
-    p = add("filter", "filter recorded measurements with every estimator of a scenario (CSV, Parquet, NPZ or MCAP in; CSV, Parquet or MCAP out)")
-    p.add_argument("scenario", metavar="SCENARIO")
-    p.add_argument(
-        "--measurements",
-        required=True,
-        metavar="FILE",
-        help="long form step,agent,y0,... (.csv/.parquet), one array per agent (.npz), or a ROS 2 recording (.mcap, with --map); NaN or absent = missing",
-    )
-    p.add_argument(
-        "--truth",
-        metavar="FILE",
-        help="the true states step,x0,... (.csv/.parquet), .npz key 'x', or a recording's [[truth]] topics (.mcap): adds the realized team cost",
-    )
-    p.add_argument(
-        "--out",
-        required=True,
-        metavar="FILE",
-        help="estimates step,agent,estimator,z0,... (.csv or .parquet; with --truth also FILE-cost.csv/.parquet) or ROS 2 topics /teamkf/<estimator>/agent<i> (.mcap)",
-    )
-    p.add_argument(
-        "--map", metavar="MAP.toml", help="the topic map of a recording: period, start, [[topics]] topic, agent, fields (needed with .mcap)"
-    )
-    p.add_argument("--estimators", nargs="+", metavar="NAME", help="estimators to run (default: the scenario's)")
-    p.add_argument("--json", action="store_true", help="print one JSON object (steps, estimators, realized total costs)")
-    p.add_argument(
-        "--chunk-rows", type=positive_int, default=400_000, metavar="N", help="steady-state scenarios are streamed N rows at a time (default 400000)"
-    )
-    drops_help = "replay a deployment in-process from its drop record (teamkf deploy --record): the same estimates, bit for bit"
-    p.add_argument("--drops", metavar="DROPS", help=drops_help)
-    p.set_defaults(func=func)
-
-
-def add_parsers(add: Callable[[str, str], Any]) -> None:
-    """``teamkf measurements convert``."""
-    p = add("measurements", "convert recorded measurements: a ROS 2 recording (MCAP) to a table, or back")
-    sub = p.add_subparsers(dest="measurements_command", metavar="ACTION", required=True)
-    c = sub.add_parser(
-        "convert",
-        help="a recording (.mcap) to a table (.csv, .parquet, .npz), or a table to a recording, through a topic map",
-        description="a recording (.mcap) to a table (step,agent,y0,... .csv/.parquet or .npz), or a table to a recording "
-        "(one topic per [[topics]] entry of the map, a message type made from its fields, stamps start + k x period)",
-    )
-    for a in ("--debug", "--quiet"):
-        c.add_argument(a, action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
-    c.add_argument("input", metavar="IN", help="the recording (.mcap) or the table (.csv, .parquet, .npz)")
-    c.add_argument("--map", required=True, metavar="MAP.toml", help="the topic map: period, start, [[topics]] topic, agent, fields")
-    c.add_argument("--out", required=True, metavar="OUT", help="the table (.csv, .parquet, .npz) or the recording (.mcap)")
-    c.set_defaults(func=cmd_convert)
