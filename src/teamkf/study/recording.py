@@ -112,7 +112,7 @@ def filter_recording(
         start_ns = 0 if start_ns is None else start_ns
         truth_path = truth
         if is_mcap(truth):
-            x = read_recorded_truth(truth, tmap, start_ns, T)
+            x = read_recorded_truth(str(truth), tmap, start_ns, T)
             if x.shape[1] != sys_.dx:
                 raise ArgumentError(
                     f"{tmap.source}: truth: its fields add up to {x.shape[1]} but the state has d_x = {sys_.dx} values", argument="--map"

@@ -142,7 +142,7 @@ def _msgdef(j: int, fields: Sequence[str]) -> tuple[str, str]:
     return f"teamkf_msgs/msg/{root}", text
 
 
-def _message(fields: Sequence[str], values: Sequence[float], stamp_ns: int) -> dict[str, Any]:
+def _message(fields: Sequence[str], values: Any, stamp_ns: int) -> dict[str, Any]:
     msg: dict[str, Any] = {"header": {"stamp": {"sec": stamp_ns // 1_000_000_000, "nanosec": stamp_ns % 1_000_000_000}, "frame_id": ""}}
     for f, v in zip(fields, values):
         node: Any = msg
