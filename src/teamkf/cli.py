@@ -1,4 +1,4 @@
-"""The ``teamkf`` command: evaluate, design, filter, sweep, reproduce, demo, families, deploy, agent.
+"""The ``teamkf`` command: evaluate, design, filter, measurements, sweep, reproduce, demo, families, deploy, agent.
 
 ``teamkf --help`` lists the commands and the families, ``teamkf COMMAND --help`` a command's options;
 ``docs/scenario-and-cli.md`` specifies them and the file formats (a contract, tested against this parser).
@@ -373,15 +373,15 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 def _cmd_filter(args: argparse.Namespace) -> int:
     """``teamkf filter SCENARIO --measurements FILE [--truth FILE] --out FILE [--estimators ...]`` (:mod:`teamkf.study.filtering`)."""
     from . import get_family
-    from .study.filtering import filter_to_files
+    from .study.recording import filter_to_files  # teamkf.study.filtering's, and MCAP (a ROS 2 recording, --map)
 
-    inputs = [args.scenario, args.measurements, args.truth, args.drops]
-    out_path = _check_output(args.out, "--out", (".csv", ".parquet"), inputs=inputs)
+    inputs = [args.scenario, args.measurements, args.truth, args.drops, args.map]
+    out_path = _check_output(args.out, "--out", (".csv", ".parquet", ".mcap"), inputs=inputs)
     if args.drops:  # replay a deployment's drop record (teamkf deploy --record)
         from .study.deploy import cmd_filter_drops
 
         return cmd_filter_drops(args)
-    cost_path = out_path.with_name(f"{out_path.stem}-cost{out_path.suffix}") if args.truth else None
+    cost_path = out_path.with_name(f"{out_path.stem}-cost{out_path.suffix}") if args.truth and out_path.suffix.lower() != ".mcap" else None
     if cost_path is not None:
         _check_output(str(cost_path), "--out (its cost file)", (".csv", ".parquet"), inputs=inputs)
     sc = _load(args.scenario)
@@ -389,14 +389,16 @@ def _cmd_filter(args: argparse.Namespace) -> int:
     names = list(args.estimators) if args.estimators else list(sc.estimators)
     for k, name in enumerate(names):
         get_family(name, f"--estimators[{k}]")
-    run = filter_to_files(sc, args.measurements, out_path, estimators=names, truth=args.truth, cost_out=cost_path, chunk_rows=args.chunk_rows)
+    run = filter_to_files(
+        sc, args.measurements, out_path, estimators=names, truth=args.truth, cost_out=cost_path, chunk_rows=args.chunk_rows, topic_map=args.map
+    )
     if args.json:
         print(dumps_json(run.summary))
         return 0
     print("\n".join(run.lines))
     if run.total_costs is not None:
         print(format_table(["estimator", "realized team cost (sum over steps)"], [[k, _fmt(v)] for k, v in run.total_costs.items()], align="lr"))
-        print(f"per-step realized costs written to {cost_path}")
+        print(f"per-step realized costs written to {cost_path or out_path}")
     return 0
 
 
@@ -415,32 +417,6 @@ def _apply_network_flags(sc: Any, args: argparse.Namespace) -> Any:
     if not getattr(args, "monte_carlo", None):
         _warn("--p-drop/--jitter act on the simulated agents; add --monte-carlo RUNS (analytic costs other than mtmse_lossy's assume reliable links)")
     return sc.updated(vals)
-
-
-def _add_filter_parser(add: Any) -> None:
-    p = add("filter", "filter recorded measurements with every estimator of a scenario (CSV, Parquet or NPZ in; CSV or Parquet out)")
-    p.add_argument("scenario", metavar="SCENARIO")
-    p.add_argument(
-        "--measurements",
-        required=True,
-        metavar="FILE",
-        help="long form step,agent,y0,... (.csv/.parquet) or one array per agent (.npz); NaN or absent = missing",
-    )
-    p.add_argument("--truth", metavar="FILE", help="the true states step,x0,... (.csv/.parquet) or .npz key 'x': adds the realized team cost")
-    p.add_argument(
-        "--out",
-        required=True,
-        metavar="FILE",
-        help="estimates step,agent,estimator,z0,... (.csv or .parquet); with --truth also FILE-cost.csv/.parquet",
-    )
-    p.add_argument("--estimators", nargs="+", metavar="NAME", help="estimators to run (default: the scenario's)")
-    p.add_argument("--json", action="store_true", help="print one JSON object (steps, estimators, realized total costs)")
-    p.add_argument(
-        "--chunk-rows", type=_positive_int, default=400_000, metavar="N", help="steady-state scenarios are streamed N rows at a time (default 400000)"
-    )
-    drops_help = "replay a deployment in-process from its drop record (teamkf deploy --record): the same estimates, bit for bit"
-    p.add_argument("--drops", metavar="DROPS", help=drops_help)
-    p.set_defaults(func=_cmd_filter)
 
 
 # ---------------------------------------------------------------------------
@@ -591,8 +567,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--max-hours", type=_budget.hours_argument, metavar="H", help=hours_help)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
-    def add(name: str, help: str) -> argparse.ArgumentParser:
-        p = sub.add_parser(name, help=help, description=help)
+    def add(name: str, help: str, within: Any = None) -> argparse.ArgumentParser:
+        """A command (``within``: a group's subparsers, e.g. ``measurements convert``) with the options every command takes."""
+        p = (within or sub).add_parser(name, help=help, description=help)
         p.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=debug_help)
         p.add_argument("--quiet", action="store_true", default=argparse.SUPPRESS, help=quiet_help)
         p.add_argument("--no-progress", dest="quiet", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)  # 0.2 name
@@ -654,7 +631,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON object (counts and every row)")
     p.set_defaults(func=_cmd_sweep)
 
-    _add_filter_parser(add)
+    from .study.recording_args import add_filter_parser  # filter; measurements convert (MCAP)
+    from .study.recording_args import add_parsers as add_measurements_parsers
+
+    add_filter_parser(add, _cmd_filter, _positive_int)
+    add_measurements_parsers(add)
 
     p = add("families", "list the registered estimator families: name, cost, capabilities, options (built-in and plug-ins)")
     p.add_argument("--json", action="store_true", help="print one JSON object: name -> record")

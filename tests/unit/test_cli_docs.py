@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import re
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -37,9 +38,25 @@ def _accepted(parser: argparse.ArgumentParser) -> set[str]:
     return {o for a in parser._actions for o in a.option_strings}
 
 
+def _subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+    found = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    return dict(found[0].choices) if found else {}
+
+
 def _commands() -> dict[str, argparse.ArgumentParser]:
-    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
-    return dict(sub.choices)
+    """Every command: ``evaluate``, ..., and a group's commands by two words (``measurements convert``)."""
+    out: dict[str, argparse.ArgumentParser] = {}
+    for name, parser in _subparsers(build_parser()).items():
+        nested = _subparsers(parser)
+        out.update({f"{name} {sub}": q for sub, q in nested.items()} if nested else {name: parser})
+    return out
+
+
+def _command_of(first: str, second: str | None, commands: Any) -> str | None:
+    """The command a ``teamkf FIRST [SECOND]`` line names (two words for a group's command), or None."""
+    if second is not None and f"{first} {second}" in commands:
+        return f"{first} {second}"
+    return first if first in commands else None
 
 
 def _command_lines(text: str) -> dict[str, str]:
@@ -47,10 +64,11 @@ def _command_lines(text: str) -> dict[str, str]:
     block = text.split("## Commands", 1)[1].split("```", 2)[1]
     out: dict[str, str] = {}
     current = None
+    commands = _commands()
     for line in block.splitlines():
-        m = re.match(r"teamkf (\w[\w-]*)", line)
+        m = re.match(r"teamkf (\w[\w-]*)(?: +([a-z][\w-]*))?", line)
         if m:
-            current = m.group(1)
+            current = _command_of(m.group(1), m.group(2), commands) or m.group(1)
             out[current] = out.get(current, "") + " " + line.split("  #")[0]
         elif line.startswith(" ") and current:
             out[current] += " " + line.split("  #")[0]
@@ -66,7 +84,7 @@ def test_every_command_is_in_the_spec_and_the_readme():
     missing = sorted(c for c in commands if not re.search(rf"\b{c}\b", row))
     assert not missing, f"the README's teamkf.cli row lacks the commands {missing}"
     doc = cli.__doc__ or ""
-    assert all(re.search(rf"\b{c}\b", doc.split("\n\n")[0]) for c in commands), "cli.py's docstring names every command"
+    assert all(re.search(rf"\b{c.split()[0]}\b", doc.split("\n\n")[0]) for c in commands), "cli.py's docstring names every command"
 
 
 @pytest.mark.parametrize("command", sorted(_commands()))
@@ -98,15 +116,16 @@ def _page_lines(page: Path) -> list[tuple[int, str, str]]:
     k = 0
     while k < len(lines):
         line = lines[k]
-        m = re.search(r"(?<![\w./-])teamkf (?:--[\w-]+(?: [^\s-]\S*)? )*([a-z][\w-]*)", line)
-        if m and m.group(1) in commands:
+        m = re.search(r"(?<![\w./-])teamkf (?:--[\w-]+(?: [^\s-]\S*)? )*([a-z][\w-]*)(?: +([a-z][\w-]*))?", line)
+        command = _command_of(m.group(1), m.group(2), commands) if m else None
+        if m and command is not None:
             text, j = line[m.start() :], k
             while (text.rstrip().endswith("\\") or (j + 1 < len(lines) and re.match(r"\s{8,}\[?--", lines[j + 1]))) and j + 1 < len(lines):
                 j += 1
                 text = text.rstrip().rstrip("\\") + " " + lines[j]
             for stop in ("`", "  #", " | ", ";"):  # the end of an inline command, a comment, a pipe
                 text = text.split(stop)[0] if stop != "`" or "`" in line[: m.start()] else text
-            out.append((k + 1, m.group(1), text))
+            out.append((k + 1, command, text))
             k = j
         k += 1
     return out

@@ -46,6 +46,7 @@ ALLOWED = {
     "teamkf.study.catalog",
     "teamkf.study.deploy_args",
     "teamkf.study.textout",  # the CLI's tables and JSON (numpy on first use)
+    "teamkf.study.recording_args",
 }
 
 

@@ -279,6 +279,8 @@ def _agent_command(args: Any, scenario: str, i: int, roster: Path, run_dir: Path
     cmd += ["--quiet", "agent", scenario, "--id", str(i), "--roster", str(roster), "--measurements", str(Path(args.measurements).resolve())]
     cmd += ["--out", str(run_dir / f"agent-{i}.npz"), "--report", str(run_dir / f"agent-{i}.json"), "--stream", str(run_dir / f"agent-{i}.f8")]
     cmd += ["--estimator", estimator]
+    if getattr(args, "map", None):
+        cmd += ["--map", str(Path(args.map).resolve())]
     cmd += ["--deadline", repr(args.deadline), "--join-timeout", repr(args.join_timeout), "--p-drop", repr(args.p_drop)]
     if args.seed is not None:
         cmd += ["--seed", str(args.seed)]
@@ -402,7 +404,7 @@ def cmd_deploy(args: Any) -> int:
     """``teamkf deploy``: exit 0 when every agent completed, 1 when one failed (the report names it)."""
     _deploy_outputs(args)  # before any work: no output is an input, or the other output
     sc = _load(args.scenario)
-    log = M.read_measurements(args.measurements, sc.system, sc.horizon)
+    log = M.read_log(args.measurements, sc.system, sc.horizon, getattr(args, "map", None))
     _limits.check_deploy(log.n_steps, sc.system.n_agents, deadline=args.deadline, join_timeout=args.join_timeout, timeout=args.timeout)
     name = deploy_estimator(sc, args.estimator)
     if args.kill is not None and not 0 <= args.kill[0] < sc.system.n_agents:
@@ -504,7 +506,7 @@ def cmd_agent(args: Any) -> int:
             ybar, offs = yb[i], np.stack([sc.cost.L_at(k) @ mean[k] for k in range(T)])[:, i * dz : (i + 1) * dz]
         source = _stdin_source(ybar, int(sc.system.dy[i]), T)
     else:
-        log = M.read_measurements(args.measurements, sc.system, sc.horizon)
+        log = M.read_log(args.measurements, sc.system, sc.horizon, args.map, agents=[i])  # a recording: its own topics only
         _limits.check_agent(args, sc, min(log.n_steps, args.steps or log.n_steps))
         prep = prepare(sc, log, name, design=design)
         T = prep.n_steps if args.steps is None else min(args.steps, prep.n_steps)
@@ -623,7 +625,7 @@ def cmd_filter_drops(args: Any) -> int:
 
     get_family(rec.estimator, f"{rec.source}: estimator")  # a family of another installation: named as the record's entry
     rec.check(n_agents=sc.system.n_agents, n_steps=rec.n_steps, scenario=sc.name, fingerprint=scenario_fingerprint(sc, rec.estimator))
-    log = M.read_measurements(args.measurements, sc.system, sc.horizon)
+    log = M.read_log(args.measurements, sc.system, sc.horizon, getattr(args, "map", None))
     _limits.check_filter(log.n_steps, sc.system.n_agents, [rec.estimator], what="teamkf filter --drops")
     prep = prepare(sc, log, rec.estimator)
     z = replay(prep.design, prep.ys, rec, prep.offsets, graph=prep.graph)  # checks the record's steps against the log's, its misses against the graph

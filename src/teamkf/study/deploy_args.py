@@ -103,6 +103,7 @@ def add_parsers(add: Callable[[str, str], Any]) -> None:
     p.add_argument(
         "--measurements", required=True, metavar="FILE", help="the recorded log (as teamkf filter reads it); each agent keeps only its own column"
     )
+    p.add_argument("--map", metavar="MAP.toml", help="the topic map of a ROS 2 recording (--measurements REC.mcap): period, start, [[topics]]")
     p.add_argument("--out", required=True, metavar="FILE", help="estimates step,agent,estimator,z0,... (.csv or .parquet)")
     _run_flags(p)
     p.add_argument("--record", metavar="DROPS", help="write the team's drop record (JSON) for teamkf filter --drops")
@@ -127,6 +128,9 @@ def add_parsers(add: Callable[[str, str], Any]) -> None:
         required=True,
         metavar="FILE",
         help="a recorded log (its own column is used), or '-' for stdin: one line per step with y_i(k) as comma-separated numbers",
+    )
+    p.add_argument(
+        "--map", metavar="MAP.toml", help="the topic map of a ROS 2 recording (--measurements REC.mcap); only this agent's topics are read"
     )
     p.add_argument("--out", metavar="FILE", help="its estimates (.csv, .parquet or .npz); '-' prints 'step,z0,...' lines as they come")
     p.add_argument("--report", metavar="FILE", help="write its report (JSON): steps, misses, frame counts, step latency, CPU")

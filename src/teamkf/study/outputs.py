@@ -62,6 +62,7 @@ FORMATS: dict[str, tuple[str, ...]] = {
     "json": (".json",),
     "png": (".png",),
     "plot": (".png", ".pdf", ".svg", ".jpg", ".jpeg"),
+    "mcap": (".mcap",),
 }
 
 

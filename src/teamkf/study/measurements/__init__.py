@@ -8,6 +8,8 @@ Modules
 - :mod:`~teamkf.study.measurements.transform`: known means (inputs, offsets), innovations and
   log-likelihood, the masked model of a log with gaps.
 - :mod:`~teamkf.study.measurements.workflow`: design for a log, filter it with every estimator, realized costs.
+- :mod:`~teamkf.study.measurements.mcap_source` and :mod:`~teamkf.study.measurements.mcap_write`: ROS 2
+  recordings (MCAP) through a topic map, and estimates written as ROS 2 topics (``pip install 'teamkf[ros]'``).
 
 Every public name of the three is importable from here.
 
@@ -55,6 +57,7 @@ from .format import (
     write_frame,
     write_measurements,
 )
+from .mcap_source import read_log
 from .transform import Innovations, KnownInputs, innovations, known_inputs, masked_system
 from .workflow import FilterResult, design_for_log, filter_log, online_estimates, realized_costs
 
@@ -63,6 +66,7 @@ __all__ = [
     "MeasurementLog",
     "FilterResult",
     "read_measurements",
+    "read_log",
     "write_measurements",
     "read_truth",
     "write_estimates",
