@@ -108,7 +108,7 @@ def merge_reports(reports: Sequence[tuple[str, Mapping[str, Any]]], *, died: Map
             if int(first["steps_done"]) < T:
                 stopped[a] = int(first["steps_done"])
             runs = runs[1:]
-        for name, r in runs:
+        for _, r in runs:
             if int(r["steps_done"]) > int(r["started"]):
                 segs.append((int(r["started"]), int(r["steps_done"])))
         if segs:

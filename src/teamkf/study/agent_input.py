@@ -147,7 +147,9 @@ class StepLines:
         try:
             s = int(fields[0])
         except ValueError:
-            raise ArgumentError(f"{self._where()}: expected {fmt} with an integer step first, found {fields[0]!r}", argument="--measurements") from None
+            raise ArgumentError(
+                f"{self._where()}: expected {fmt} with an integer step first, found {fields[0]!r}", argument="--measurements"
+            ) from None
         if not 0 <= s < self.n_steps:
             raise ArgumentError(f"{self._where()}: step {s} is outside the run's steps 0..{self.n_steps - 1}", argument="--measurements")
         try:

@@ -458,26 +458,8 @@ def cmd_deploy(args: Any) -> int:
     return 1 if res.failed else 0
 
 
-def _stdin_source(prep_ybar: np.ndarray | None, d_y: int, T: int) -> Callable[[int], Any]:
-    def source(k: int) -> Any:
-        if k >= T:
-            return None
-        line = sys.stdin.readline()
-        if not line:
-            return None
-        try:
-            y = np.array([[float(v) for v in line.replace(",", " ").split()]])
-        except ValueError:
-            raise ArgumentError(f"--measurements -: step {k}: expected {d_y} numbers, found {line.strip()!r}", argument="--measurements") from None
-        if y.shape != (1, d_y) or not np.all(np.isfinite(y)):
-            raise ArgumentError(f"--measurements -: step {k}: expected {d_y} finite numbers, found {line.strip()!r}", argument="--measurements")
-        return y if prep_ybar is None else y - prep_ybar[k]
-
-    return source
-
-
 def cmd_agent(args: Any) -> int:
-    """``teamkf agent``: exit 0 when it completed its steps, 1 on an error, 130 on Ctrl-C."""
+    """``teamkf agent``: exit 0 when it completed its steps, 3 when it completed them after ``--rejoin`` (steps before its rejoin missed), 1 on an error, 130 on Ctrl-C."""
     sc = _load(args.scenario, "run")
     n = sc.system.n_agents
     if not 0 <= args.id < n:
@@ -502,9 +484,13 @@ def cmd_agent(args: Any) -> int:
         if known is not None:
             mean, yb = known.means(sc.system, T)
             ybar, offs = yb[i], np.stack([sc.cost.L_at(k) @ mean[k] for k in range(T)])[:, i * dz : (i + 1) * dz]
-        source = _stdin_source(ybar, int(sc.system.dy[i]), T)
+        from .agent_input import StepLines
+
+        source = StepLines(sys.stdin, int(sc.system.dy[i]), T, ybar, agent=i, estimator=name)
     else:
-        log = M.read_measurements(args.measurements, sc.system, sc.horizon)
+        from .agent_input import read_own_log
+
+        log = read_own_log(args.measurements, sc.system, sc.horizon, i)  # its own rows, or a team log
         _limits.check_agent(args, sc, min(log.n_steps, args.steps or log.n_steps))
         prep = prepare(sc, log, name, design=design)
         T = prep.n_steps if args.steps is None else min(args.steps, prep.n_steps)
@@ -515,6 +501,9 @@ def cmd_agent(args: Any) -> int:
         def source(k: int) -> Any:
             return yi[:, k]
 
+    from .agent_ops import AgentStream, check_rejoin, rate_limited, report_json
+
+    core = check_rejoin(design, i, sc.graph, rejoin=bool(getattr(args, "rejoin", False)))  # before the network: one line
     transport = ZenohTransport(i, roster.endpoints, prefix=roster.prefix)
     try:
         transport.open()  # what Zenoh still refuses (the roster was checked): one line naming the roster and the endpoint
@@ -526,14 +515,9 @@ def cmd_agent(args: Any) -> int:
     sinks: list[Callable[[int, np.ndarray], None]] = []
     if args.out == "-":
         sinks.append(lambda k, z: print(",".join([str(k), *(repr(float(v)) for v in z)]), flush=True))
-    stream = open(args.stream, "wb") if args.stream else None  # noqa: SIM115 - closed below, after the run
+    stream = AgentStream(args.stream, dz, keep=bool(getattr(args, "rejoin", False))) if args.stream else None
     if stream is not None:
-
-        def write_row(k: int, z: np.ndarray, fh: Any = stream) -> None:
-            fh.write(np.asarray(z, dtype="<f8").tobytes())
-            fh.flush()
-
-        sinks.append(write_row)
+        sinks.append(stream.write)
 
     def printer(k: int, z: np.ndarray) -> None:
         for f in sinks:
@@ -543,7 +527,7 @@ def cmd_agent(args: Any) -> int:
         design,
         i,
         transport,
-        source,
+        rate_limited(source, getattr(args, "rate", None), stop),
         n_steps=T,
         run_id=roster.run_id,
         peers=roster.agents,
@@ -557,19 +541,27 @@ def cmd_agent(args: Any) -> int:
         on_estimate=printer if sinks else None,
         stop=stop,
         graph=sc.graph,
+        core=core,
+        rejoin=bool(getattr(args, "rejoin", False)),
     )
     if stream is not None:
         stream.close()
     if args.out and args.out != "-":
         _write_own(args.out, res, name)
+    run = {"run_id": roster.run_id, "scenario": getattr(sc, "name", None), "fingerprint": scenario_fingerprint(sc, name), "estimator": name}
+    run.update({"agents": n, "steps": T, "p_drop": args.p_drop, "seed": args.seed})
     if args.report:
-        Path(args.report).write_text(json.dumps(res.to_json()) + "\n", encoding="utf-8")
+        extra = {"run": run, "previous_steps": None if stream is None else stream.previous, "input": getattr(source, "counts", None)}
+        Path(args.report).write_text(json.dumps(report_json(res, **extra)) + "\n", encoding="utf-8")
     if res.error == "interrupted":
         print(f"teamkf agent {i}: interrupted after {res.steps_done} steps", file=sys.stderr)
         return 130
     if res.error:
         print(f"teamkf: error: agent {i}: {res.error}", file=sys.stderr)
         return 1
+    if res.started > 0:  # rejoined: it completed, without its steps before the rejoin
+        print(f"teamkf agent {i}: rejoined at step {res.started}: steps 0..{res.started - 1} are not this process's", file=sys.stderr)
+        return 3
     return 0
 
 
