@@ -699,6 +699,19 @@ class KCFAlgorithm(Algorithm):
         P_next = A @ M @ A.T + self.system.Q_at(k)
         return {"xhat": xh, "P": 0.5 * (P_next + P_next.T)}, {"y": y_i, "xbar": xbar}
 
+    def agent_restart(self, i: int, k: int, zero: Any) -> dict:
+        """The state of a fresh agent i at step k > 0 (a restarted process, ``teamkf agent --rejoin``): the prior of x(k).
+
+        Its mean is zero (known means are removed from y and added back to ẑ), so x̂ = 0 gives x̄_i(k) = 0, and its
+        covariance is Π(k), Π(0) = Σ_x, Π(s+1) = A(s) Π(s) A(s)ᵀ + Q(s): the loss-tolerant step's P from there.
+        """
+        P = np.array(self.system.Sigma_x, dtype=float)
+        for s in range(int(k)):
+            A = self.system.A_at(s)
+            P = A @ P @ A.T + self.system.Q_at(s)
+            P = 0.5 * (P + P.T)
+        return {"xhat": zero(self.system.dx), "P": P}
+
     def agent_step(self, i: int, k: int, prev: dict | None, y_i: Any, inbox: Any, zero: Any) -> tuple[dict, dict]:
         xbar = self._prior(i, k, prev, zero)
         got = {(lnode, s): p for (lnode, s, p) in inbox}
