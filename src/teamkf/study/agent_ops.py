@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -21,7 +22,7 @@ import shutil
 import sys
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -152,6 +153,28 @@ def clean_stale_run_dirs(root: str | None = None) -> list[str]:
         shutil.rmtree(d, ignore_errors=True)
         gone.append(str(d))
     return gone
+
+
+@contextlib.contextmanager
+def sigterm_interrupts() -> Iterator[None]:
+    """SIGTERM raises :class:`~teamkf.deploy.launcher.Stopped` (a KeyboardInterrupt with the signal) meanwhile (main thread only)."""
+    import signal
+    import threading
+
+    from ..deploy.launcher import Stopped
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def on_term(signum: int, frame: Any) -> None:
+        raise Stopped(signum)
+
+    prev = signal.signal(signal.SIGTERM, on_term)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, prev)
 
 
 def new_run_dir() -> Path:

@@ -16,7 +16,6 @@ import secrets
 import shutil
 import signal
 import sys
-import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
@@ -173,6 +172,16 @@ class DeployResult:
     record: DropRecord
     failed: dict[int, str] = field(default_factory=dict)  # agent -> why
     wall_s: float = 0.0
+    #: the signal that stopped the run (SIGINT, SIGTERM) before its last step, or None
+    stopped_by: int | None = None
+
+    def mark_stopped(self, signum: int) -> None:
+        """The run was stopped by ``signum``: its record is marked incomplete, with the steps every agent completed."""
+        import dataclasses
+
+        done = min((int(r.get("steps_done", 0)) for r in self.reports), default=0)
+        self.record = dataclasses.replace(self.record, complete=False, completed=done)
+        self.stopped_by = int(signum)
 
     def summary(self) -> dict[str, Any]:
         return {
@@ -182,6 +191,8 @@ class DeployResult:
             "failed": {str(a): w for a, w in sorted(self.failed.items())},
             "missed": len(self.record.missed),
             "wall_s": self.wall_s,
+            "complete": self.record.complete,
+            "completed": self.record.to_json()["completed"],
             "reports": self.reports,
         }
 
@@ -258,17 +269,20 @@ def run_team(
     threads = [threading.Thread(target=one, args=(i,), name=f"teamkf-agent-{i}", daemon=True) for i in range(n)]
     for t in threads:
         t.start()
+    signum = None
     try:
         for t in threads:
             while t.is_alive():
                 t.join(0.1)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:  # the agents stop after their step; what they completed is kept
+        signum = int(getattr(exc, "signum", signal.SIGINT))
         stop.set()
         for t in threads:
             t.join(10)
-        raise
     res = _merge(prep, results, run_id=run_id, p_drop=p_drop, seed=rng)
     res.wall_s = time.monotonic() - t0
+    if signum is not None:
+        res.mark_stopped(signum)
     return res
 
 
@@ -284,6 +298,8 @@ def _agent_command(args: Any, scenario: str, i: int, roster: Path, run_dir: Path
         cmd += ["--seed", str(args.seed)]
     if args.kill is not None and args.kill[0] == i:
         cmd += ["--kill-at", str(args.kill[1])]
+    if getattr(args, "rate", None) is not None:
+        cmd += ["--rate", repr(args.rate)]
     return cmd
 
 
@@ -291,7 +307,10 @@ def deploy_processes(args: Any, prep: Prepared, on_start: Callable[[list[int]], 
     """One ``teamkf agent`` process per agent over Zenoh on loopback (what ``teamkf deploy`` runs)."""
     n = prep.n_agents
     run_id = secrets.randbits(63)
-    run_dir = Path(tempfile.mkdtemp(prefix="teamkf-deploy-"))
+    from ..deploy.launcher import Stopped
+    from .agent_ops import new_run_dir
+
+    run_dir = new_run_dir()  # teamkf-deploy-<pid>-*: a later deploy removes it if this process is SIGKILLed
     try:
         ports = free_ports(n)
         roster = Roster({i: f"tcp/127.0.0.1:{ports[i]}" for i in range(n)}, run_id, f"teamkf/{run_id}")
@@ -302,7 +321,11 @@ def deploy_processes(args: Any, prep: Prepared, on_start: Callable[[list[int]], 
         cmds = [_agent_command(args, scen, i, rpath, run_dir, prep.estimator, plugins) for i in range(n)]
         timeout = args.timeout if args.timeout is not None else 120.0 + args.join_timeout + prep.n_steps * args.deadline
         t0 = time.monotonic()
-        children = launch(cmds, timeout=timeout, on_start=on_start)
+        signum = None
+        try:
+            children = launch(cmds, timeout=timeout, on_start=on_start)
+        except Stopped as exc:  # Ctrl-C, SIGTERM: the agents were stopped and reaped; keep what they completed
+            signum, children = exc.signum, []
         wall = time.monotonic() - t0
         results: list[AgentResult | None] = [_read_agent(run_dir, i, prep) for i in range(n)]
         res = _merge(prep, results, run_id=run_id, p_drop=args.p_drop, seed=args.seed)
@@ -321,6 +344,8 @@ def deploy_processes(args: Any, prep: Prepared, on_start: Callable[[list[int]], 
             if ch.returncode == 2 and ch.stderr.strip():
                 res.failed[i] = ch.stderr.strip().splitlines()[-1].removeprefix("teamkf: error: ")
         res.wall_s = wall
+        if signum is not None:
+            res.mark_stopped(signum)
         return res
     finally:
         shutil.rmtree(run_dir, ignore_errors=True)
@@ -417,12 +442,15 @@ def cmd_deploy(args: Any) -> int:
 
         zenoh_module()  # the install command now, not from six agents later
     if args.transport == "queue":
-        res = run_team(
-            prep, transport="queue", deadline=args.deadline, join_timeout=args.join_timeout, p_drop=args.p_drop, rng=args.seed, kill=args.kill
-        )
+        from .agent_ops import sigterm_interrupts
+
+        with sigterm_interrupts():
+            res = run_team(
+                prep, transport="queue", deadline=args.deadline, join_timeout=args.join_timeout, p_drop=args.p_drop, rng=args.seed, kill=args.kill
+            )
     else:
         res = deploy_processes(args, prep, on_start=started)
-    if len(res.failed) == prep.n_agents and all(r.get("steps_done", 0) == 0 for r in res.reports):  # nothing ran: one line, as any error
+    if res.stopped_by is None and len(res.failed) == prep.n_agents and all(r.get("steps_done", 0) == 0 for r in res.reports):  # nothing ran
         raise ArgumentError(f"no agent ran: agent 0: {res.failed[0]}", argument="SCENARIO")
     M.write_estimates(args.out, {name: res.estimates}, prep.n_agents)
     if args.record:
@@ -431,7 +459,7 @@ def cmd_deploy(args: Any) -> int:
         from ..estimators.base import json_float  # noqa: F401  (strict JSON: the reports hold no NaN)
 
         print(json.dumps({"scenario": sc.name, "out": args.out, "record": args.record, **res.summary()}))
-        return 1 if res.failed else 0
+        return _status(res)
     rows = []
     for r in res.reports:
         c = r.get("counts", {})
@@ -447,14 +475,28 @@ def cmd_deploy(args: Any) -> int:
                 _fmt_ms(r.get("median_step_ms")),
                 _fmt_ms(r.get("p99_step_ms")),
                 "-" if r.get("cpu_s") is None else f"{r['cpu_s']:.2f}",
-                "failed" if r["agent"] in res.failed else "ok",
+                "stopped" if res.stopped_by is not None else "failed" if r["agent"] in res.failed else "ok",
             ]
         )
     print(f"{sc.name}: {prep.estimator} on {prep.n_agents} agents ({args.transport}), {prep.n_steps} steps in {res.wall_s:.1f} s")
     print(_table(["agent", "pid", "steps", "missed", "late", "refused", "median ms", "p99 ms", "cpu s", "status"], rows))
     for a, why in sorted(res.failed.items()):
-        print(f"agent {a} failed: {why}")
+        if res.stopped_by is None:
+            print(f"agent {a} failed: {why}")
     print(f"estimates written to {args.out}" + (f"; drop record ({len(res.record.missed)} misses) written to {args.record}" if args.record else ""))
+    return _status(res)
+
+
+def _status(res: DeployResult) -> int:
+    """0 every agent completed, 1 one failed, 128 + the signal (130 Ctrl-C, 143 SIGTERM) when the run was stopped."""
+    if res.stopped_by is not None:
+        name = signal.Signals(res.stopped_by).name
+        print(
+            f"teamkf deploy: stopped by {name} after {res.record.completed} steps on every agent; the estimates and the record "
+            "(marked incomplete) hold the steps completed",
+            file=sys.stderr,
+        )
+        return 128 + res.stopped_by
     return 1 if res.failed else 0
 
 

@@ -116,6 +116,7 @@ def add_parsers(add: Callable[[str, str], Any]) -> None:
         "--timeout", type=_seconds, metavar="S", help="kill agents still running after S seconds (default: 120 + join timeout + steps x deadline)"
     )
     p.add_argument("--json", action="store_true", help="print one JSON object (per-agent reports, failures, misses)")
+    p.add_argument("--rate", type=_hertz, metavar="HZ", help="the agents release the log's steps at HZ per second (its sensors' rate)")
     p.set_defaults(func=_command("cmd_deploy"))
 
     p = add("agent", "run one agent of a scenario on this machine: it talks to the others through the roster's Zenoh endpoints")
