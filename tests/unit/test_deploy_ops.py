@@ -268,7 +268,12 @@ def test_stopped_deploy_writes_the_completed_steps_and_an_incomplete_record_that
     assert proc.stderr is not None
     line = proc.stderr.readline()
     pids = [int(p) for p in line.split("pids")[1].split()]
-    time.sleep(4.0)
+    end = time.monotonic() + 90
+    while time.monotonic() < end:  # until every agent streamed a few steps (starting up takes a while on a loaded machine)
+        streams = list(Path(tempfile.gettempdir()).glob(f"teamkf-deploy-{proc.pid}-*/agent-*.f8"))
+        if len(streams) == 3 and all(f.stat().st_size >= 8 * 4 for f in streams):
+            break
+        time.sleep(0.1)
     proc.send_signal(sig)
     proc.communicate(timeout=60)
     assert proc.returncode == 128 + sig
@@ -289,20 +294,20 @@ def test_stopped_deploy_writes_the_completed_steps_and_an_incomplete_record_that
 
 @live
 def test_killed_agent_restarted_with_rejoin_over_zenoh_is_fused_again_and_the_merged_record_replays(p3, tmp_path):
-    """Three `teamkf agent` processes (as on three machines); agent 2 dies at step 15 and is restarted with --rejoin."""
+    """Three `teamkf agent` processes (as on three machines); agent 2 dies at step 10 and is restarted with --rejoin."""
     from teamkf.deploy import Roster, free_ports
 
     sc, d, log, prep = p3
     roster = tmp_path / "roster.toml"
     Roster({i: f"tcp/127.0.0.1:{p}" for i, p in enumerate(free_ports(3))}, 77, "teamkf/test-rejoin").write(roster)
-    common = ["--roster", str(roster), "--measurements", str(d / "log.csv"), "--rate", "15", "--deadline", "1"]
+    common = ["--roster", str(roster), "--measurements", str(d / "log.csv"), "--rate", "6", "--deadline", "1"]
 
     def agent(i, *extra, tag=""):
         files = ["--out", str(tmp_path / f"a{i}{tag}.npz"), "--report", str(tmp_path / f"a{i}{tag}.json"), "--stream", str(tmp_path / f"a{i}.f8")]
         cmd = [sys.executable, "-m", "teamkf", "agent", str(d / "p3.toml"), "--id", str(i), *common, *files, *extra]
         return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
 
-    procs = [agent(0), agent(1), agent(2, "--kill-at", "15")]
+    procs = [agent(0), agent(1), agent(2, "--kill-at", "10")]
     procs[2].communicate(timeout=60)
     assert procs[2].returncode == -signal.SIGKILL
     again = agent(2, "--rejoin", tag="b")
@@ -313,13 +318,13 @@ def test_killed_agent_restarted_with_rejoin_over_zenoh_is_fused_again_and_the_me
     assert again.returncode == 3, err  # completed, with the steps before its rejoin missed
     r2 = json.loads((tmp_path / "a2b.json").read_text())
     k0 = r2["started"]
-    assert 15 < k0 < 55 and r2["steps_done"] == 60 and r2["previous_steps"] == 15
+    assert 10 < k0 < 55 and r2["steps_done"] == 60 and r2["previous_steps"] == 10
     r1 = json.loads((tmp_path / "a1.json").read_text())
     from2 = sorted(s for (j, s, _) in r1["missed"] if j == 2)
-    assert from2 and from2[0] >= 14 and from2[-1] < k0 + 3  # fused again from (about) its first on-time message
+    assert from2 and from2[0] >= 9 and from2[-1] < k0 + 3  # fused again from (about) its first on-time message
     assert r1["counts"].get("rejoins") == 1
     stream = np.fromfile(tmp_path / "a2.f8", dtype="<f8").reshape(60, -1)
-    assert np.isfinite(stream[:15]).all() and np.isnan(stream[15:k0]).all() and np.isfinite(stream[k0:]).all()
+    assert np.isfinite(stream[:10]).all() and np.isnan(stream[10:k0]).all() and np.isfinite(stream[k0:]).all()
     team = tmp_path / "team.json"
     proc = _teamkf("record", "merge", *(str(tmp_path / f) for f in ("a0.json", "a1.json", "a2b.json")), "--out", str(team))
     assert proc.returncode == 0, proc.stderr
