@@ -37,11 +37,14 @@ rate_limited = paced
 class AgentStream:
     """Row k = ẑ_i(k) of ``path`` (see the module docstring); ``keep``: continue the file of the process before."""
 
-    def __init__(self, path: str, dz: int, *, keep: bool = False):
+    def __init__(self, path: str, dz: int, *, keep: bool = False, opener: Any = None):
         self.row = 8 * int(dz)
         self.previous: int | None = None
-        exists = keep and os.path.exists(path)
-        self.fh = open(path, "r+b" if exists else "wb")  # noqa: SIM115 - closed by close()
+        exists = keep and os.path.isfile(path) and not os.path.islink(path)
+        if exists:
+            self.fh = open(path, "r+b")  # noqa: SIM115 - closed by close()
+        else:  # the output guard's stream (no symbolic link, not an input), or a plain new file
+            self.fh = opener() if opener is not None else open(path, "wb")  # noqa: SIM115
         if exists:
             size = os.fstat(self.fh.fileno()).st_size
             self.previous = size // self.row

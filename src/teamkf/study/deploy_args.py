@@ -171,9 +171,8 @@ def _died(text: str) -> tuple[int, int]:
 
 def _add_record_parser(add: Callable[[str, str], Any]) -> None:
     """``teamkf record merge REPORT... --out DROPS`` (:func:`teamkf.study.agent_ops.cmd_record_merge`)."""
-    p = add("record", "drop records of deployments: merge the agents' reports of a run on separate machines")
-    sub = p.add_subparsers(dest="record_command", metavar="COMMAND", required=True)
-    m = sub.add_parser("merge", help="merge the agents' reports (teamkf agent --report) into the team's drop record")
+    m = add("record", "drop records of deployments: merge the agents' reports (teamkf agent --report) of a run on separate machines")
+    m.add_argument("action", choices=("merge",), help="merge: the agents' reports -> the team's drop record")
     m.add_argument("reports", nargs="+", metavar="REPORT", help="every agent's report once (a rejoined agent: each of its processes' reports)")
     m.add_argument("--out", required=True, metavar="DROPS", help="the team's drop record (JSON) for teamkf filter --drops")
     m.add_argument(
