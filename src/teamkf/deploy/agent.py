@@ -219,8 +219,8 @@ class Mailbox:
             heard = p.get("heard", [])
             self.acks[f.sender] = {int(a) for a in heard if isinstance(a, int)}
             self._progress(f.sender, p.get("step"))
-            r = p.get("rejoin")
-            if _is_step(r) and r > self.resume.get(f.sender, -1):  # a restarted process: fuse it again from its first on-time message
+            r: Any = p.get("rejoin")
+            if _is_step(r) and int(r) > self.resume.get(f.sender, -1):  # a restarted process: fuse it again from its first on-time message
                 self.resume[f.sender] = r
                 self.failed.discard(f.sender)
                 self.quiet.discard(f.sender)

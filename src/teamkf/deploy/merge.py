@@ -64,12 +64,15 @@ def merge_reports(reports: Sequence[tuple[str, Mapping[str, Any]]], *, died: Map
             if r["run"].get(key) != run0.get(key):
                 problems.append(f"{name}: run {key} is {r['run'].get(key)!r}, {name0}'s is {run0.get(key)!r}: a report of another run")
                 break
-    n, T = run0.get("agents"), run0.get("steps")
+    n: Any = run0.get("agents")
+    T: Any = run0.get("steps")
     if not (_int(n) and n >= 1 and _int(T) and T >= 1):
         return DropRecord("", 1, 1), problems + [f"{name0}: run: expected agents and steps (integers >= 1), found {n!r} and {T!r}"]
     by_agent: dict[int, list[tuple[str, Mapping[str, Any]]]] = {}
     for name, r in reports:
-        a, start, done = r.get("agent"), r.get("started", 0), r.get("steps_done", 0)
+        a: Any = r.get("agent")
+        start: Any = r.get("started", 0)
+        done: Any = r.get("steps_done", 0)
         if not (_int(a) and 0 <= a < n):
             problems.append(f"{name}: agent: expected an agent 0..{n - 1}, found {a!r}")
             continue
@@ -96,7 +99,7 @@ def merge_reports(reports: Sequence[tuple[str, Mapping[str, Any]]], *, died: Map
         first = runs[0][1]
         segs = []
         if int(first.get("started", 0)) > 0:  # its first process died without a report
-            prev = died.get(a, first.get("previous_steps"))
+            prev: Any = died.get(a, first.get("previous_steps"))
             if not _int(prev):
                 problems.append(
                     f"agent {a}: {runs[0][0]} rejoined at step {first['started']} and its first process left no report; "
@@ -122,10 +125,10 @@ def merge_reports(reports: Sequence[tuple[str, Mapping[str, Any]]], *, died: Map
                     dropped.setdefault((int(b), a, int(s)), "dropped")
             except (TypeError, ValueError):
                 problems.append(f"{name}: missed/dropped_out: expected [sender, step, reason] and [receiver, step] entries")
-    for key, why in dropped.items():
-        missed.setdefault(key, why)  # the receiver's own record wins; a receiver that died took its record with it
+    for dkey, dwhy in dropped.items():
+        missed.setdefault(dkey, dwhy)  # the receiver's own record wins; a receiver that died took its record with it
     tolerant = all(bool(r.get("tolerant", True)) for _, r in reports)
-    done = [rejoined[a][-1][1] if a in rejoined else stopped.get(a, T) for a in range(n)]
+    done_by = [rejoined[a][-1][1] if a in rejoined else stopped.get(a, T) for a in range(n)]
     try:
         record = DropRecord.from_json(
             {
@@ -142,7 +145,7 @@ def merge_reports(reports: Sequence[tuple[str, Mapping[str, Any]]], *, died: Map
                 "fingerprint": run0.get("fingerprint"),
                 "rejoined": {str(a): [list(g) for g in seg] for a, seg in sorted(rejoined.items())},
                 "complete": not interrupted,
-                "completed": None if not interrupted else min(done),
+                "completed": None if not interrupted else min(done_by),
             },
             "merged record",
         )

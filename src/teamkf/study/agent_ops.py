@@ -41,6 +41,7 @@ class AgentStream:
         self.row = 8 * int(dz)
         self.previous: int | None = None
         exists = keep and os.path.isfile(path) and not os.path.islink(path)
+        self.fh: Any
         if exists:
             self.fh = open(path, "r+b")  # noqa: SIM115 - closed by close()
         else:  # the output guard's stream (no symbolic link, not an input), or a plain new file
@@ -139,7 +140,7 @@ def _alive(pid: int) -> bool:
 def clean_stale_run_dirs(root: str | None = None) -> list[str]:
     """Remove this user's ``teamkf-deploy-<pid>-*`` folders whose process is gone (a SIGKILLed deploy); returns them."""
     base = Path(root or tempfile.gettempdir())
-    gone = []
+    gone: list[str] = []
     try:
         entries = list(base.iterdir())
     except OSError:

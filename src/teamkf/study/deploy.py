@@ -528,7 +528,7 @@ def cmd_agent(args: Any) -> int:
             ybar, offs = yb[i], np.stack([sc.cost.L_at(k) @ mean[k] for k in range(T)])[:, i * dz : (i + 1) * dz]
         from .agent_input import StepLines
 
-        source = StepLines(sys.stdin, int(sc.system.dy[i]), T, ybar, agent=i, estimator=name)
+        source: Callable[[int], Any] = StepLines(sys.stdin, int(sc.system.dy[i]), T, ybar, agent=i, estimator=name)
     else:
         from .agent_input import read_own_log
 
@@ -540,8 +540,10 @@ def cmd_agent(args: Any) -> int:
         offs = None if prep.offsets is None else prep.offsets[:, i * dz : (i + 1) * dz]
         del prep, log
 
-        def source(k: int) -> Any:
+        def own_column(k: int) -> Any:
             return yi[:, k]
+
+        source = own_column
 
     from .agent_ops import AgentStream, check_rejoin, rate_limited, report_json
 
