@@ -1,4 +1,4 @@
-"""The ``teamkf`` command: evaluate, design, filter, measurements, sweep, reproduce, demo, families, deploy, agent.
+"""The ``teamkf`` command: evaluate, design, filter, measurements, sweep, reproduce, demo, families, deploy, agent, record.
 
 ``teamkf --help`` lists the commands and the families, ``teamkf COMMAND --help`` a command's options;
 ``docs/scenario-and-cli.md`` specifies them and the file formats (a contract, tested against this parser).

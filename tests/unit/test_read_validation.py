@@ -187,7 +187,7 @@ DROP_ROWS: list[tuple[str, Callable[..., list[str]], list[str]]] = [
     ("stopped-not-a-table", _record(lambda d: d.__setitem__("stopped", [1])), ["stopped", "a table"]),
     (
         "steps-shorter-than-the-log",
-        _record(lambda d: d.__setitem__("steps", T - 2)),
+        _record(lambda d: (d.__setitem__("steps", T - 2), d.__setitem__("completed", T - 2) if "completed" in d else None)),
         ["drops.json", "steps", f"{T - 2} steps", f"measurements {T}", "shorter"],
     ),
     ("steps-longer-than-the-log", _record(lambda d: d.__setitem__("steps", T + 3)), ["steps", "longer"]),

@@ -94,6 +94,24 @@ def drop_stream(rng: int | None, index: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(0 if rng is None else int(rng), spawn_key=(DROP_STREAM_KEY, int(index))))
 
 
+def _is_step(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool) and 0 <= v < 2**32
+
+
+def restart_hook(core: "AgentCore") -> Callable[[int, int], Any] | None:
+    """The family's ``restart_state(n_runs, k)`` (a fresh agent at step k from the design's prior), or None.
+
+    Only a loss-tolerant agent can restart: its neighbours' messages before its restart are missing.
+    """
+    if not core.tolerant:
+        return None
+    for obj in (core.agent, getattr(core.agent, "inner", None)):
+        hook = getattr(obj, "restart_state", None) if obj is not None else None
+        if callable(hook):
+            return hook  # type: ignore[no-any-return]
+    return None
+
+
 def _set_tolerant(agent: Any) -> bool:
     ok = False
     for obj in (agent, getattr(agent, "inner", None)):
@@ -152,6 +170,26 @@ class Mailbox:
         self.failed: set[int] = set()
         self.last_seen: dict[int, float] = {}
         self.counts: Counter[str] = Counter()
+        #: per peer: its next step as it last said (heartbeat ``step``, or a data frame's origin + 1), and the first it said
+        self.peer_step: dict[int, int] = {}
+        self.first_step: dict[int, int] = {}
+        #: per peer that rejoined (its heartbeat's ``rejoin``): its first step since; what it sent before is not waited for
+        self.resume: dict[int, int] = {}
+        #: per in-neighbour (on this agent's rejoin): messages sent before this step never reached this process
+        self.joined_at: dict[int, int] = {}
+        self.quiet: set[int] = set()  # failed for their silence: a heartbeat brings them back
+        self._awake = 0.0
+
+    def tick(self, silence: float) -> None:
+        """Call often (under ``cond``): a gap over silence / 2 since the last call is this process's own stall (SIGSTOP, a
+        starved machine); every peer then gets a fresh ``silence`` from now, so the frames that waited meanwhile are read before
+        anyone is declared silent."""
+        now = time.monotonic()
+        if self._awake and now - self._awake > silence / 2:
+            for j in self.peers:
+                self.last_seen[j] = max(self.last_seen.get(j, now), now)
+            self.counts["own_stalls"] += 1
+        self._awake = now
 
     def put(self, raw: bytes) -> None:
         try:
@@ -177,8 +215,20 @@ class Mailbox:
                 c["unknown_sender"] += 1
                 return
             self.heard.add(f.sender)
-            heard = f.payload.get("heard", []) if isinstance(f.payload, dict) else []
+            p = f.payload if isinstance(f.payload, dict) else {}
+            heard = p.get("heard", [])
             self.acks[f.sender] = {int(a) for a in heard if isinstance(a, int)}
+            self._progress(f.sender, p.get("step"))
+            r: Any = p.get("rejoin")
+            if _is_step(r) and int(r) > self.resume.get(f.sender, -1):  # a restarted process: fuse it again from its first on-time message
+                self.resume[f.sender] = r
+                self.failed.discard(f.sender)
+                self.quiet.discard(f.sender)
+                self.left.discard(f.sender)
+                c["rejoins"] += 1
+            elif f.sender in self.quiet:  # back after a silence (a stalled process resumed): wait for it again
+                self.failed.discard(f.sender)
+                self.quiet.discard(f.sender)
         elif f.kind == BYE:
             if f.sender in self.peers:
                 self.left.add(f.sender)
@@ -194,11 +244,28 @@ class Mailbox:
             c["duplicate"] += 1
         else:
             self.failed.discard(f.sender)  # on time again: wait for it again
+            self.quiet.discard(f.sender)
+            self._progress(f.sender, f.origin + 1, f.origin)
             if f.flags & DROPPED:
                 self.notices.add((f.sender, f.origin))
             else:
                 self.data[(f.sender, f.origin)] = f.payload
                 c["received"] += 1
+
+    def _progress(self, j: int, step: Any, first: Any = None) -> None:
+        if _is_step(step):
+            self.peer_step[j] = max(self.peer_step.get(j, 0), step)
+            self.first_step.setdefault(j, step if first is None else first)
+
+    def waived(self, key: tuple[int, int]) -> str | None:
+        """Why the message ``key`` (sender, sent step) is not waited for: it was sent before this agent (``rejoin``) or its
+        sender (``failed``) restarted; None: wait for it."""
+        j, s = key
+        if s < self.joined_at.get(j, -1):
+            return "rejoin"
+        if s < self.resume.get(j, -1):
+            return "failed"
+        return None
 
     def collect(
         self, k: int, due: Sequence[tuple[int, int]], silence: float, hard: float, stop: threading.Event
@@ -207,8 +274,15 @@ class Mailbox:
         silent: set[int] = set()
         with self.cond:
             while not stop.is_set():
+                self.tick(silence)
                 pending = [
-                    key for key in due if key not in self.data and key not in self.notices and key[0] not in self.failed and key[0] not in self.left
+                    key
+                    for key in due
+                    if key not in self.data
+                    and key not in self.notices
+                    and key[0] not in self.failed
+                    and key[0] not in self.left
+                    and self.waived(key) is None
                 ]
                 now = time.monotonic()
                 if not pending or now >= hard:
@@ -217,6 +291,7 @@ class Mailbox:
                 if quiet:
                     silent |= quiet
                     self.failed |= quiet
+                    self.quiet |= quiet
                     continue
                 self.cond.wait(min(hard - now, silence / 8, 0.1))
             got, missed = {}, []
@@ -227,6 +302,8 @@ class Mailbox:
                 j = key[0]
                 if key in self.notices:
                     reason = "dropped"
+                elif self.waived(key) is not None:
+                    reason = str(self.waived(key))
                 elif j in silent:
                     reason = "silent"
                 elif j in self.left:
@@ -262,6 +339,8 @@ class AgentResult:
     latency: list[float] = field(default_factory=list)
     cpu_s: float = 0.0
     error: str | None = None
+    #: the first step this process ran (> 0 after ``rejoin``: steps 0..started-1 are not its own)
+    started: int = 0
 
     def to_json(self) -> dict[str, Any]:
         lat = np.asarray(self.latency) if self.latency else np.zeros(0)
@@ -280,6 +359,7 @@ class AgentResult:
             "p99_step_ms": float(np.quantile(lat, 0.99) * 1e3) if lat.size else None,
             "cpu_s": self.cpu_s,
             "error": self.error,
+            "started": self.started,
         }
 
 
@@ -303,6 +383,7 @@ def run_agent(
     stop: threading.Event | None = None,
     core: AgentCore | None = None,
     graph: Any = None,
+    rejoin: bool = False,
 ) -> AgentResult:
     """Run agent ``index`` of ``design`` over ``transport`` for ``n_steps`` steps.
 
@@ -322,6 +403,10 @@ def run_agent(
     stop : set it to stop the agent (it says goodbye and returns)
     core : the agent's :class:`AgentCore` (default: built from ``design`` and ``graph``)
     graph : the graph the agents talk over, for a design delivered by an information structure
+    rejoin : a restarted agent (its team runs): listen to the neighbours' heartbeats and data for the team's
+        current step k0, start there from the design's prior (the family's ``restart_state``; refused with
+        :class:`DeployError` for a family without one), announce ``rejoin = k0`` so that the out-neighbours
+        wait for it again, and never wait for a message sent before it listened (missed as ``rejoin``)
 
     Returns
     -------
@@ -338,6 +423,13 @@ def run_agent(
     outs = core.out_delays
     hello_period = [0.05]
     done = threading.Event()
+    restart = restart_hook(core) if rejoin else None
+    if rejoin and restart is None:
+        raise DeployError(
+            f"agent {i}: --rejoin: {design.estimator} defines no restart at a later step (its agents have no restart_state "
+            f"{'' if core.tolerant else 'and no loss-tolerant step '}); restart the whole team instead"
+        )
+    progress = {"step": 0}  # the next step, told in every heartbeat (a rejoining neighbour starts from it)
 
     def send(kind: int, b: int, step: int, origin: int, payload: Any = None, flags: int = 0) -> None:
         data = encode_frame(Frame(kind, run_id, i, b, step, origin, payload, flags))  # a payload that cannot travel stops the agent
@@ -347,29 +439,49 @@ def run_agent(
             with box.cond:
                 box.counts["send_errors"] += 1
 
-    targets = [peers]
+    targets = [[] if rejoin else peers]  # a rejoining agent listens silently until it knows where the team is
 
     def heartbeat() -> None:
         while not done.wait(hello_period[0]):
             with box.cond:
                 heard = sorted(box.heard)
             for b in targets[0]:
-                send(HELLO, b, 0, 0, {"heard": heard})
+                send(HELLO, b, 0, 0, {"heard": heard, **progress})
+            with box.cond:
+                box.tick(deadline)
 
     transport.start(box.put)
     beat = threading.Thread(target=heartbeat, name=f"teamkf-hello-{i}", daemon=True)
     beat.start()
     cpu0 = time.thread_time()
     try:
-        _join(box, core, i, join_timeout, stop)
+        k0 = 0
+        if restart is not None:
+            k0 = _listen(box, core, i, join_timeout, deadline, stop)
+            if k0 >= n_steps:
+                raise DeployError(f"agent {i}: --rejoin: the team is at step {k0}, past the last step {n_steps - 1}; nothing to rejoin")
+            with box.cond:
+                box.closed = k0 - 1
+                box.data = {key: v for key, v in box.data.items() if key[1] + box.delay.get(key[0], 0) >= k0}
+                box.notices = {key for key in box.notices if key[1] + box.delay.get(key[0], 0) >= k0}
+                box.joined_at = {j: box.first_step.get(j, k0) for (j, _) in core.in_delays}
+            progress["step"], progress["rejoin"] = k0, k0
+            res.started = k0
+            for b in peers:  # at once: the out-neighbours wait for it again from its first step
+                send(HELLO, b, 0, 0, {"heard": sorted(box.heard), **progress})
+        else:
+            _join(box, core, i, join_timeout, stop)
         with box.cond:  # the neighbours were heard now: their silence counts from here
             t_join = time.monotonic()
             for j in peers:
                 box.last_seen[j] = max(box.last_seen.get(j, t_join), t_join)
         targets[0] = sorted({b for (b, _) in outs} | {j for (j, _) in core.in_delays})  # heartbeats, and acks for late joiners
         hello_period[0] = min(deadline / 4, 0.5)
-        core.init()
-        for k in range(n_steps):
+        if restart is not None:
+            core.state = restart(1, k0)
+        else:
+            core.init()
+        for k in range(k0, n_steps):
             if kill_at is not None and k == kill_at:
                 if hard_kill:
                     os.kill(os.getpid(), signal.SIGKILL)
@@ -392,6 +504,7 @@ def run_agent(
                 zi = zi + offsets[k]
             res.estimates[k] = zi
             res.steps_done = k + 1
+            progress["step"] = k + 1
             if on_estimate is not None:
                 on_estimate(k, zi)
             u = draws.random(len(outs))  # one draw per out-edge and step, whatever happens
@@ -423,6 +536,29 @@ def run_agent(
             res.failed_neighbours = sorted({j for (j, _, r) in res.missed if r in ("silent", "deadline", "failed")})
         res.tolerant = core.tolerant
     return res
+
+
+def _listen(box: Mailbox, core: AgentCore, i: int, timeout: float, deadline: float, stop: threading.Event) -> int:
+    """A rejoining agent: the team's next step, from its neighbours' heartbeats and data (every neighbour heard, or
+    ``deadline`` s after the first was, at most ``timeout`` s); one step later, so that its first messages are on time."""
+    nbrs = {j for (j, _) in core.in_delays} | {b for (b, _) in core.out_delays}
+    end = time.monotonic() + timeout
+    first: float | None = None
+    with box.cond:
+        while not stop.is_set():
+            now = time.monotonic()
+            heard = {j for j in nbrs if j in box.peer_step}
+            if heard and first is None:
+                first = now
+            if heard and (heard == nbrs or now - first >= deadline):  # type: ignore[operator]
+                return max(box.peer_step[j] for j in heard) + 1
+            if now >= end:
+                raise DeployError(
+                    f"agent {i}: --rejoin: no neighbour ({sorted(nbrs)}) was heard within {timeout:g} s: the team is not running "
+                    "(start it without --rejoin), or check the roster's endpoints"
+                )
+            box.cond.wait(min(end - now, 0.05))
+    raise DeployError(f"agent {i}: --rejoin: interrupted before the team's step was known")
 
 
 def _join(box: Mailbox, core: AgentCore, i: int, timeout: float, stop: threading.Event) -> None:

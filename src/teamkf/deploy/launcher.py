@@ -6,7 +6,7 @@ launcher even when the launcher is killed with SIGKILL. On Ctrl-C (SIGINT) or
 SIGTERM (its handlers are installed explicitly, also where a shell started it with
 SIGINT ignored) the launcher forwards SIGINT to every child (they say goodbye and
 exit), waits ``grace`` seconds, then SIGKILLs the rest, reaps them all and
-re-raises :class:`KeyboardInterrupt`. A child that outlives ``timeout`` is
+re-raises :class:`Stopped` (a :class:`KeyboardInterrupt` carrying the signal). A child that outlives ``timeout`` is
 killed and reported.
 """
 
@@ -19,7 +19,15 @@ import time
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
-__all__ = ["ChildResult", "launch"]
+__all__ = ["ChildResult", "Stopped", "launch"]
+
+
+class Stopped(KeyboardInterrupt):
+    """The launcher was stopped by ``signum`` (SIGINT or SIGTERM); its children were stopped and reaped."""
+
+    def __init__(self, signum: int = signal.SIGINT):
+        super().__init__(signum)
+        self.signum = int(signum)
 
 
 @dataclass
@@ -54,7 +62,7 @@ def launch(
     prev = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
 
     def on_term(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt
+        raise Stopped(signum)
 
     in_main = _is_main_thread()
     if in_main:  # explicitly: a shell starts background jobs with SIGINT ignored

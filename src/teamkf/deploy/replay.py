@@ -41,7 +41,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..exceptions import ArgumentError
-from .agent import AgentCore, AgentResult
+from .agent import AgentCore, AgentResult, restart_hook
 
 __all__ = ["DropRecord", "replay", "REASONS"]
 
@@ -49,8 +49,26 @@ FORMAT, FORMAT_VERSION = "teamkf-drops", 1
 
 #: why a message was missed (:mod:`teamkf.deploy.agent`): the sender's injected loss, a silent or failed
 #: sender, one that said goodbye, the step's hard deadline
-REASONS = ("dropped", "silent", "failed", "left", "deadline")
-_KEYS = ("format", "version", "estimator", "agents", "steps", "run_id", "p_drop", "seed", "tolerant", "stopped", "missed", "scenario", "fingerprint")
+#: ``rejoin``: sent before its receiver, a restarted process (``teamkf agent --rejoin``), listened
+REASONS = ("dropped", "silent", "failed", "left", "deadline", "rejoin")
+_KEYS = (
+    "format",
+    "version",
+    "estimator",
+    "agents",
+    "steps",
+    "run_id",
+    "p_drop",
+    "seed",
+    "tolerant",
+    "stopped",
+    "missed",
+    "scenario",
+    "fingerprint",
+    "rejoined",
+    "complete",
+    "completed",
+)
 _FIX = "write it again with teamkf deploy --record, or replay the record on the scenario and log it was written for"
 
 
@@ -73,6 +91,11 @@ class DropRecord:
     seed: int | None = None
     scenario: str | None = None  # the deployed scenario's name
     fingerprint: str | None = None  # a hash of its tables (teamkf.study.deploy.scenario_fingerprint)
+    #: agent -> the steps [start, end) its restarted processes ran (``teamkf agent --rejoin``), in order
+    rejoined: dict[int, tuple[tuple[int, int], ...]] = field(default_factory=dict)
+    #: False: the run was stopped (Ctrl-C, SIGTERM) before its last step; ``completed`` steps ran on every agent
+    complete: bool = True
+    completed: int | None = None
     #: where it was read from ("--drops: FILE"), for messages
     source: str = field(default="--drops", compare=False)
 
@@ -106,7 +129,14 @@ class DropRecord:
             "missed": [list(m) for m in self.missed],
             "scenario": self.scenario,
             "fingerprint": self.fingerprint,
+            "rejoined": {str(a): [list(g) for g in seg] for a, seg in sorted(self.rejoined.items())},
+            "complete": self.complete,
+            "completed": self.n_steps if self.completed is None else self.completed,
         }
+
+    def written(self, i: int, k: int) -> bool:
+        """Whether agent ``i``'s estimate of step ``k`` was written by the deployment (its processes ran it)."""
+        return k < self.stopped.get(i, self.n_steps) or any(a <= k < b for (a, b) in self.rejoined.get(i, ()))
 
     def write(self, path: str | Path) -> None:
         """Write the record as JSON, atomically (:func:`teamkf._files.write_atomic`); its folder must exist."""
@@ -199,7 +229,50 @@ class DropRecord:
                 raise bad(f"missed[{q}]", f"each message once (it is missed[{seen[(i, j, s)]}] again)", m)
             seen[(i, j, s)] = q
             missed.append((i, j, s, why))
-        return cls(est, n, T, tuple(missed), stopped, tolerant, run_id, float(p_drop), seed, d.get("scenario"), d.get("fingerprint"), where)
+        rejoined: dict[int, tuple[tuple[int, int], ...]] = {}
+        rj = d.get("rejoined", {})
+        if not isinstance(rj, dict):
+            raise bad("rejoined", 'a table agent -> [[start, end], ...] of its restarted processes, e.g. {"2": [[60, 200]]}', rj)
+        for a, segs in rj.items():
+            if not (isinstance(a, str) and a.isascii() and a.isdigit() and int(a) < n and str(int(a)) == a):
+                raise bad(f"rejoined[{a!r}]", f"an agent 0..{n - 1} as a key", a)
+            low = stopped.get(int(a), T)
+            if not isinstance(segs, list) or not segs:
+                raise bad(f"rejoined[{a!r}]", "a list of [start, end] steps", segs)
+            out = []
+            for g in segs:
+                if not (isinstance(g, list) and len(g) == 2 and all(_is_int(v) for v in g) and low < g[0] < g[1] <= T):
+                    raise bad(
+                        f"rejoined[{a!r}]",
+                        f"[start, end] with {low} < start < end <= {T} (after the steps its earlier process ran, in order)",
+                        g,
+                    )
+                out.append((int(g[0]), int(g[1])))
+                low = g[1]
+            rejoined[int(a)] = tuple(out)
+        complete = d.get("complete", True)
+        if not isinstance(complete, bool):
+            raise bad("complete", "true or false", complete)
+        completed = d.get("completed")
+        if completed is not None and (not _is_int(completed) or not 0 <= completed <= T):
+            raise bad("completed", f"the steps every agent completed, 0..{T}", completed)
+        return cls(
+            est,
+            n,
+            T,
+            tuple(missed),
+            stopped,
+            tolerant,
+            run_id,
+            float(p_drop),
+            seed,
+            d.get("scenario"),
+            d.get("fingerprint"),
+            rejoined,
+            complete,
+            None if complete else completed,
+            where,
+        )
 
     def check(
         self,
@@ -279,6 +352,12 @@ def replay(design: Any, ys: Sequence[np.ndarray], record: DropRecord, offsets: n
     agents = design.graph_agents()
     cores = [AgentCore(design, i, tolerant=record.tolerant, agent=agents[i], graph=graph) for i in range(n)]
     record.check(n_agents=n, n_steps=int(ys[0].shape[1]), graph=cores[0].graph)
+    restarts: dict[tuple[int, int], Any] = {}
+    for i, segs in record.rejoined.items():
+        hook = restart_hook(cores[i])
+        if hook is None:
+            raise ArgumentError(f"{record.source}: rejoined[{str(i)!r}]: {design.estimator} defines no restart at a later step", argument="--drops")
+        restarts.update({(i, a): hook for (a, _) in segs})
     for c in cores:
         c.init()
     lost = {(a, b, s) for (a, b, s, _) in record.missed}
@@ -292,13 +371,15 @@ def replay(design: Any, ys: Sequence[np.ndarray], record: DropRecord, offsets: n
         for i, c in enumerate(cores):
             if i in broken:
                 continue
+            if (i, k) in restarts:  # a restarted process: a fresh agent from the design's prior
+                c.state = restarts[(i, k)](1, k)
             got = {(j, s): sent[j][s] for (j, s) in c.expected(k) if (i, j, s) not in lost and s in sent[j]}
             try:
                 z, payloads[i] = c.step(k, ys[i][:, k], got)
             except Exception:  # noqa: BLE001 - as the deployed agent: its error stops it (a node failure)
                 broken.add(i)
                 continue
-            if k < record.stopped.get(i, T):  # a stopped agent's later estimates were never written
+            if record.written(i, k):  # a stopped agent's later estimates were never written
                 zi = np.asarray(z, dtype=float)[0]
                 out[k, i * dz : (i + 1) * dz] = zi if offsets is None else zi + offsets[k, i * dz : (i + 1) * dz]
         for i, p in payloads.items():

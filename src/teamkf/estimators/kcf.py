@@ -449,6 +449,20 @@ class KCFAgent:
         nxt = xh @ self.system.A_at(k).T if k + 1 < d.horizon else xh  # type: ignore[operator]
         return {"xbar": nxt}, z, KCFMessage(u_i, k, xbar)
 
+    def restart_state(self, n_runs: int, k: int) -> dict[str, FloatArray]:
+        """A fresh agent at step ``k`` (a restarted process, ``teamkf agent --rejoin``): the design's prior at k.
+
+        The prior mean of x(k) (zero: known means are removed from y and added back to ẑ) and its
+        covariance Π(k), Π(0) = Σ_x, Π(s+1) = A(s) Π(s) A(s)' + Q(s), as the loss-tolerant step's
+        ``P``; only that step keeps ``P`` (``tolerant``), so a restart needs it.
+        """
+        sys = self.system
+        P = np.array(sys.Sigma_x, dtype=float)
+        for s in range(int(k)):
+            P = sys.A_at(s) @ P @ sys.A_at(s).T + sys.Q_at(s)
+            P = 0.5 * (P + P.T)
+        return {"xbar": np.zeros((n_runs, sys.dx)), "P": P}
+
     def _step_tolerant(
         self, state: dict[str, FloatArray], k: int, own: FloatArray, inbox: Sequence[Any]
     ) -> tuple[dict[str, FloatArray], FloatArray, KCFMessage]:
@@ -684,6 +698,19 @@ class KCFAlgorithm(Algorithm):
         A = self.system.A_at(k)
         P_next = A @ M @ A.T + self.system.Q_at(k)
         return {"xhat": xh, "P": 0.5 * (P_next + P_next.T)}, {"y": y_i, "xbar": xbar}
+
+    def agent_restart(self, i: int, k: int, zero: Any) -> dict:
+        """The state of a fresh agent i at step k > 0 (a restarted process, ``teamkf agent --rejoin``): the prior of x(k).
+
+        Its mean is zero (known means are removed from y and added back to ẑ), so x̂ = 0 gives x̄_i(k) = 0, and its
+        covariance is Π(k), Π(0) = Σ_x, Π(s+1) = A(s) Π(s) A(s)ᵀ + Q(s): the loss-tolerant step's P from there.
+        """
+        P = np.array(self.system.Sigma_x, dtype=float)
+        for s in range(int(k)):
+            A = self.system.A_at(s)
+            P = A @ P @ A.T + self.system.Q_at(s)
+            P = 0.5 * (P + P.T)
+        return {"xhat": zero(self.system.dx), "P": P}
 
     def agent_step(self, i: int, k: int, prev: dict | None, y_i: Any, inbox: Any, zero: Any) -> tuple[dict, dict]:
         xbar = self._prior(i, k, prev, zero)

@@ -760,6 +760,20 @@ class LinearAgent:
     def init_state(self, n_runs: int) -> dict[str, Any]:
         return {"n_runs": n_runs, "state": None}
 
+    @property
+    def restart_state(self) -> Any:
+        """``(n_runs, k) -> state`` of a fresh agent at step k from the design's prior (a restarted process), or None
+        when the family defines no restart (its algorithm's ``agent_restart(i, k, zero)``); only its tolerant step uses it."""
+        make = getattr(self.design.algorithm, "agent_restart", None)
+        if make is None:
+            return None
+
+        def restart(n_runs: int, k: int) -> dict[str, Any]:
+            st = None if k == 0 else make(self.index, k, lambda dim: np.zeros((dim, n_runs)))
+            return {"n_runs": n_runs, "state": st}
+
+        return restart
+
     def step(self, state: dict[str, Any], k: int, own: Any, inbox: Sequence[Any]) -> tuple[dict[str, Any], FloatArray, Any]:
         d, i = self.design, self.index
         if k >= len(d.steps):

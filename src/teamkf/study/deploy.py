@@ -15,7 +15,6 @@ import secrets
 import shutil
 import signal
 import sys
-import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
@@ -173,6 +172,16 @@ class DeployResult:
     record: DropRecord
     failed: dict[int, str] = field(default_factory=dict)  # agent -> why
     wall_s: float = 0.0
+    #: the signal that stopped the run (SIGINT, SIGTERM) before its last step, or None
+    stopped_by: int | None = None
+
+    def mark_stopped(self, signum: int) -> None:
+        """The run was stopped by ``signum``: its record is marked incomplete, with the steps every agent completed."""
+        import dataclasses
+
+        done = min((int(r.get("steps_done", 0)) for r in self.reports), default=0)
+        self.record = dataclasses.replace(self.record, complete=False, completed=done)
+        self.stopped_by = int(signum)
 
     def summary(self) -> dict[str, Any]:
         return {
@@ -182,6 +191,8 @@ class DeployResult:
             "failed": {str(a): w for a, w in sorted(self.failed.items())},
             "missed": len(self.record.missed),
             "wall_s": self.wall_s,
+            "complete": self.record.complete,
+            "completed": self.record.to_json()["completed"],
             "reports": self.reports,
         }
 
@@ -258,17 +269,20 @@ def run_team(
     threads = [threading.Thread(target=one, args=(i,), name=f"teamkf-agent-{i}", daemon=True) for i in range(n)]
     for t in threads:
         t.start()
+    signum = None
     try:
         for t in threads:
             while t.is_alive():
                 t.join(0.1)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:  # the agents stop after their step; what they completed is kept
+        signum = int(getattr(exc, "signum", signal.SIGINT))
         stop.set()
         for t in threads:
             t.join(10)
-        raise
     res = _merge(prep, results, run_id=run_id, p_drop=p_drop, seed=rng)
     res.wall_s = time.monotonic() - t0
+    if signum is not None:
+        res.mark_stopped(signum)
     return res
 
 
@@ -286,6 +300,8 @@ def _agent_command(args: Any, scenario: str, i: int, roster: Path, run_dir: Path
         cmd += ["--seed", str(args.seed)]
     if args.kill is not None and args.kill[0] == i:
         cmd += ["--kill-at", str(args.kill[1])]
+    if getattr(args, "rate", None) is not None:
+        cmd += ["--rate", repr(args.rate)]
     return cmd
 
 
@@ -293,7 +309,10 @@ def deploy_processes(args: Any, prep: Prepared, on_start: Callable[[list[int]], 
     """One ``teamkf agent`` process per agent over Zenoh on loopback (what ``teamkf deploy`` runs)."""
     n = prep.n_agents
     run_id = secrets.randbits(63)
-    run_dir = Path(tempfile.mkdtemp(prefix="teamkf-deploy-"))
+    from ..deploy.launcher import Stopped
+    from .agent_ops import new_run_dir
+
+    run_dir = new_run_dir()  # teamkf-deploy-<pid>-*: a later deploy removes it if this process is SIGKILLed
     try:
         ports = free_ports(n)
         roster = Roster({i: f"tcp/127.0.0.1:{ports[i]}" for i in range(n)}, run_id, f"teamkf/{run_id}")
@@ -304,7 +323,11 @@ def deploy_processes(args: Any, prep: Prepared, on_start: Callable[[list[int]], 
         cmds = [_agent_command(args, scen, i, rpath, run_dir, prep.estimator, plugins) for i in range(n)]
         timeout = args.timeout if args.timeout is not None else 120.0 + args.join_timeout + prep.n_steps * args.deadline
         t0 = time.monotonic()
-        children = launch(cmds, timeout=timeout, on_start=on_start)
+        signum = None
+        try:
+            children = launch(cmds, timeout=timeout, on_start=on_start)
+        except Stopped as exc:  # Ctrl-C, SIGTERM: the agents were stopped and reaped; keep what they completed
+            signum, children = exc.signum, []
         wall = time.monotonic() - t0
         results: list[AgentResult | None] = [_read_agent(run_dir, i, prep) for i in range(n)]
         res = _merge(prep, results, run_id=run_id, p_drop=args.p_drop, seed=args.seed)
@@ -323,6 +346,8 @@ def deploy_processes(args: Any, prep: Prepared, on_start: Callable[[list[int]], 
             if ch.returncode == 2 and ch.stderr.strip():
                 res.failed[i] = ch.stderr.strip().splitlines()[-1].removeprefix("teamkf: error: ")
         res.wall_s = wall
+        if signum is not None:
+            res.mark_stopped(signum)
         return res
     finally:
         shutil.rmtree(run_dir, ignore_errors=True)
@@ -419,12 +444,15 @@ def cmd_deploy(args: Any) -> int:
 
         zenoh_module()  # the install command now, not from six agents later
     if args.transport == "queue":
-        res = run_team(
-            prep, transport="queue", deadline=args.deadline, join_timeout=args.join_timeout, p_drop=args.p_drop, rng=args.seed, kill=args.kill
-        )
+        from .agent_ops import sigterm_interrupts
+
+        with sigterm_interrupts():
+            res = run_team(
+                prep, transport="queue", deadline=args.deadline, join_timeout=args.join_timeout, p_drop=args.p_drop, rng=args.seed, kill=args.kill
+            )
     else:
         res = deploy_processes(args, prep, on_start=started)
-    if len(res.failed) == prep.n_agents and all(r.get("steps_done", 0) == 0 for r in res.reports):  # nothing ran: one line, as any error
+    if res.stopped_by is None and len(res.failed) == prep.n_agents and all(r.get("steps_done", 0) == 0 for r in res.reports):  # nothing ran
         raise ArgumentError(f"no agent ran: agent 0: {res.failed[0]}", argument="SCENARIO")
     fmt = Path(args.out).suffix.lower()
     write_atomic(args.out, lambda fh: M.write_estimates(fh, {name: res.estimates}, prep.n_agents, fmt=fmt))
@@ -434,7 +462,7 @@ def cmd_deploy(args: Any) -> int:
         from ..estimators.base import json_float  # noqa: F401  (strict JSON: the reports hold no NaN)
 
         print(json.dumps({"scenario": sc.name, "out": args.out, "record": args.record, **res.summary()}))
-        return 1 if res.failed else 0
+        return _status(res)
     rows = []
     for r in res.reports:
         c = r.get("counts", {})
@@ -450,37 +478,33 @@ def cmd_deploy(args: Any) -> int:
                 _fmt_ms(r.get("median_step_ms")),
                 _fmt_ms(r.get("p99_step_ms")),
                 "-" if r.get("cpu_s") is None else f"{r['cpu_s']:.2f}",
-                "failed" if r["agent"] in res.failed else "ok",
+                "stopped" if res.stopped_by is not None else "failed" if r["agent"] in res.failed else "ok",
             ]
         )
     print(f"{sc.name}: {prep.estimator} on {prep.n_agents} agents ({args.transport}), {prep.n_steps} steps in {res.wall_s:.1f} s")
     print(_table(["agent", "pid", "steps", "missed", "late", "refused", "median ms", "p99 ms", "cpu s", "status"], rows))
     for a, why in sorted(res.failed.items()):
-        print(f"agent {a} failed: {why}")
+        if res.stopped_by is None:
+            print(f"agent {a} failed: {why}")
     print(f"estimates written to {args.out}" + (f"; drop record ({len(res.record.missed)} misses) written to {args.record}" if args.record else ""))
+    return _status(res)
+
+
+def _status(res: DeployResult) -> int:
+    """0 every agent completed, 1 one failed, 128 + the signal (130 Ctrl-C, 143 SIGTERM) when the run was stopped."""
+    if res.stopped_by is not None:
+        name = signal.Signals(res.stopped_by).name
+        print(
+            f"teamkf deploy: stopped by {name} after {res.record.completed} steps on every agent; the estimates and the record "
+            "(marked incomplete) hold the steps completed",
+            file=sys.stderr,
+        )
+        return 128 + res.stopped_by
     return 1 if res.failed else 0
 
 
-def _stdin_source(prep_ybar: np.ndarray | None, d_y: int, T: int) -> Callable[[int], Any]:
-    def source(k: int) -> Any:
-        if k >= T:
-            return None
-        line = sys.stdin.readline()
-        if not line:
-            return None
-        try:
-            y = np.array([[float(v) for v in line.replace(",", " ").split()]])
-        except ValueError:
-            raise ArgumentError(f"--measurements -: step {k}: expected {d_y} numbers, found {line.strip()!r}", argument="--measurements") from None
-        if y.shape != (1, d_y) or not np.all(np.isfinite(y)):
-            raise ArgumentError(f"--measurements -: step {k}: expected {d_y} finite numbers, found {line.strip()!r}", argument="--measurements")
-        return y if prep_ybar is None else y - prep_ybar[k]
-
-    return source
-
-
 def cmd_agent(args: Any) -> int:
-    """``teamkf agent``: exit 0 when it completed its steps, 1 on an error, 130 on Ctrl-C."""
+    """``teamkf agent``: exit 0 when it completed its steps, 3 when it completed them after ``--rejoin`` (steps before its rejoin missed), 1 on an error, 130 on Ctrl-C."""
     inputs = _agent_outputs(args)  # before any work: no output is an input, or another output
     sc = _load(args.scenario, "run")
     n = sc.system.n_agents
@@ -504,9 +528,16 @@ def cmd_agent(args: Any) -> int:
         if known is not None:
             mean, yb = known.means(sc.system, T)
             ybar, offs = yb[i], np.stack([sc.cost.L_at(k) @ mean[k] for k in range(T)])[:, i * dz : (i + 1) * dz]
-        source = _stdin_source(ybar, int(sc.system.dy[i]), T)
+        from .agent_input import StepLines
+
+        source: Callable[[int], Any] = StepLines(sys.stdin, int(sc.system.dy[i]), T, ybar, agent=i, estimator=name)
     else:
-        log = M.read_log(args.measurements, sc.system, sc.horizon, args.map, agents=[i])  # a recording: its own topics only
+        if args.map:
+            log = M.read_log(args.measurements, sc.system, sc.horizon, args.map, agents=[i])  # a recording: its own topics only
+        else:
+            from .agent_input import read_own_log
+
+            log = read_own_log(args.measurements, sc.system, sc.horizon, i)  # its own rows, or a team log
         _limits.check_agent(args, sc, min(log.n_steps, args.steps or log.n_steps))
         prep = prepare(sc, log, name, design=design)
         T = prep.n_steps if args.steps is None else min(args.steps, prep.n_steps)
@@ -514,9 +545,14 @@ def cmd_agent(args: Any) -> int:
         offs = None if prep.offsets is None else prep.offsets[:, i * dz : (i + 1) * dz]
         del prep, log
 
-        def source(k: int) -> Any:
+        def own_column(k: int) -> Any:
             return yi[:, k]
 
+        source = own_column
+
+    from .agent_ops import AgentStream, check_rejoin, rate_limited, report_json
+
+    core = check_rejoin(design, i, sc.graph, rejoin=bool(getattr(args, "rejoin", False)))  # before the network: one line
     transport = ZenohTransport(i, roster.endpoints, prefix=roster.prefix)
     try:
         transport.open()  # what Zenoh still refuses (the roster was checked): one line naming the roster and the endpoint
@@ -528,14 +564,10 @@ def cmd_agent(args: Any) -> int:
     sinks: list[Callable[[int, np.ndarray], None]] = []
     if args.out == "-":
         sinks.append(lambda k, z: print(",".join([str(k), *(repr(float(v)) for v in z)]), flush=True))
-    stream = open_stream(args.stream, "--stream", inputs=inputs) if args.stream else None  # appended as it goes; closed after the run
+    keep = bool(getattr(args, "rejoin", False))  # a rejoined agent continues the stream of the process before
+    stream = AgentStream(args.stream, dz, keep=keep, opener=lambda: open_stream(args.stream, "--stream", inputs=inputs)) if args.stream else None
     if stream is not None:
-
-        def write_row(k: int, z: np.ndarray, fh: Any = stream) -> None:
-            fh.write(np.asarray(z, dtype="<f8").tobytes())
-            fh.flush()
-
-        sinks.append(write_row)
+        sinks.append(stream.write)
 
     def printer(k: int, z: np.ndarray) -> None:
         for f in sinks:
@@ -545,7 +577,7 @@ def cmd_agent(args: Any) -> int:
         design,
         i,
         transport,
-        source,
+        rate_limited(source, getattr(args, "rate", None), stop),
         n_steps=T,
         run_id=roster.run_id,
         peers=roster.agents,
@@ -559,13 +591,18 @@ def cmd_agent(args: Any) -> int:
         on_estimate=printer if sinks else None,
         stop=stop,
         graph=sc.graph,
+        core=core,
+        rejoin=bool(getattr(args, "rejoin", False)),
     )
     if stream is not None:
         stream.close()
     if args.out and args.out != "-":
         _write_own(args.out, res, name)
+    run = {"run_id": roster.run_id, "scenario": getattr(sc, "name", None), "fingerprint": scenario_fingerprint(sc, name), "estimator": name}
+    run.update({"agents": n, "steps": T, "p_drop": args.p_drop, "seed": args.seed})
     if args.report:
-        report = json.dumps(res.to_json()) + "\n"
+        extra = {"run": run, "previous_steps": None if stream is None else stream.previous, "input": getattr(source, "counts", None)}
+        report = json.dumps(report_json(res, **extra)) + "\n"
         write_atomic(args.report, lambda fh: fh.write(report), text=True)
     if res.error == "interrupted":
         print(f"teamkf agent {i}: interrupted after {res.steps_done} steps", file=sys.stderr)
@@ -573,6 +610,9 @@ def cmd_agent(args: Any) -> int:
     if res.error:
         print(f"teamkf: error: agent {i}: {res.error}", file=sys.stderr)
         return 1
+    if res.started > 0:  # rejoined: it completed, without its steps before the rejoin
+        print(f"teamkf agent {i}: rejoined at step {res.started}: steps 0..{res.started - 1} are not this process's", file=sys.stderr)
+        return 3
     return 0
 
 

@@ -117,6 +117,7 @@ def add_parsers(add: Callable[[str, str], Any]) -> None:
         "--timeout", type=_seconds, metavar="S", help="kill agents still running after S seconds (default: 120 + join timeout + steps x deadline)"
     )
     p.add_argument("--json", action="store_true", help="print one JSON object (per-agent reports, failures, misses)")
+    p.add_argument("--rate", type=_hertz, metavar="HZ", help="the agents release the log's steps at HZ per second (its sensors' rate)")
     p.set_defaults(func=_command("cmd_deploy"))
 
     p = add("agent", "run one agent of a scenario on this machine: it talks to the others through the roster's Zenoh endpoints")
@@ -127,7 +128,7 @@ def add_parsers(add: Callable[[str, str], Any]) -> None:
         "--measurements",
         required=True,
         metavar="FILE",
-        help="a recorded log (its own column is used), or '-' for stdin: one line per step with y_i(k) as comma-separated numbers",
+        help="a recorded log (only this agent's rows, or a team log), or '-' for stdin: one line per step, 'step,y0,...'",
     )
     p.add_argument(
         "--map", metavar="MAP.toml", help="the topic map of a ROS 2 recording (--measurements REC.mcap); only this agent's topics are read"
@@ -142,4 +143,55 @@ def add_parsers(add: Callable[[str, str], Any]) -> None:
     p.add_argument("--steps", type=_count(1, "a number of steps"), metavar="T", help="steps to run (default: the log's, or the horizon for stdin)")
     _run_flags(p)
     p.add_argument("--kill-at", type=_count(0, "a step"), metavar="STEP", help="fault injection: the process kills itself (SIGKILL) before STEP")
+    p.add_argument(
+        "--rejoin",
+        action="store_true",
+        help="a restarted agent: learn the team's current step from the neighbours, start there from the design's prior (exit 3: completed, steps before missed)",
+    )
+    p.add_argument("--rate", type=_hertz, metavar="HZ", help="release the log's steps at HZ per second (a recorded log played at its sensor's rate)")
     p.set_defaults(func=_command("cmd_agent"))
+    _add_record_parser(add)
+
+
+def _hertz(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a rate in steps per second > 0, found {text!r}") from None
+    if not (v > 0 and math.isfinite(v) and v <= 1e6):
+        raise argparse.ArgumentTypeError(f"expected a rate in steps per second in (0, 1e6], found {v:g}")
+    return v
+
+
+def _died(text: str) -> tuple[int, int]:
+    try:
+        a, s = (int(v) for v in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected AGENT:STEPS (e.g. 2:100), found {text!r}") from None
+    if a < 0 or s < 0:
+        raise argparse.ArgumentTypeError(f"expected AGENT:STEPS with both >= 0, found {text!r}")
+    return a, s
+
+
+def _add_record_parser(add: Callable[[str, str], Any]) -> None:
+    """``teamkf record merge REPORT... --out DROPS`` (:func:`teamkf.study.agent_ops.cmd_record_merge`)."""
+    m = add("record", "drop records of deployments: merge the agents' reports (teamkf agent --report) of a run on separate machines")
+    m.add_argument("action", choices=("merge",), help="merge: the agents' reports -> the team's drop record")
+    m.add_argument("reports", nargs="+", metavar="REPORT", help="every agent's report once (a rejoined agent: each of its processes' reports)")
+    m.add_argument("--out", required=True, metavar="DROPS", help="the team's drop record (JSON) for teamkf filter --drops")
+    m.add_argument(
+        "--died",
+        type=_died,
+        action="append",
+        default=[],
+        metavar="AGENT:STEPS",
+        help="an agent whose process died without a report, and the steps it completed (the rows of its --stream file)",
+    )
+    m.add_argument("--json", action="store_true", help="print one JSON object")
+
+    def run(args: Any) -> int:
+        from .agent_ops import cmd_record_merge
+
+        return int(cmd_record_merge(args))
+
+    m.set_defaults(func=run)
