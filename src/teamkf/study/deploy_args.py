@@ -114,6 +114,9 @@ def add_parsers(add: Callable[[str, str], Any]) -> None:
         "--timeout", type=_seconds, metavar="S", help="kill agents still running after S seconds (default: 120 + join timeout + steps x deadline)"
     )
     p.add_argument("--json", action="store_true", help="print one JSON object (per-agent reports, failures, misses)")
+    p.add_argument(
+        "--insecure", action="store_true", help="run the agents without a team key (unsigned frames; to measure what authentication costs)"
+    )
     p.set_defaults(func=_command("cmd_deploy"))
 
     p = add("agent", "run one agent of a scenario on this machine: it talks to the others through the roster's Zenoh endpoints")
@@ -136,4 +139,12 @@ def add_parsers(add: Callable[[str, str], Any]) -> None:
     p.add_argument("--steps", type=_count(1, "a number of steps"), metavar="T", help="steps to run (default: the log's, or the horizon for stdin)")
     _run_flags(p)
     p.add_argument("--kill-at", type=_count(0, "a step"), metavar="STEP", help="fault injection: the process kills itself (SIGKILL) before STEP")
+    p.add_argument(
+        "--insecure",
+        action="store_true",
+        help="run without a team key when the roster has no key_file (unsigned frames: anyone who reaches the network can steer the team)",
+    )
     p.set_defaults(func=_command("cmd_agent"))
+    from .roster_cmd import add_parser as add_roster_parser
+
+    add_roster_parser(add)
