@@ -71,7 +71,12 @@ def cmd_roster_new(args: Any) -> int:
             "private_key": args.tls_private_key,
             "mutual": not args.no_mutual,
         }
-    roster = Roster.from_dict(d, f"teamkf roster new: {out}", base=out.resolve().parent)  # every check a read roster gets, before writing
+    try:  # every check a read roster gets, before writing
+        roster = Roster.from_dict(d, "--endpoints", base=out.resolve().parent)
+    except ArgumentError as exc:
+        what = exc.detail.removeprefix("--endpoints: ")
+        flag = "--endpoints" if what.startswith("agents") else "--tls-root-ca" if what.startswith("tls") else "--prefix"
+        raise ArgumentError(f"{flag}: {what}", argument=flag) from None
     roster = Roster(roster.endpoints, roster.run_id, roster.prefix, roster.source, None, rel_key, roster.tls)
     key = secrets.token_bytes(32)
     write_key(key_path, key)
