@@ -2,6 +2,7 @@
 
     PYTHONPATH=src python3 benchmarks/bench_deploy.py                  # n = 2, 4, 6 agents, 200 steps
     PYTHONPATH=src python3 benchmarks/bench_deploy.py --agents 6 --steps 400 --repeat 3
+    PYTHONPATH=src python3 benchmarks/bench_deploy.py --auth on off        # authentication on and off, side by side
 
 A platoon of n vehicles on a line graph with unit delays (the packaged ``platoon-6`` for n = 6,
 the same model for other n), KCF agents, a log sampled with teamkf (seed 2026). Three ways to run
@@ -15,7 +16,9 @@ Step latency: per agent and step, from the moment it starts waiting for the mess
 step to the moment its payload is sent — in lockstep this is the team's step period. The table
 gives the median over agents of each agent's median, and the largest per-agent p99. CPU: the
 agent thread's CPU time over the run (its steps; not the import, the design or Zenoh's own
-threads), mean over agents. Timings are noisy on a shared machine: the load average is printed,
+threads), mean over agents. ``--auth on off`` runs every configuration with signed frames (HMAC-SHA256
+under a team key, payload checks; the default) and without (``--insecure``), interleaved repeat by
+repeat so that both see the same load. Timings are noisy on a shared machine: the load average is printed,
 and every configuration is run --repeat times (the median repeat is reported). Every run also
 checks that the estimates equal the in-process runtime's bit for bit.
 """
@@ -59,6 +62,7 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=200)
     ap.add_argument("--repeat", type=int, default=1)
     ap.add_argument("--modes", nargs="+", default=["zenoh processes", "zenoh threads", "queue threads"])
+    ap.add_argument("--auth", nargs="+", choices=("on", "off"), default=["on"], help="signed frames (on, the default) and/or unsigned (off)")
     args = ap.parse_args()
     from teamkf.simulation.sampling import sample_paths
     from teamkf.study import measurements as M
@@ -80,35 +84,37 @@ def main() -> None:
             prep = prepare(sc, log, "kcf")
             ref = M.filter_log(sc, log, estimators=["kcf"], with_innovations=False).estimates["kcf"]
             for mode in args.modes:
-                got = []
+                got: dict[str, list] = {a: [] for a in args.auth}
                 for _ in range(args.repeat):
-                    if mode == "zenoh processes":
-                        out = Path(tmp) / "est.csv"
-                        proc = subprocess.run(
-                            [sys.executable, "-m", "teamkf", "deploy", str(spath), "--measurements", str(lpath), "--out", str(out), "--json"],
-                            capture_output=True,
-                            text=True,
-                        )
-                        if proc.returncode != 0:
-                            raise SystemExit(proc.stderr)
-                        reports = json.loads(proc.stdout)["reports"]
-                        import pandas as pd
+                    for auth in args.auth:  # interleaved: on and off see the same load
+                        insecure = auth == "off"
+                        if mode == "zenoh processes":
+                            out = Path(tmp) / "est.csv"
+                            cmd = [sys.executable, "-m", "teamkf", "deploy", str(spath), "--measurements", str(lpath), "--out", str(out), "--json"]
+                            proc = subprocess.run(cmd + ["--insecure"] * insecure, capture_output=True, text=True)
+                            if proc.returncode != 0:
+                                raise SystemExit(proc.stderr)
+                            reports = json.loads(proc.stdout)["reports"]
+                            import pandas as pd
 
-                        est = pd.read_csv(out)
-                        z = est.sort_values(["step", "agent"])[[c for c in est.columns if c.startswith("z")]].to_numpy().reshape(args.steps, -1)
-                        equal = np.array_equal(z, ref)
-                    else:
-                        res = run_team(prep, transport=mode.split()[0])
-                        reports, equal = res.reports, res.estimates.tobytes() == ref.tobytes()
-                    got.append((*summarize(reports), equal))
-                got.sort()
-                med, p99, cpu, equal = got[len(got) // 2]
-                rows.append((mode, n, args.steps, med, p99, cpu, all(g[3] for g in got)))
-                print(f"  {mode:16s} n={n}: median {med:.2f} ms, p99 {p99:.2f} ms, CPU/agent {cpu:.3f} s, equal to the runtime: {equal}", flush=True)
-    print("\n| transport | agents | steps | median step (ms) | p99 step (ms) | CPU per agent (s) | bit-equal |")
-    print("|---|---:|---:|---:|---:|---:|:---:|")
-    for mode, n, T, med, p99, cpu, eq in rows:
-        print(f"| {mode} | {n} | {T} | {med:.2f} | {p99:.2f} | {cpu:.3f} | {'yes' if eq else 'NO'} |")
+                            est = pd.read_csv(out)
+                            z = est.sort_values(["step", "agent"])[[c for c in est.columns if c.startswith("z")]].to_numpy().reshape(args.steps, -1)
+                            equal = np.array_equal(z, ref)
+                        else:
+                            res = run_team(prep, transport=mode.split()[0], insecure=insecure)
+                            reports, equal = res.reports, res.estimates.tobytes() == ref.tobytes()
+                        got[auth].append((*summarize(reports), equal))
+                for auth in args.auth:
+                    g = sorted(got[auth])
+                    med, p99, cpu, equal = g[len(g) // 2]
+                    rows.append((mode, auth, n, args.steps, med, p99, cpu, all(x[3] for x in g)))
+                    print(
+                        f"  {mode:16s} auth {auth:3s} n={n}: median {med:.2f} ms, p99 {p99:.2f} ms, CPU/agent {cpu:.3f} s, equal: {equal}", flush=True
+                    )
+    print("\n| transport | authentication | agents | steps | median step (ms) | p99 step (ms) | CPU per agent (s) | bit-equal |")
+    print("|---|:---:|---:|---:|---:|---:|---:|:---:|")
+    for mode, auth, n, T, med, p99, cpu, eq in rows:
+        print(f"| {mode} | {auth} | {n} | {T} | {med:.2f} | {p99:.2f} | {cpu:.3f} | {'yes' if eq else 'NO'} |")
 
 
 if __name__ == "__main__":

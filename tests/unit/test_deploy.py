@@ -55,16 +55,23 @@ def test_frame_round_trip_keeps_bits_types_and_layout():
     assert type(g.payload[1]["y"]) is np.float64 and g.payload[1]["y"] == np.pi
     assert g.payload[1]["n"] == [1, -2.5, None, True, "x", (1, 2)] and g.payload[1][3].dtype == np.int32
     assert g.payload[3].tobytes() == payload[3].tobytes()  # NaN, -0.0, inf, subnormal: the same bits
-    assert len(data) == HEADER_SIZE + len(encode_payload(payload)) + 4
+    assert len(data) == HEADER_SIZE + len(encode_payload(payload)) + 32
 
 
 def test_frame_header_layout_is_the_documented_one():
-    data = encode_frame(Frame(HELLO, 0x0102030405060708, 3, 4, 5, 6, None, DROPPED))
-    assert data[:4] == b"TKFD" and data[4:6] == (1).to_bytes(2, "little")
+    import hashlib
+    import hmac
+
+    key = bytes(range(32))
+    data = encode_frame(Frame(HELLO, 0x0102030405060708, 3, 4, 5, 6, None, DROPPED), key)
+    assert data[:4] == b"TKFD" and data[4:6] == (2).to_bytes(2, "little")
     assert data[6] == HELLO and data[7] == DROPPED
     assert data[8:16] == (0x0102030405060708).to_bytes(8, "little")
     assert [int.from_bytes(data[o : o + 4], "little") for o in (16, 20, 24, 28, 32)] == [3, 4, 5, 6, 1]
-    assert data[36] == 0 and len(data) == 41  # payload None is one tag byte; then the CRC
+    assert data[36] == 0 and len(data) == 69  # payload None is one tag byte; then the 32-byte tag
+    assert data[37:] == hmac.new(key, data[:37], hashlib.sha256).digest()  # HMAC-SHA256 of header and payload
+    plain = encode_frame(Frame(HELLO, 0x0102030405060708, 3, 4, 5, 6, None, DROPPED))  # no key: flagged, plain SHA-256
+    assert plain[7] == DROPPED | 2 and plain[37:] == hashlib.sha256(plain[:37]).digest()
 
 
 @pytest.mark.parametrize(
@@ -72,7 +79,7 @@ def test_frame_header_layout_is_the_documented_one():
     [
         (lambda b: b[:20], "short"),
         (lambda b: b"XKFD" + b[4:], "magic"),
-        (lambda b: b[:4] + (2).to_bytes(2, "little") + b[6:], "version"),
+        (lambda b: b[:4] + (1).to_bytes(2, "little") + b[6:], "version"),
         (lambda b: b[:40] + bytes([b[40] ^ 0x10]) + b[41:], "checksum"),
         (lambda b: b + b"\x00", "short"),
     ],

@@ -299,7 +299,12 @@ def test_killed_agent_restarted_with_rejoin_over_zenoh_is_fused_again_and_the_me
 
     sc, d, log, prep = p3
     roster = tmp_path / "roster.toml"
-    Roster({i: f"tcp/127.0.0.1:{p}" for i, p in enumerate(free_ports(3))}, 77, "teamkf/test-rejoin").write(roster)
+    import secrets
+
+    from teamkf.deploy.roster import write_key
+
+    write_key(tmp_path / "team.key", secrets.token_bytes(32))  # frames are signed: the three processes share the team key
+    Roster({i: f"tcp/127.0.0.1:{p}" for i, p in enumerate(free_ports(3))}, 77, "teamkf/test-rejoin", key_file="team.key").write(roster)
     common = ["--roster", str(roster), "--measurements", str(d / "log.csv"), "--rate", "6", "--deadline", "1"]
 
     def agent(i, *extra, tag=""):

@@ -16,6 +16,7 @@ from __future__ import annotations
 import copy
 import hashlib
 import json
+import os
 import shutil
 import socket
 from pathlib import Path
@@ -89,14 +90,24 @@ def _snapshot(*folders: Path) -> dict[str, str]:
 # ---------------------------------------------------------------------------
 # rows: (id, build(tmp, base) -> argv, words the one line must hold)
 # ---------------------------------------------------------------------------
-def _roster(endpoints: list[str], prefix: str = "teamkf/t", extra: str = "") -> Callable[[Path, dict], list[str]]:
-    """``teamkf agent`` (agent 0) with a roster of ``endpoints``; ``FREE`` is a free loopback port, ``BUSY`` one in use."""
+def _roster(
+    endpoints: list[str], prefix: str = "teamkf/t", extra: str = "", key: tuple[str, int] | None = ("ab" * 32, 0o600)
+) -> Callable[[Path, dict], list[str]]:
+    """``teamkf agent`` (agent 0) with a roster of ``endpoints``; ``FREE`` is a free loopback port, ``BUSY`` one in use.
+
+    ``key``: the key file's text and mode (``key_file = "team.key"``), or None for a roster without a key.
+    """
 
     def build(tmp: Path, b: dict) -> list[str]:
         from teamkf.deploy import free_ports
 
         free = iter(free_ports(len(endpoints)))
-        text = f'run_id = 1\nprefix = "{prefix}"\n{extra}'
+        text = f'run_id = 1\nprefix = "{prefix}"\n'
+        if key is not None:
+            (tmp / "team.key").write_text(key[0])
+            os.chmod(tmp / "team.key", key[1])
+            text += 'key_file = "team.key"\n'
+        text += extra
         for i, ep in enumerate(endpoints):
             ep = ep.replace("FREE", str(next(free))).replace("BUSY", str(b.get("busy")))
             text += f'\n[[agents]]\nid = {i}\nendpoint = "{ep}"\n'
@@ -141,6 +152,17 @@ ROSTER_ROWS: list[tuple[str, Callable[..., list[str]], list[str]]] = [
     ("prefix-empty", _roster(OK, prefix="/"), ["prefix", "non-empty"]),
     ("roster-unknown-key", _roster(OK, extra="prefx = 1\n"), ["roster.toml", "prefx", "unknown key"]),
     ("port-in-use", _roster(_ep("tcp/127.0.0.1:BUSY")), ["roster.toml", "agent 0's endpoint", "is in use on 127.0.0.1"]),
+    ("roster-without-key", _roster(OK, key=None), ["roster.toml", "no key_file", "teamkf roster new", "--insecure"]),
+    ("key-readable-by-others", _roster(OK, key=("ab" * 32, 0o644)), ["roster.toml", "key_file", "team.key", "mode 0644", "chmod 600"]),
+    ("key-too-short", _roster(OK, key=("abcd", 0o600)), ["roster.toml", "key_file", "64 hex digits", "found 2 bytes"]),
+    ("key-not-hex", _roster(OK, key=("not a key at all", 0o600)), ["key_file", "not hex digits"]),
+    ("key-file-missing", _roster(OK, extra='key_file = "gone.key"\n', key=None), ["roster.toml", "key_file", "no such key file", "gone.key"]),
+    ("tls-endpoint-without-table", _roster(_ep("tls/127.0.0.1:FREE")), ["agents[0].endpoint", "[tls] table", "use tcp"]),
+    (
+        "tls-table-missing-file",
+        _roster(OK, extra='[tls]\nroot_ca = "ca.pem"\ncertificate = "c.pem"\nprivate_key = "k.pem"\n'),
+        ["tls.root_ca", "no such file"],
+    ),
 ]
 
 

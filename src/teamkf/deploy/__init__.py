@@ -2,15 +2,16 @@
 
 The same online agents the in-process runtime runs (``design.graph_agents()``,
 :func:`teamkf.estimators.base.pass_messages`), one per process (or thread),
-exchanging their payloads as frames of the package's own versioned format over
-a :class:`Transport` — Zenoh by default (``pip install 'teamkf[deploy]'``), or
-in-process queues. Each agent holds only its own measurements and its own
+exchanging their payloads as frames of the package's own versioned format,
+every one signed with HMAC-SHA256 under the team key, over a :class:`Transport`
+— Zenoh by default (``pip install 'teamkf[deploy]'``), or in-process queues. Each agent holds only its own measurements and its own
 design, waits at every step for the messages due (a step barrier with a
 deadline), fuses them in the graph's order, and records what it missed; the
 record replays in-process to the same bits.
 
 ==========================  ==========================================================
-:mod:`.codec`               the frame: header, typed raw arrays, CRC-32 (version 1)
+:mod:`.codec`               the frame: header, typed raw arrays, HMAC-SHA256 tag (version 2)
+:mod:`.payload`             the payload structure each sender's design sends (checked on every frame)
 :mod:`.transport`           :class:`Transport`, :class:`ZenohTransport`, :class:`QueueTransport`
 :mod:`.agent`               :func:`run_agent`: barrier, deadline, loss injection, drop record
 :mod:`.replay`              :class:`DropRecord` and :func:`replay` (in-process, bit for bit)

@@ -38,16 +38,17 @@ import threading
 import time
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
 from ..estimators.base import checked_step, step_context
 from ..exceptions import TeamkfError, UnsupportedOperationError
-from .codec import BYE, DATA, DROPPED, HELLO, Frame, FrameError, decode_frame, encode_frame
+from .codec import BYE, DATA, DROPPED, HELLO, Frame, FrameError, decode_payload, encode_frame, open_frame
+from .payload import CONTROL_LIMIT, HARD_LIMIT, frame_limit, learn_payloads
 from .transport import Transport
 
-__all__ = ["AgentCore", "AgentResult", "DeployError", "Mailbox", "run_agent", "check_deployable", "drop_stream"]
+__all__ = ["AgentCore", "AgentResult", "DeployError", "Mailbox", "REFUSED", "run_agent", "check_deployable", "drop_stream", "windows"]
 
 #: appended to the seed's key for an agent's injected-loss draws
 DROP_STREAM_KEY = 0xD23
@@ -138,6 +139,21 @@ class AgentCore:
         self.tolerant = _set_tolerant(self.agent) if tolerant else False
         self.state: Any = None
         self._dz, self._who = step_context(design)
+        #: per in-neighbour: how far ahead its frames may be (:func:`windows`)
+        self.windows = windows(self.graph, self.index)
+        self._design = design
+        self._specs: tuple[dict[int, Any], dict[int, int]] | None = None
+
+    def payload_specs(self) -> tuple[dict[int, Any], dict[int, int]]:
+        """Per in-neighbour: the structure of its payloads (:class:`~teamkf.deploy.payload.PayloadSpec`) and the largest data frame accepted.
+
+        Learned once, offline, by stepping the team's design in-process (:func:`~teamkf.deploy.payload.learn_payloads`).
+        """
+        if self._specs is None:
+            specs, sizes = learn_payloads(self._design, self.graph)
+            ins = [j for (j, _) in self.in_delays]
+            self._specs = ({j: specs[j] for j in ins}, {j: frame_limit(sizes[j]) + 68 for j in ins})
+        return self._specs
 
     def expected(self, k: int) -> list[tuple[int, int]]:
         """The (sender, sent step) due at step k, in in-neighbour order."""
@@ -153,19 +169,93 @@ class AgentCore:
         return z, payload
 
 
-class Mailbox:
-    """The frames that arrived for agent ``me``, checked and counted (thread-safe)."""
+#: the counts of frames an agent refused, by reason (``teamkf deploy``'s "refused" column sums them)
+REFUSED = (
+    "oversize",
+    "corrupt_short",
+    "corrupt_magic",
+    "corrupt_version",
+    "corrupt_auth",
+    "corrupt_unkeyed",
+    "corrupt_checksum",
+    "corrupt_payload",
+    "bad_payload",
+    "other_run",
+    "misaddressed",
+    "unknown_sender",
+    "unknown_kind",
+    "bad_step",
+    "future",
+    "replayed",
+    "duplicate",
+)
+#: steps beyond the farthest an in-neighbour can legitimately be ahead that a frame may still be for
+WINDOW_MARGIN = 4
+#: the window for an in-neighbour that does not depend on this agent (no path from it): its lead is not bounded by the graph
+UNBOUNDED_WINDOW = 64
 
-    def __init__(self, me: int, run_id: int, in_delays: Sequence[tuple[int, int]], peers: Sequence[int]):
+
+def windows(graph: Any, i: int) -> dict[int, int]:
+    """Per in-neighbour j of agent i: how many steps past i's last closed step a frame from j may be for.
+
+    j cannot be ahead of i by more than the smallest total delay of a path i -> j (it waits for what i
+    sent, relayed), so its frame for i is due at most ``dist(i, j) + τ_ji`` steps after i's last step;
+    :data:`WINDOW_MARGIN` more absorbs the step i is in. Where no path i -> j exists (a graph that is
+    not strongly connected), :data:`UNBOUNDED_WINDOW` plus the delay.
+    """
+    dist: Any = None
+    try:
+        dist = graph.geodesic_delays()
+    except Exception:  # noqa: BLE001 - GraphError: not strongly connected
+        dist = None
+    out = {}
+    for j in graph.in_neighbors(i):
+        tau = int(graph.delay(j, i))
+        d = UNBOUNDED_WINDOW if dist is None else int(dist[i, j])
+        out[j] = d + tau + WINDOW_MARGIN
+    return out
+
+
+class Mailbox:
+    """The frames that arrived for agent ``me``, checked and counted (thread-safe).
+
+    A frame is refused and counted by reason — and changes nothing else — when it is larger than
+    ``max_frame`` bytes (``oversize``), fails its tag under ``key`` (``corrupt_auth``; without a key
+    the plain checksum, ``corrupt_checksum``), belongs to another run, another receiver or a sender
+    that is not a peer or in-neighbour, is due more than ``windows[j]`` steps after the last closed
+    step (``future``), is a hello whose heartbeat counter did not increase (``replayed``), a duplicate
+    or late, or carries a payload that does not decode or does not match ``specs[j]``, the structure
+    the sender's design sends (``bad_payload``). The checks run in that order; the payload is decoded
+    only after the tag and the header passed.
+    """
+
+    def __init__(
+        self,
+        me: int,
+        run_id: int,
+        in_delays: Sequence[tuple[int, int]],
+        peers: Sequence[int],
+        *,
+        key: bytes | None = None,
+        specs: Mapping[int, Any] | None = None,
+        limits: Mapping[int, int] | None = None,
+        windows: Mapping[int, int] | None = None,
+    ):
         self.me, self.run_id = me, run_id
         self.delay = dict(in_delays)
         self.peers = set(peers)
+        self.key = key
+        self.specs = dict(specs) if specs is not None else {}
+        self.limits = dict(limits) if limits is not None else {}
+        self.windows = dict(windows) if windows is not None else {j: d + UNBOUNDED_WINDOW + WINDOW_MARGIN for j, d in self.delay.items()}
+        self.max_frame = max([CONTROL_LIMIT, *self.limits.values()]) if self.limits else HARD_LIMIT
         self.cond = threading.Condition()
         self.data: dict[tuple[int, int], Any] = {}
         self.notices: set[tuple[int, int]] = set()
         self.closed = -1
         self.heard: set[int] = set()
         self.acks: dict[int, set[int]] = {}
+        self.beats: dict[int, int] = {}
         self.left: set[int] = set()
         self.failed: set[int] = set()
         self.last_seen: dict[int, float] = {}
@@ -192,35 +282,93 @@ class Mailbox:
         self._awake = now
 
     def put(self, raw: bytes) -> None:
+        if len(raw) > self.max_frame:  # before anything else: no work for a flood of large frames
+            with self.cond:
+                self.counts["oversize"] += 1
+            return
         try:
-            f = decode_frame(raw)
+            h = open_frame(raw, self.key)
         except FrameError as exc:
             with self.cond:
                 self.counts[f"corrupt_{exc.reason}"] += 1
             return
         with self.cond:
-            self._put(f)
+            why = self._admit(h, len(raw))
+            if why is not None:
+                self.counts[why] += 1
+                return
+        try:  # decoded outside the lock: only frames that authenticated and are due reach here
+            payload = decode_payload(h.body)
+        except FrameError:
+            payload, why = None, "bad_payload"
+        else:
+            why = self._check_payload(h, payload)
+        with self.cond:
+            if why is not None:
+                self.counts[why] += 1
+                return
+            self._put(Frame(h.kind, h.run_id, h.sender, h.receiver, h.step, h.origin, payload, h.flags))
             self.cond.notify_all()
 
+    def _admit(self, h: Any, size: int) -> str | None:
+        """Why an authenticated frame is refused on its header alone (None: decode its payload)."""
+        if h.run_id != self.run_id:
+            return "other_run"
+        if h.receiver != self.me:
+            return "misaddressed"
+        if h.kind in (HELLO, BYE):
+            if h.sender not in self.peers:
+                return "unknown_sender"
+            if size > CONTROL_LIMIT:
+                return "oversize"
+            return None  # a hello's counter is checked in _put, beside its rejoin announcement (a restarted process counts from 1)
+        if h.kind != DATA:
+            return "unknown_kind"
+        if h.sender not in self.delay:
+            return "unknown_sender"
+        if size > self.limits.get(h.sender, HARD_LIMIT):
+            return "oversize"
+        if h.step != h.origin + self.delay[h.sender]:
+            return "bad_step"
+        if h.step <= self.closed:
+            return "late"
+        if h.step > self.closed + self.windows.get(h.sender, 0):
+            return "future"
+        if (h.sender, h.origin) in self.data or (h.sender, h.origin) in self.notices:
+            return "duplicate"
+        return None
+
+    def _check_payload(self, h: Any, payload: Any) -> str | None:
+        if h.kind == HELLO:  # {"heard": [agents], "step": next step, "rejoin": step it rejoined at (a restarted process)}
+            ok = isinstance(payload, dict) and set(payload) <= {"heard", "step", "rejoin"} and isinstance(payload.get("heard", []), list)
+            ok = ok and all(isinstance(a, int) and not isinstance(a, bool) for a in payload.get("heard", []))
+            ok = ok and all(_is_step(payload[k]) for k in ("step", "rejoin") if k in payload)
+            return None if ok else "bad_payload"
+        if h.kind == BYE:
+            return None if payload is None else "bad_payload"
+        if h.flags & DROPPED:
+            return None if payload is None else "bad_payload"
+        spec = self.specs.get(h.sender)
+        if spec is None:
+            return None
+        return None if spec.why(payload) is None else "bad_payload"
+
     def _put(self, f: Frame) -> None:
+        """Store an admitted frame (its tag, header and payload were checked); a race may still make it a duplicate or late."""
         c = self.counts
-        if f.run_id == self.run_id and f.receiver == self.me and f.sender in self.peers:
-            self.last_seen[f.sender] = time.monotonic()
-        if f.run_id != self.run_id:
-            c["other_run"] += 1
-        elif f.receiver != self.me:
-            c["misaddressed"] += 1
-        elif f.kind == HELLO:
-            if f.sender not in self.peers:
-                c["unknown_sender"] += 1
-                return
-            self.heard.add(f.sender)
-            p = f.payload if isinstance(f.payload, dict) else {}
-            heard = p.get("heard", [])
-            self.acks[f.sender] = {int(a) for a in heard if isinstance(a, int)}
-            self._progress(f.sender, p.get("step"))
+        if f.kind == HELLO:
+            p = f.payload
             r: Any = p.get("rejoin")
-            if _is_step(r) and int(r) > self.resume.get(f.sender, -1):  # a restarted process: fuse it again from its first on-time message
+            restarted = _is_step(r) and int(r) > self.resume.get(f.sender, -1)  # a restarted process counts its hellos from 1 again
+            if f.origin <= self.beats.get(f.sender, 0) and not restarted:
+                c["replayed"] += 1
+                return
+            self.beats[f.sender] = f.origin
+            self.last_seen[f.sender] = time.monotonic()
+            self.heard.add(f.sender)
+            self.acks[f.sender] = {int(a) for a in p.get("heard", [])}
+            self._progress(f.sender, p.get("step"))
+            if restarted:  # fuse it again from its first on-time message
                 self.resume[f.sender] = r
                 self.failed.discard(f.sender)
                 self.quiet.discard(f.sender)
@@ -229,20 +377,17 @@ class Mailbox:
             elif f.sender in self.quiet:  # back after a silence (a stalled process resumed): wait for it again
                 self.failed.discard(f.sender)
                 self.quiet.discard(f.sender)
-        elif f.kind == BYE:
-            if f.sender in self.peers:
-                self.left.add(f.sender)
-        elif f.kind != DATA:
-            c["unknown_kind"] += 1
-        elif f.sender not in self.delay:
-            c["unknown_sender"] += 1
-        elif f.step != f.origin + self.delay[f.sender]:
-            c["bad_step"] += 1
-        elif f.step <= self.closed:
+            return
+        if f.kind == BYE:
+            self.last_seen[f.sender] = time.monotonic()
+            self.left.add(f.sender)
+            return
+        if f.step <= self.closed:
             c["late"] += 1
         elif (f.sender, f.origin) in self.data or (f.sender, f.origin) in self.notices:
             c["duplicate"] += 1
         else:
+            self.last_seen[f.sender] = time.monotonic()
             self.failed.discard(f.sender)  # on time again: wait for it again
             self.quiet.discard(f.sender)
             self._progress(f.sender, f.origin + 1, f.origin)
@@ -384,6 +529,7 @@ def run_agent(
     core: AgentCore | None = None,
     graph: Any = None,
     rejoin: bool = False,
+    key: bytes | None = None,
 ) -> AgentResult:
     """Run agent ``index`` of ``design`` over ``transport`` for ``n_steps`` steps.
 
@@ -407,6 +553,9 @@ def run_agent(
         current step k0, start there from the design's prior (the family's ``restart_state``; refused with
         :class:`DeployError` for a family without one), announce ``rejoin = k0`` so that the out-neighbours
         wait for it again, and never wait for a message sent before it listened (missed as ``rejoin``)
+    key : the team key (32 bytes): every frame is signed and checked with HMAC-SHA256 under it
+        (:mod:`~teamkf.deploy.codec`); None runs unauthenticated (``--insecure``: anyone who reaches
+        the network can steer the team)
 
     Returns
     -------
@@ -417,7 +566,8 @@ def run_agent(
     n = design.n_agents
     peers = sorted(set(range(n) if peers is None else peers) - {i})
     stop = stop if stop is not None else threading.Event()
-    box = Mailbox(i, run_id, core.in_delays, peers)
+    specs, limits = core.payload_specs()
+    box = Mailbox(i, run_id, core.in_delays, peers, key=key, specs=specs, limits=limits, windows=core.windows)
     res = AgentResult(i, n_steps, np.full((n_steps, int(design.cost.dz)), np.nan))
     draws = drop_stream(rng, i)
     outs = core.out_delays
@@ -432,7 +582,7 @@ def run_agent(
     progress = {"step": 0}  # the next step, told in every heartbeat (a rejoining neighbour starts from it)
 
     def send(kind: int, b: int, step: int, origin: int, payload: Any = None, flags: int = 0) -> None:
-        data = encode_frame(Frame(kind, run_id, i, b, step, origin, payload, flags))  # a payload that cannot travel stops the agent
+        data = encode_frame(Frame(kind, run_id, i, b, step, origin, payload, flags), key)  # a payload that cannot travel stops the agent
         try:
             transport.send(b, data)
         except Exception:  # noqa: BLE001 - a send that fails is a message lost, as on any network
@@ -442,11 +592,13 @@ def run_agent(
     targets = [[] if rejoin else peers]  # a rejoining agent listens silently until it knows where the team is
 
     def heartbeat() -> None:
+        beat = 0
         while not done.wait(hello_period[0]):
             with box.cond:
                 heard = sorted(box.heard)
+            beat += 1  # the receiver refuses a hello whose counter did not increase (a replayed one)
             for b in targets[0]:
-                send(HELLO, b, 0, 0, {"heard": heard, **progress})
+                send(HELLO, b, 0, beat, {"heard": heard, **progress})
             with box.cond:
                 box.tick(deadline)
 

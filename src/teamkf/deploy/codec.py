@@ -1,23 +1,31 @@
 """The teamkf wire format: a fixed little-endian frame around a typed tree of raw arrays.
 
-Frame, version 1 (every integer little-endian)::
+Frame, version 2 (every integer little-endian)::
 
     offset  size  field
     0       4     magic      b"TKFD"
-    4       2     version    u16, 1
-    6       1     kind       u8: 1 data (a payload), 2 hello (join), 3 bye (leave)
+    4       2     version    u16, 2
+    6       1     kind       u8: 1 data (a payload), 2 hello (join and heartbeat), 3 bye (leave)
     7       1     flags      u8: bit 0 set = the sender dropped this message on purpose
-                               (``--p-drop`` loss injection: an empty payload, recorded as a drop)
+                               (``--p-drop`` loss injection: an empty payload, recorded as a drop);
+                               bit 1 set = unkeyed (``--insecure``: the tag is a plain SHA-256)
     8       8     run_id     u64: every frame of one run carries the same id
     16      4     sender     u32: agent id j
     20      4     receiver   u32: agent id i (the frame is for i only)
-    24      4     step       u32: the step k at which the receiver fuses it (k = s + τ_ji)
-    28      4     origin     u32: the step s at which the sender sent it
+    24      4     step       u32: the step k at which the receiver fuses it (k = s + τ_ji);
+                               for a hello, 0
+    28      4     origin     u32: the step s at which the sender sent it; for a hello, the
+                               sender's heartbeat counter (1, 2, ...: a replayed hello is refused)
     32      4     nbytes     u32: length of the payload that follows
     36      n     payload    the typed tree (below)
-    36+n    4     crc32      u32: zlib.crc32 of bytes 0 .. 36+n-1
+    36+n    32    tag        HMAC-SHA256 under the team key of bytes 0 .. 36+n-1 (header and
+                               payload: every field above); unkeyed, their SHA-256
 
-A frame is exactly 40 + n bytes. The payload is the agent's message, whatever
+A frame is exactly 68 + n bytes. The tag is checked (:func:`hmac.compare_digest`) before
+anything else of the frame is used, and the payload is decoded only after it matched:
+a frame that was changed, re-stamped for another step, receiver, sender or run, or
+forged without the key, is refused (reason ``auth``) without decoding a byte of its
+payload. The payload is the agent's message, whatever
 its family sends, as a tree of tagged values (one tag byte, then the value):
 
 ====  ==========  =====================================================================
@@ -47,11 +55,12 @@ already loaded by the receiver (the family's own module), anything else is refus
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import hmac
 import struct
 import sys
-import zlib
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -64,8 +73,13 @@ __all__ = [
     "HELLO",
     "BYE",
     "DROPPED",
+    "UNKEYED",
     "HEADER_SIZE",
+    "TAG_SIZE",
+    "KEY_SIZE",
     "Frame",
+    "Header",
+    "open_frame",
     "FrameError",
     "encode_frame",
     "decode_frame",
@@ -74,13 +88,17 @@ __all__ = [
 ]
 
 MAGIC = b"TKFD"
-VERSION = 1
+VERSION = 2
 DATA, HELLO, BYE = 1, 2, 3
 #: flags bit 0: an injected drop (the message was not sent; the frame only says so)
 DROPPED = 1
+#: flags bit 1: the frame carries a plain SHA-256, not an HMAC (a sender without a key, ``--insecure``)
+UNKEYED = 2
 _HEADER = struct.Struct("<4sHBBQIIIII")
 HEADER_SIZE = _HEADER.size  # 36
-_CRC = struct.Struct("<I")
+TAG_SIZE = 32
+#: the team key's length in bytes (HMAC-SHA256); shorter keys are refused
+KEY_SIZE = 32
 _U32_MAX = 2**32 - 1
 
 _DTYPES: dict[int, np.dtype] = {
@@ -99,7 +117,7 @@ _CODES = {dt.str: c for c, dt in _DTYPES.items()}  # "<f8" -> 1, "|b1" -> 5, ...
 
 
 class FrameError(TeamkfError, ValueError):
-    """A frame that cannot be decoded: ``reason`` is one of short, magic, version, checksum, payload."""
+    """A frame that is refused: ``reason`` is one of short, magic, version, auth, unkeyed, checksum, payload."""
 
     def __init__(self, reason: str, message: str) -> None:
         super().__init__(message, argument="frame")
@@ -123,8 +141,33 @@ class Frame:
 # ---------------------------------------------------------------------------
 # frames
 # ---------------------------------------------------------------------------
-def encode_frame(frame: Frame) -> bytes:
-    """The bytes of ``frame``: header, typed payload, CRC-32 (see the module docstring)."""
+class Header(NamedTuple):
+    """The header fields of a frame whose tag matched (:func:`open_frame`), and its payload bytes, not yet decoded."""
+
+    kind: int
+    flags: int
+    run_id: int
+    sender: int
+    receiver: int
+    step: int
+    origin: int
+    body: bytes
+
+
+def _check_key(key: bytes | None) -> None:
+    if key is not None and (not isinstance(key, (bytes, bytearray)) or len(key) < KEY_SIZE):
+        raise FrameError(
+            "auth", f"key: expected at least {KEY_SIZE} bytes, found {len(key) if isinstance(key, (bytes, bytearray)) else type(key).__name__}"
+        )
+
+
+def _tag(key: bytes | None, data: bytes) -> bytes:
+    return hmac.new(key, data, hashlib.sha256).digest() if key is not None else hashlib.sha256(data).digest()
+
+
+def encode_frame(frame: Frame, key: bytes | None = None) -> bytes:
+    """The bytes of ``frame``: header, typed payload, tag (HMAC-SHA256 under ``key``; without one a SHA-256, flagged unkeyed)."""
+    _check_key(key)
     for name in ("sender", "receiver", "step", "origin"):
         v = getattr(frame, name)
         if not 0 <= v <= _U32_MAX:
@@ -132,28 +175,46 @@ def encode_frame(frame: Frame) -> bytes:
     if not 0 <= frame.run_id < 2**64:
         raise FrameError("payload", f"frame.run_id: expected an integer in 0..2**64-1, found {frame.run_id}")
     body = encode_payload(frame.payload)
-    head = _HEADER.pack(MAGIC, VERSION, frame.kind, frame.flags, frame.run_id, frame.sender, frame.receiver, frame.step, frame.origin, len(body))
+    flags = (frame.flags & ~UNKEYED) | (UNKEYED if key is None else 0)
+    head = _HEADER.pack(MAGIC, VERSION, frame.kind, flags, frame.run_id, frame.sender, frame.receiver, frame.step, frame.origin, len(body))
     data = head + body
-    return data + _CRC.pack(zlib.crc32(data))
+    return data + _tag(key, data)
 
 
-def decode_frame(data: bytes | bytearray | memoryview) -> Frame:
-    """Decode and check one frame; :class:`FrameError` (with ``reason``) for anything malformed."""
+def open_frame(data: bytes | bytearray | memoryview, key: bytes | None = None) -> Header:
+    """Check a frame's length, magic, version and tag, and return its header and raw payload (decoded by nobody yet).
+
+    With ``key`` only a frame whose HMAC-SHA256 under ``key`` matches is opened (reason ``auth``
+    otherwise, ``unkeyed`` for a frame of a sender without a key); without a key, only the plain
+    SHA-256 of an unkeyed frame is checked (``checksum``: it catches corruption, not an attacker).
+    """
+    _check_key(key)
     buf = bytes(data)
-    if len(buf) < HEADER_SIZE + _CRC.size:
-        raise FrameError("short", f"frame: expected at least {HEADER_SIZE + _CRC.size} bytes, found {len(buf)}")
+    if len(buf) < HEADER_SIZE + TAG_SIZE:
+        raise FrameError("short", f"frame: expected at least {HEADER_SIZE + TAG_SIZE} bytes, found {len(buf)}")
     magic, version, kind, flags, run_id, sender, receiver, step, origin, n = _HEADER.unpack_from(buf, 0)
     if magic != MAGIC:
         raise FrameError("magic", f"frame: expected the magic {MAGIC!r}, found {magic!r}; not a teamkf frame")
     if version != VERSION:
         raise FrameError("version", f"frame: expected version {VERSION}, found {version}; run the same teamkf version on every agent")
-    if len(buf) != HEADER_SIZE + n + _CRC.size:
-        raise FrameError("short", f"frame: the header announces {n} payload bytes ({HEADER_SIZE + n + _CRC.size} in all), found {len(buf)} bytes")
-    (crc,) = _CRC.unpack_from(buf, HEADER_SIZE + n)
-    if zlib.crc32(buf[: HEADER_SIZE + n]) != crc:
-        raise FrameError("checksum", "frame: the CRC-32 does not match (corrupted in transit)")
-    payload = decode_payload(buf[HEADER_SIZE : HEADER_SIZE + n])
-    return Frame(kind, run_id, sender, receiver, step, origin, payload, flags)
+    if len(buf) != HEADER_SIZE + n + TAG_SIZE:
+        raise FrameError("short", f"frame: the header announces {n} payload bytes ({HEADER_SIZE + n + TAG_SIZE} in all), found {len(buf)} bytes")
+    signed, tag = buf[: HEADER_SIZE + n], buf[HEADER_SIZE + n :]
+    if not hmac.compare_digest(_tag(key, signed), tag):
+        if key is None:
+            raise FrameError("checksum", "frame: the SHA-256 does not match (corrupted in transit, or signed with a key this agent does not hold)")
+        if flags & UNKEYED:
+            raise FrameError("unkeyed", "frame: not signed with a key (a sender run with --insecure); give every agent the roster's key")
+        raise FrameError("auth", "frame: the HMAC-SHA256 tag does not match the team key (forged, altered, or of another key)")
+    if key is None and not flags & UNKEYED:
+        raise FrameError("checksum", "frame: signed with a key this agent does not hold")
+    return Header(kind, flags & ~UNKEYED, run_id, sender, receiver, step, origin, buf[HEADER_SIZE : HEADER_SIZE + n])
+
+
+def decode_frame(data: bytes | bytearray | memoryview, key: bytes | None = None) -> Frame:
+    """Check (:func:`open_frame`) and decode one frame; :class:`FrameError` (with ``reason``) for anything refused."""
+    h = open_frame(data, key)
+    return Frame(h.kind, h.run_id, h.sender, h.receiver, h.step, h.origin, decode_payload(h.body), h.flags)
 
 
 # ---------------------------------------------------------------------------

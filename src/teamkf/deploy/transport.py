@@ -66,12 +66,16 @@ class ZenohTransport(Transport):
         the others' are connected to
     prefix : key-expression prefix of the run (``teamkf/agents`` by default)
     listen : listen on ``endpoints[me]`` (False for a pure client, e.g. a monitor)
+    tls : the roster's [tls] files (:class:`~teamkf.deploy.roster.TlsFiles`): Zenoh's
+        ``transport/link/tls`` configuration for ``tls/HOST:PORT`` endpoints (mutual TLS when
+        ``tls.mutual``)
     """
 
-    def __init__(self, me: int, endpoints: Mapping[int, str], *, prefix: str = "teamkf/agents", listen: bool = True):
+    def __init__(self, me: int, endpoints: Mapping[int, str], *, prefix: str = "teamkf/agents", listen: bool = True, tls: Any = None):
         self.me, self.prefix = int(me), prefix.rstrip("/")
         self.endpoints = dict(endpoints)
         self._listen = listen
+        self.tls = tls
         self._session: Any = None
         self._sub: Any = None
         self._pubs: dict[int, Any] = {}
@@ -86,6 +90,8 @@ class ZenohTransport(Transport):
         c.insert_json5("listen/endpoints", json.dumps([mine] if self._listen and mine else []))
         c.insert_json5("connect/endpoints", json.dumps([e for a, e in sorted(self.endpoints.items()) if a != self.me or not self._listen]))
         c.insert_json5("scouting/multicast/enabled", "false")
+        if self.tls is not None:
+            c.insert_json5("transport/link/tls", json.dumps(self.tls.zenoh()))
         return c
 
     def open(self) -> None:

@@ -24,6 +24,8 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from ..deploy import AgentResult, DropRecord, QueueHub, Roster, ZenohTransport, check_deployable, free_ports, launch, replay, run_agent
+from ..deploy.agent import REFUSED
+from ..deploy.roster import write_key
 from ..deploy.transport import TransportError
 from ..estimators.base import check_measurements
 from ..exceptions import ArgumentError, UnsupportedOperationError
@@ -224,10 +226,16 @@ def run_team(
     p_drop: float = 0.0,
     rng: int | None = None,
     kill: tuple[int, int] | None = None,
+    insecure: bool = False,
 ) -> DeployResult:
-    """Run every agent as a thread of this process, over in-process queues (``"queue"``) or Zenoh on loopback."""
+    """Run every agent as a thread of this process, over in-process queues (``"queue"``) or Zenoh on loopback.
+
+    Every frame is signed with a fresh team key (HMAC-SHA256) on both transports; ``insecure`` runs without
+    one (plain SHA-256 checksums; for measuring what authentication costs).
+    """
     n = prep.n_agents
     run_id = secrets.randbits(63)
+    key = None if insecure else secrets.token_bytes(32)
     agents = prep.design.graph_agents()
     if transport == "queue":
         hub = QueueHub(n)
@@ -262,6 +270,7 @@ def run_team(
             kill_at=kill[1] if kill is not None and kill[0] == i else None,
             stop=stop,
             core=core,
+            key=key,
         )
 
     core_dz = prep.dz
@@ -302,6 +311,8 @@ def _agent_command(args: Any, scenario: str, i: int, roster: Path, run_dir: Path
         cmd += ["--kill-at", str(args.kill[1])]
     if getattr(args, "rate", None) is not None:
         cmd += ["--rate", repr(args.rate)]
+    if getattr(args, "insecure", False):
+        cmd += ["--insecure"]
     return cmd
 
 
@@ -312,10 +323,14 @@ def deploy_processes(args: Any, prep: Prepared, on_start: Callable[[list[int]], 
     from ..deploy.launcher import Stopped
     from .agent_ops import new_run_dir
 
-    run_dir = new_run_dir()  # teamkf-deploy-<pid>-*: a later deploy removes it if this process is SIGKILLed
+    run_dir = new_run_dir()  # teamkf-deploy-<pid>-*, mode 0700 (the key stays private); a later deploy removes it if this process is SIGKILLed
     try:
         ports = free_ports(n)
-        roster = Roster({i: f"tcp/127.0.0.1:{ports[i]}" for i in range(n)}, run_id, f"teamkf/{run_id}")
+        key_file = None
+        if not getattr(args, "insecure", False):
+            key_file = "team.key"
+            write_key(run_dir / key_file, secrets.token_bytes(32))  # a fresh key per run, mode 0600
+        roster = Roster({i: f"tcp/127.0.0.1:{ports[i]}" for i in range(n)}, run_id, f"teamkf/{run_id}", key_file=key_file)
         rpath = run_dir / "roster.toml"
         roster.write(rpath)
         scen = str(Path(args.scenario).resolve()) if Path(args.scenario).exists() else args.scenario
@@ -448,7 +463,14 @@ def cmd_deploy(args: Any) -> int:
 
         with sigterm_interrupts():
             res = run_team(
-                prep, transport="queue", deadline=args.deadline, join_timeout=args.join_timeout, p_drop=args.p_drop, rng=args.seed, kill=args.kill
+                prep,
+                transport="queue",
+                deadline=args.deadline,
+                join_timeout=args.join_timeout,
+                p_drop=args.p_drop,
+                rng=args.seed,
+                kill=args.kill,
+                insecure=getattr(args, "insecure", False),
             )
     else:
         res = deploy_processes(args, prep, on_start=started)
@@ -466,7 +488,7 @@ def cmd_deploy(args: Any) -> int:
     rows = []
     for r in res.reports:
         c = r.get("counts", {})
-        bad = sum(v for k, v in c.items() if k.startswith("corrupt") or k in ("other_run", "unknown_sender", "misaddressed", "bad_step"))
+        bad = sum(v for k, v in c.items() if k in REFUSED)
         rows.append(
             [
                 r["agent"],
@@ -512,6 +534,12 @@ def cmd_agent(args: Any) -> int:
         raise ArgumentError(f"--id: expected an agent id in 0..{n - 1}, found {args.id}", argument="--id")
     roster = Roster.read(args.roster)
     roster.check(n)
+    if roster.key is None and not getattr(args, "insecure", False):
+        raise ArgumentError(
+            f'{roster.source}: no key_file: every frame must be signed with the team key; add key_file = "team.key" '
+            "(teamkf roster new writes a roster and a key), or run with --insecure on a network nobody else reaches",
+            argument="--roster",
+        )
     roster.check_network(args.id)  # every host resolves, this agent's endpoint is free here: one line, before any work
     i = args.id
     name = deploy_estimator(sc, args.estimator)
@@ -553,7 +581,7 @@ def cmd_agent(args: Any) -> int:
     from .agent_ops import AgentStream, check_rejoin, rate_limited, report_json
 
     core = check_rejoin(design, i, sc.graph, rejoin=bool(getattr(args, "rejoin", False)))  # before the network: one line
-    transport = ZenohTransport(i, roster.endpoints, prefix=roster.prefix)
+    transport = ZenohTransport(i, roster.endpoints, prefix=roster.prefix, tls=roster.tls)
     try:
         transport.open()  # what Zenoh still refuses (the roster was checked): one line naming the roster and the endpoint
     except TransportError as exc:
@@ -593,6 +621,7 @@ def cmd_agent(args: Any) -> int:
         graph=sc.graph,
         core=core,
         rejoin=bool(getattr(args, "rejoin", False)),
+        key=roster.key,
     )
     if stream is not None:
         stream.close()

@@ -118,6 +118,9 @@ def add_parsers(add: Callable[[str, str], Any]) -> None:
     )
     p.add_argument("--json", action="store_true", help="print one JSON object (per-agent reports, failures, misses)")
     p.add_argument("--rate", type=_hertz, metavar="HZ", help="the agents release the log's steps at HZ per second (its sensors' rate)")
+    p.add_argument(
+        "--insecure", action="store_true", help="run the agents without a team key (unsigned frames; to measure what authentication costs)"
+    )
     p.set_defaults(func=_command("cmd_deploy"))
 
     p = add("agent", "run one agent of a scenario on this machine: it talks to the others through the roster's Zenoh endpoints")
@@ -149,8 +152,16 @@ def add_parsers(add: Callable[[str, str], Any]) -> None:
         help="a restarted agent: learn the team's current step from the neighbours, start there from the design's prior (exit 3: completed, steps before missed)",
     )
     p.add_argument("--rate", type=_hertz, metavar="HZ", help="release the log's steps at HZ per second (a recorded log played at its sensor's rate)")
+    p.add_argument(
+        "--insecure",
+        action="store_true",
+        help="run without a team key when the roster has no key_file (unsigned frames: anyone who reaches the network can steer the team)",
+    )
     p.set_defaults(func=_command("cmd_agent"))
     _add_record_parser(add)
+    from .roster_cmd import add_parser as add_roster_parser
+
+    add_roster_parser(add)
 
 
 def _hertz(text: str) -> float:
