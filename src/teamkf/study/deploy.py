@@ -19,13 +19,13 @@ import sys
 import tempfile
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from ..deploy import AgentResult, DropRecord, QueueHub, Roster, ZenohTransport, check_deployable, free_ports, launch, replay, run_agent
+from ..deploy import AgentCore, AgentResult, DropRecord, QueueHub, Roster, ZenohTransport, check_deployable, free_ports, launch, replay, run_agent
 from ..deploy.transport import TransportError
 from ..estimators.base import check_measurements
 from ..exceptions import ArgumentError, UnsupportedOperationError
@@ -227,8 +227,6 @@ def run_team(
         transports = [ZenohTransport(i, eps, prefix=f"teamkf/{run_id}") for i in range(n)]
     else:
         raise ArgumentError(f"--transport: expected 'zenoh' or 'queue', found {transport!r}", argument="--transport")
-    from ..deploy import AgentCore
-
     results: list[AgentResult | None] = [None] * n
     stop = threading.Event()
 
@@ -272,13 +270,15 @@ def run_team(
     return res
 
 
-def _agent_command(args: Any, scenario: str, i: int, roster: Path, run_dir: Path, estimator: str, plugins: Sequence[str]) -> list[str]:
+def _agent_command(
+    args: Any, scenario: str, i: int, roster: Path, run_dir: Path, estimator: str, plugins: Sequence[str], design: Path | None = None
+) -> list[str]:
     cmd = [sys.executable, "-m", "teamkf"]
     for p in plugins:
         cmd += ["--plugin", p]
     cmd += ["--quiet", "agent", scenario, "--id", str(i), "--roster", str(roster), "--measurements", str(Path(args.measurements).resolve())]
     cmd += ["--out", str(run_dir / f"agent-{i}.npz"), "--report", str(run_dir / f"agent-{i}.json"), "--stream", str(run_dir / f"agent-{i}.f8")]
-    cmd += ["--estimator", estimator]
+    cmd += ["--estimator", estimator] + (["--design", str(design)] if design is not None else [])
     cmd += ["--deadline", repr(args.deadline), "--join-timeout", repr(args.join_timeout), "--p-drop", repr(args.p_drop)]
     if args.seed is not None:
         cmd += ["--seed", str(args.seed)]
@@ -287,10 +287,21 @@ def _agent_command(args: Any, scenario: str, i: int, roster: Path, run_dir: Path
     return cmd
 
 
-def deploy_processes(args: Any, prep: Prepared, on_start: Callable[[list[int]], None] | None = None) -> DeployResult:
-    """One ``teamkf agent`` process per agent over Zenoh on loopback (what ``teamkf deploy`` runs)."""
+def deploy_processes(
+    args: Any,
+    prep: Prepared,
+    on_start: Callable[[list[int]], None] | None = None,
+    *,
+    run_id: int | None = None,
+    slices: Sequence[dict[str, np.ndarray]] | None = None,
+) -> DeployResult:
+    """One ``teamkf agent`` process per agent over Zenoh on loopback (what ``teamkf deploy`` runs).
+
+    ``slices``: each agent's slice file (:func:`teamkf.study.slices.agent_files`), written into the run
+    folder and passed as ``--design``: the agent processes then never design the team.
+    """
     n = prep.n_agents
-    run_id = secrets.randbits(63)
+    run_id = secrets.randbits(63) if run_id is None else run_id
     run_dir = Path(tempfile.mkdtemp(prefix="teamkf-deploy-"))
     try:
         ports = free_ports(n)
@@ -299,7 +310,14 @@ def deploy_processes(args: Any, prep: Prepared, on_start: Callable[[list[int]], 
         roster.write(rpath)
         scen = str(Path(args.scenario).resolve()) if Path(args.scenario).exists() else args.scenario
         plugins = list(getattr(args, "plugin", None) or [])
-        cmds = [_agent_command(args, scen, i, rpath, run_dir, prep.estimator, plugins) for i in range(n)]
+        designs: list[Path | None] = [None] * n
+        if slices is not None:
+            from .slices import write_slices
+
+            for i in range(n):
+                designs[i] = run_dir / f"agent-{i}.slice.npz"
+                write_slices(designs[i], slices[i])  # type: ignore[arg-type]
+        cmds = [_agent_command(args, scen, i, rpath, run_dir, prep.estimator, plugins, designs[i]) for i in range(n)]
         timeout = args.timeout if args.timeout is not None else 120.0 + args.join_timeout + prep.n_steps * args.deadline
         t0 = time.monotonic()
         children = launch(cmds, timeout=timeout, on_start=on_start)
@@ -407,7 +425,13 @@ def cmd_deploy(args: Any) -> int:
     name = deploy_estimator(sc, args.estimator)
     if args.kill is not None and not 0 <= args.kill[0] < sc.system.n_agents:
         raise ArgumentError(f"--kill: agent {args.kill[0]} is out of range 0..{sc.system.n_agents - 1}", argument="--kill")
-    prep = prepare(sc, log, name, design_here=args.transport == "queue")  # the agent processes design for themselves
+    prep = prepare(sc, log, name)  # designed once, here: each agent process gets its slice
+    run_id, files = secrets.randbits(63), None
+    if args.transport == "zenoh":
+        from .slices import agent_files
+
+        files = agent_files(sc, prep.design, run_id)
+        prep = replace(prep, design=None)  # the team design is not needed while the agents run
 
     def started(pids: list[int]) -> None:
         print(f"teamkf deploy: {len(pids)} agent processes started: pids {' '.join(map(str, pids))}", file=sys.stderr, flush=True)
@@ -421,7 +445,7 @@ def cmd_deploy(args: Any) -> int:
             prep, transport="queue", deadline=args.deadline, join_timeout=args.join_timeout, p_drop=args.p_drop, rng=args.seed, kill=args.kill
         )
     else:
-        res = deploy_processes(args, prep, on_start=started)
+        res = deploy_processes(args, prep, on_start=started, run_id=run_id, slices=files)
     if len(res.failed) == prep.n_agents and all(r.get("steps_done", 0) == 0 for r in res.reports):  # nothing ran: one line, as any error
         raise ArgumentError(f"no agent ran: agent 0: {res.failed[0]}", argument="SCENARIO")
     M.write_estimates(args.out, {name: res.estimates}, prep.n_agents)
@@ -490,8 +514,9 @@ def cmd_agent(args: Any) -> int:
     i = args.id
     name = deploy_estimator(sc, args.estimator)
     _limits.check_agent(args, sc)  # --steps, --deadline and the work limit, before the design
-    design = sc.design(name)
-    check_deployable(design, sc.graph)
+    from .slices import agent_design
+
+    design, agent = agent_design(args, sc, name, roster.run_id)  # --design: its slice (no team design); else the team design
     dz = int(design.cost.dz)
     if args.measurements == "-":
         T = args.steps if args.steps is not None else sc.horizon
@@ -557,6 +582,7 @@ def cmd_agent(args: Any) -> int:
         on_estimate=printer if sinks else None,
         stop=stop,
         graph=sc.graph,
+        core=AgentCore(design, i, agent=agent, graph=sc.graph),
     )
     if stream is not None:
         stream.close()
