@@ -328,6 +328,7 @@ def deploy_processes(
             rep = res.reports[i]
             rep["pid"] = ch.pid
             rep["exit"] = ch.returncode
+            rep["peak_rss_mb"] = _peak_rss(run_dir / f"agent-{i}.json")
             if ch.timed_out:
                 res.failed[i] = f"killed after the run's timeout ({timeout:g} s)"
             elif ch.returncode < 0:
@@ -342,6 +343,26 @@ def deploy_processes(
         return res
     finally:
         shutil.rmtree(run_dir, ignore_errors=True)
+
+
+def _own_peak_rss() -> float | None:
+    """This process's peak resident memory in MB: VmHWM of /proc/self/status (ru_maxrss is inherited from the parent; None off Linux)."""
+    try:
+        for line in Path("/proc/self/status").read_text(encoding="ascii").splitlines():
+            if line.startswith("VmHWM:"):
+                return round(int(line.split()[1]) / 1024.0, 1)
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def _peak_rss(report: Path) -> float | None:
+    """The agent process's peak resident memory in MB, as its report says (None: no report)."""
+    try:
+        v = json.loads(report.read_text(encoding="utf-8")).get("peak_rss_mb")
+        return None if v is None else float(v)
+    except (OSError, ValueError, AttributeError):
+        return None
 
 
 def _read_agent(run_dir: Path, i: int, prep: Prepared) -> AgentResult | None:
@@ -589,7 +610,7 @@ def cmd_agent(args: Any) -> int:
     if args.out and args.out != "-":
         _write_own(args.out, res, name)
     if args.report:
-        Path(args.report).write_text(json.dumps(res.to_json()) + "\n", encoding="utf-8")
+        Path(args.report).write_text(json.dumps({**res.to_json(), "peak_rss_mb": _own_peak_rss()}) + "\n", encoding="utf-8")
     if res.error == "interrupted":
         print(f"teamkf agent {i}: interrupted after {res.steps_done} steps", file=sys.stderr)
         return 130
