@@ -243,3 +243,22 @@ def test_24_agents_with_a_24_dim_state_deploy_within_memory_and_time(tmp_path):
     ff = _teamkf("filter", str(sp), "--measurements", str(lp), "--out", str(fout), "--estimators", "kcf", env=_env())
     assert ff.returncode == 0, ff.stderr
     assert out.read_bytes() == fout.read_bytes()
+
+
+def test_steady_state_mtmse_slices_rebuild_the_agents_bit_for_bit(tmp_path):
+    """A steady-state design's slice: the transient gains F_i(k), k < c, and F-bar_i."""
+    from teamkf.simulation.sampling import sample_paths
+    from teamkf.study.scenario import load_packaged
+
+    sc = load_packaged("platoon-4-steady")
+    ys = [np.asarray(v)[:, :12] for v in sample_paths(sc.system, 12, 1, rng=3).y]
+    d = sc.design("mtmse")
+    path = tmp_path / "steady.npz"
+    write_slices(path, slice_sections(sc, d))
+    ctx = SliceContext(sc.system, sc.cost, sc.graph, sc.information, sc.horizon)
+    built = []
+    for i in range(4):
+        kind, arrays, meta = read_slice(str(path), sc, "mtmse", i)
+        built.append(agent_from_slice(kind, ctx, i, arrays, meta))
+    z = pass_messages([a for _, a in built], sc.graph, ys, design=built[0][0])
+    assert z.tobytes() == pass_messages(d.graph_agents(), sc.graph, ys, design=d).tobytes()
