@@ -71,11 +71,99 @@ def reader_folder(tmp_path):
     return tmp_path
 
 
-def _run(line: str, cwd: Path) -> subprocess.CompletedProcess:
+def _run(line: str, cwd: Path, *, demo_only: bool = True) -> subprocess.CompletedProcess:
+    """Run a README line as ``teamkf`` would; with ``demo_only``, third-party packages that ``make demo`` does not
+    install cannot be imported (as in the .venv that ``make demo`` creates)."""
     argv = shlex.split(line)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), os.environ.get("PYTHONPATH", "")]), "MPLBACKEND": "Agg"}
     env["TEAMKF_PROGRESS"] = "0"
-    return subprocess.run([sys.executable, "-m", "teamkf", *argv[1:]], cwd=cwd, env=env, capture_output=True, text=True, timeout=900)
+    prelude = ["-c", DEMO_ONLY, json.dumps(sorted(_blocked_modules()))] if demo_only else ["-m", "teamkf"]
+    return subprocess.run([sys.executable, *prelude, *argv[1:]], cwd=cwd, env=env, capture_output=True, text=True, timeout=900)
+
+
+# ---------------------------------------------------------------------------
+# what `make demo` installs
+# ---------------------------------------------------------------------------
+#: run teamkf with the top-level modules of argv[1] (JSON) made unimportable
+DEMO_ONLY = """
+import importlib.abc, json, sys
+blocked = set(json.loads(sys.argv.pop(1)))
+class Block(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in blocked:
+            raise ModuleNotFoundError(f"No module named {name!r} (make demo does not install it)", name=name)
+        return None
+sys.meta_path.insert(0, Block())
+from teamkf.cli import main
+raise SystemExit(main(sys.argv[1:]))
+"""
+
+
+def _demo_extras() -> list[str]:
+    """The extras that ``make demo`` installs (its stamp's ``pip install ... -e '.[EXTRAS]'``)."""
+    make = (ROOT / "Makefile").read_text(encoding="utf-8")
+    recipe = make.split("$(DEMO_STAMP):", 1)[1].split("\n\n", 1)[0]
+    m = re.search(r"-e '\.\[([\w,-]+)\]'", recipe)
+    assert m, "the Makefile's $(DEMO_STAMP) recipe installs -e '.[EXTRAS]'"
+    return m.group(1).split(",")
+
+
+def _demo_distributions() -> set[str]:
+    """Every distribution a ``make demo`` install holds: teamkf's dependencies and its demo extras', recursively."""
+    import tomllib
+    from importlib import metadata
+
+    from packaging.requirements import Requirement
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]
+    todo = list(project["dependencies"])
+    extras = list(_demo_extras())
+    while extras:
+        for req in project["optional-dependencies"][extras.pop()]:
+            r = Requirement(req)
+            if r.name == "teamkf":
+                extras += sorted(r.extras)
+            else:
+                todo.append(req)
+    seen: set[str] = set()
+    while todo:
+        r = Requirement(todo.pop())
+        name = r.name.lower().replace("_", "-")
+        if name in seen or (r.marker is not None and not r.marker.evaluate({"extra": ""})):
+            continue
+        seen.add(name)
+        try:
+            deps = metadata.requires(r.name) or []
+        except metadata.PackageNotFoundError:
+            continue
+        for d in deps:
+            dr = Requirement(d)
+            if dr.marker is None or any(dr.marker.evaluate({"extra": e}) for e in ("", *r.extras)):
+                todo.append(f"{dr.name}[{','.join(dr.extras)}]" if dr.extras else dr.name)
+    return seen
+
+
+def _blocked_modules() -> set[str]:
+    """Top-level modules of installed distributions that a ``make demo`` install would not have."""
+    from importlib import metadata
+
+    demo = _demo_distributions()
+    out = set()
+    for module, dists in metadata.packages_distributions().items():
+        names = {d.lower().replace("_", "-") for d in dists}
+        if module != "teamkf" and not names & (demo | {"teamkf"}):
+            out.add(module)
+    return out
+
+
+def test_make_demo_installs_what_the_readme_filter_needs(reader_folder):
+    """Old: `make demo` installed teamkf[plot] only, and the README's `teamkf filter` line stopped for pandas."""
+    assert "pandas" in _blocked_modules() or "pandas" in _demo_distributions()
+    line = next(c for c in _commands() if c.startswith("teamkf filter"))
+    proc = _run(line, reader_folder)
+    assert proc.returncode == 0, f"after make demo (extras {_demo_extras()}), {line!r} fails: {proc.stderr[-2000:]}"
+    setup = _blocks("sh")[0]
+    assert all(e in setup for e in _demo_extras()), "the README says which extras `make demo` installs"
 
 
 def test_scenario_quickstart_is_the_four_vehicle_platoon(reader_folder):

@@ -11,7 +11,9 @@ every one of these holds:
 * tqdm is installed (it comes with ``pip install 'teamkf[dask]'``).
 
 The bar appears only once the loop has run for ``delay`` seconds (2 s by default),
-so short loops never print anything.
+so short loops never print anything; from then on it is redrawn at least every second, so a job
+whose work items each take long (one Monte Carlo block, one sweep point) still shows its bar and its
+elapsed time. A terminal that reports no width (a pseudo-terminal nobody sized) gets an 80-column bar.
 
 Examples
 --------
@@ -22,7 +24,10 @@ True
 
 from __future__ import annotations
 
+import os
 import sys
+import threading
+import weakref
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from typing import Any, TypeVar
@@ -59,6 +64,71 @@ def _is_tty(stream: Any) -> bool:
         return bool(stream.isatty())
     except (AttributeError, ValueError):
         return False
+
+
+def _width(stream: Any) -> dict[str, Any]:
+    """tqdm's size keywords: follow the terminal, or 80 x 24 (``$COLUMNS``, ``$LINES``) where it reports a size of 0.
+
+    A pseudo-terminal that nobody sized reports 0 x 0, and tqdm then draws nothing at all.
+    """
+    try:
+        size = os.get_terminal_size(stream.fileno())
+        if size.columns > 0 and size.lines > 0:
+            return {"dynamic_ncols": True}
+    except (AttributeError, ValueError, OSError):
+        pass
+
+    def env(name: str, default: int) -> int:
+        v = os.environ.get(name, "")
+        return int(v) if v.isdigit() and int(v) > 0 else default
+
+    return {"ncols": env("COLUMNS", 80), "nrows": env("LINES", 24)}
+
+
+#: the bars drawn by the heartbeat thread (tqdm redraws a bar only when it is updated)
+_LIVE: "weakref.WeakKeyDictionary[Any, float]" = weakref.WeakKeyDictionary()  # bar -> when the heartbeat last drew it
+_HEART: list[threading.Thread] = []
+_HEART_LOCK = threading.Lock()
+#: seconds between two redraws of a bar that nothing updated
+BEAT = 1.0
+
+
+def _watch(t: Any) -> Any:
+    """Have the heartbeat draw tqdm bar ``t`` once its delay is over, and redraw it every :data:`BEAT` s."""
+    with _HEART_LOCK:
+        _LIVE[t] = 0.0
+        if not _HEART or not _HEART[0].is_alive():
+            _HEART[:] = [threading.Thread(target=_beat, name="teamkf-progress", daemon=True)]
+            _HEART[0].start()
+    return t
+
+
+def _beat() -> None:
+    import time
+
+    while True:
+        time.sleep(BEAT / 4)
+        with _HEART_LOCK:
+            live = list(_LIVE.items())
+            if not live:  # the thread ends with the last bar; the next bar starts another
+                _HEART.clear()
+                return
+        for t, drawn in live:
+            try:
+                now = t._time()
+                if t.disable:  # closed
+                    drawn = -1.0
+                elif now >= t.start_t + t.delay and now - max(t.last_print_t, drawn) >= BEAT:
+                    t.refresh()
+                    drawn = now
+            except Exception:  # pragma: no cover - a bar closed meanwhile: drawn by nobody
+                drawn = -1.0
+            with _HEART_LOCK:
+                if drawn < 0:
+                    _LIVE.pop(t, None)
+                elif t in _LIVE:
+                    _LIVE[t] = drawn
+        del live, t  # no reference kept while asleep: a bar nobody holds is collected
 
 
 def progress_enabled(enabled: bool | None = None, stream: Any = None) -> bool:
@@ -106,7 +176,7 @@ def progress(
         return iterable
     from tqdm import tqdm
 
-    return tqdm(iterable, desc=desc, total=total, unit=unit, file=out, delay=DELAY if delay is None else delay, leave=False, dynamic_ncols=True)
+    return _watch(tqdm(iterable, desc=desc, total=total, unit=unit, file=out, delay=DELAY if delay is None else delay, leave=False, **_width(out)))
 
 
 class Bar:
@@ -143,9 +213,10 @@ class Bar:
                 file=out,
                 delay=DELAY if delay is None else delay,
                 leave=False,
-                dynamic_ncols=True,
                 smoothing=0.1,
+                **_width(out),
             )
+            _watch(self._tqdm)
 
     @property
     def shown(self) -> bool:

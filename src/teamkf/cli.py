@@ -1,27 +1,17 @@
-"""The ``teamkf`` command.
+"""The ``teamkf`` command: evaluate, design, filter, sweep, reproduce, demo, families, deploy, agent.
 
-::
-
-    teamkf evaluate SCENARIO [--json] [--monte-carlo RUNS] [--seed S] [--scheduler WHERE] [--plot OUT.png]
-    teamkf design   SCENARIO [--json] [--out GAINS.npz]
-    teamkf demo     [--out DIR] [--quick]
-    teamkf reproduce ...      (a later version)
-    teamkf filter   SCENARIO --measurements FILE [--truth FILE] --out FILE [--estimators ...] [--json]
-    teamkf sweep    SWEEP.toml [--scheduler ADDRESS|local|serial] [--out RESULTS] [--resume] [--json]
-    teamkf families [--json]
-    teamkf --version
-
-``SCENARIO`` is a scenario file (TOML, or JSON by its ``.json`` extension) or
-the name of a packaged scenario (``platoon-4``, ``uav-10``, ...). ``--debug``
-(before or after the command) shows the traceback of an error; without it an
-error is one line ``teamkf: error: <message>`` on stderr and exit status 2.
-The formats are a contract: see ``design/scenario-and-cli.md``.
+``teamkf --help`` lists the commands and the families, ``teamkf COMMAND --help`` a command's options;
+``docs/scenario-and-cli.md`` specifies them and the file formats (a contract, tested against this parser).
+``SCENARIO`` is a scenario file (TOML, or JSON by its ``.json`` extension) or the name of a packaged
+scenario (``platoon-4``, ``uav-10``, ...). ``--debug`` shows the traceback of an error; without it an error
+is one line ``teamkf: error: <message>`` on stderr and exit status 2. Output into a closed pipe
+(``teamkf ... | head``) ends silently with status 1, as CPython's "Note on SIGPIPE" advises.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
+import os
 import sys
 import traceback
 from pathlib import Path
@@ -31,13 +21,14 @@ from . import _budget
 from ._lazy import lazy_module
 from ._version import __version__
 from .exceptions import ArgumentError, ScenarioError, TeamkfError
+from .study.textout import dumps_json, format_table
 
 if TYPE_CHECKING:
     import numpy as np
 else:  # imported on first use: --help, --version and every COMMAND --help start without numpy
     np = lazy_module("numpy")
 
-__all__ = ["main", "build_parser"]
+__all__ = ["main", "build_parser", "dumps_json", "format_table"]
 
 
 # ---------------------------------------------------------------------------
@@ -78,47 +69,6 @@ def _pct(p: float) -> str:
     if not np.isfinite(p):
         return "diverged"
     return f"{p:+.3e} %" if abs(p) >= 1e5 else f"{p:+.2f} %"
-
-
-def format_table(headers: Sequence[str], rows: Sequence[Sequence[Any]], *, indent: str = "  ", align: str | None = None) -> str:
-    """Plain-text table; ``align`` has one letter per column ("l" or "r"), default: first left, the others right."""
-    cells = [[str(h) for h in headers]] + [[str(c) for c in r] for r in rows]
-    widths = [max(len(r[k]) for r in cells) for k in range(len(headers))]
-    al = align or ("l" + "r" * (len(headers) - 1))
-    lines = []
-    for n, r in enumerate(cells):
-        parts = [c.ljust(w) if a == "l" else c.rjust(w) for c, w, a in zip(r, widths, al)]
-        lines.append(indent + "  ".join(parts).rstrip())
-        if n == 0:
-            lines.append(indent + "  ".join("-" * w for w in widths))
-    return "\n".join(lines)
-
-
-def dumps_json(obj: Any) -> str:
-    """JSON with objects indented and lists of numbers kept on one line."""
-
-    def enc(x: Any, level: int) -> str:
-        pad, inner = "  " * level, "  " * (level + 1)
-        if isinstance(x, dict):
-            if not x:
-                return "{}"
-            items = [f"{inner}{json.dumps(str(k))}: {enc(v, level + 1)}" for k, v in x.items()]
-            return "{\n" + ",\n".join(items) + "\n" + pad + "}"
-        if isinstance(x, (list, tuple)):
-            if all(not isinstance(v, (dict, list, tuple, np.ndarray)) for v in x):
-                return "[" + ", ".join(enc(v, level + 1) for v in x) + "]"
-            return "[\n" + ",\n".join(inner + enc(v, level + 1) for v in x) + "\n" + pad + "]"
-        if isinstance(x, np.ndarray):
-            return enc(x.tolist(), level)
-        if isinstance(x, np.generic):
-            x = x.item()
-        if isinstance(x, float) and not np.isfinite(x):
-            return "null"  # strict JSON (RFC 8259) has no NaN or Infinity
-        if x is None or isinstance(x, (str, bool, int, float)):
-            return json.dumps(x, allow_nan=False)
-        return enc(str(x), level)  # anything else (a path, ...) as its text
-
-    return enc(obj, 0)
 
 
 def _header(sc: Any) -> str:
@@ -853,7 +803,17 @@ def _load_plugins(argv: Sequence[str]) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the ``teamkf`` command; returns the exit status (0 success, 2 error)."""
+    """Run the ``teamkf`` command; returns the exit status (0 success, 2 error, 1 output into a closed pipe)."""
+    try:
+        rc = _main(argv)
+        sys.stdout.flush()  # here, not at exit: a reader that left (``| head``) shows up inside the try
+        return rc
+    except BrokenPipeError:  # silent, as CPython's "Note on SIGPIPE": stdout to devnull (for the flush at exit), status 1
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
+
+
+def _main(argv: Sequence[str] | None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
         _load_plugins(argv)
@@ -880,6 +840,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             rc = int(args.func(args))
         _report_warnings(caught)
         return rc
+    except BrokenPipeError:
+        raise
     except (TeamkfError, OSError) as exc:
         if getattr(args, "debug", False):
             traceback.print_exc()

@@ -189,7 +189,7 @@ def test_agent_applies_the_limit_and_checks_steps(monkeypatch: Any, capsys: Any,
     _no_work(monkeypatch)
     base = ["agent", "platoon-4", "--id", "0", "--roster", str(roster), "--measurements", "-"]
     assert main([*base, "--steps", "0"]) == 2
-    assert "--steps: expected a whole number of steps >= 1, found 0" in _err(capsys)
+    assert "--steps: expected a number of steps, an integer >= 1, found 0" in _err(capsys)
     assert main([*base, "--steps", str(10**15)]) == 2  # huge: its work exceeds the limit
     assert "--steps: teamkf agent 0: 4 agents over T = 1,000,000,000,000,000 steps needs at least" in _err(capsys)
     assert main([*base, "--steps", str(10**5)]) == 2  # fits the work limit, but not its worst case: 10^5 x 2 s

@@ -549,9 +549,12 @@ def test_set_dotted_graph_delay_builder_and_edges():
     e = set_dotted(d, "graph.delay", 2)
     assert scenario_from_dict(e).graph == CommGraph.line(4, 2)
     d["graph"] = {"edges": [[0, 1, 1], [1, 0, 3], [1, 2, 1], [2, 1, 1], [2, 3, 1], [3, 2, 1]]}
+    with pytest.raises(ScenarioError, match=r"graph.delay: the graph has explicit edges with different delays \(1, 3\)"):
+        set_dotted(d, "graph.delay", 2)  # the 3 would be lost silently
+    d["graph"]["edges"][1] = [1, 0, 1]  # one common delay: graph.delay sets it
     e = set_dotted(d, "graph.delay", 2)
     assert scenario_from_dict(e).graph == CommGraph.line(4, 2)
-    assert d["graph"]["edges"][1] == [1, 0, 3]
+    assert d["graph"]["edges"][1] == [1, 0, 1]
 
 
 def test_set_dotted_paths():

@@ -45,6 +45,7 @@ ALLOWED = {
     "teamkf.study",
     "teamkf.study.catalog",
     "teamkf.study.deploy_args",
+    "teamkf.study.textout",  # the CLI's tables and JSON (numpy on first use)
 }
 
 

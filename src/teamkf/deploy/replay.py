@@ -109,7 +109,11 @@ class DropRecord:
         }
 
     def write(self, path: str | Path) -> None:
-        Path(path).write_text(json.dumps(self.to_json(), indent=1) + "\n", encoding="utf-8")
+        """Write the record as JSON, atomically (:func:`teamkf._files.write_atomic`); its folder must exist."""
+        from .._files import write_atomic
+
+        text = json.dumps(self.to_json(), indent=1) + "\n"
+        write_atomic(path, lambda fh: fh.write(text), text=True)
 
     @classmethod
     def read(cls, path: str | Path) -> "DropRecord":

@@ -124,7 +124,11 @@ class Roster:
         return "\n".join(lines)
 
     def write(self, path: str | Path) -> None:
-        Path(path).write_text(self.to_toml(), encoding="utf-8")
+        """Write the roster as TOML, atomically (:func:`teamkf._files.write_atomic`); its folder must exist."""
+        from .._files import write_atomic
+
+        text = self.to_toml()
+        write_atomic(path, lambda fh: fh.write(text), text=True)
 
     @classmethod
     def read(cls, path: str | Path, argument: str = "--roster") -> "Roster":

@@ -200,9 +200,13 @@ class Design(DesignReprMixin, abc.ABC):
 
     @property
     def label(self) -> str:
-        """The estimator name, with its variant when it has one (``"kcf [honest]"``)."""
+        """The estimator name, with its variant when it has one (``"kcf [honest]"``).
+
+        A design whose agents send nothing (``info["communicates"] is False``: ``local``) has no exchange to
+        be honest or ideal about, and is labelled by its name alone.
+        """
         v = self.info.get("variant")
-        return f"{self.estimator} [{v}]" if v else self.estimator
+        return f"{self.estimator} [{v}]" if v and self.info.get("communicates", True) is not False else self.estimator
 
     def _unsupported(self, operation: str, reason: str = "") -> UnsupportedOperationError:
         return UnsupportedOperationError(self.estimator, operation, reason)

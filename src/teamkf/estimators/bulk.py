@@ -321,7 +321,7 @@ class _GainsMixin:
 
     def plot(self, ax: Any = None) -> Any:
         """Exact closed-loop variances against k: state, estimation error, population mean; returns the axes."""
-        from ..plotting import _pyplot
+        from ..plotting import _pyplot, legend_outside
 
         cov = self.covariances
         plt = _pyplot()
@@ -334,7 +334,7 @@ class _GainsMixin:
         ax.set_yscale("log")
         ax.set_xlabel("k")
         ax.set_title(f"{type(self).__name__}, N = {self.model.n_agents}")
-        ax.legend()
+        legend_outside(ax)
         return ax
 
     def stationarity_index(self) -> float:

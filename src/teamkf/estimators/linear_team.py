@@ -461,9 +461,7 @@ def _build(alg: Algorithm) -> tuple[list[LinearStep], FloatArray | None]:
                     rows.append(st[name])
                 payloads.append(pl)
             for j in range(n):  # payloads in flight: sent at s, needed up to s + max out-delay
-                for s in range(k - max_out[j] + 1, k + 1):
-                    if s < 0:
-                        continue
+                for s in range(max(0, k - max_out[j] + 1), k + 1):  # from 0: a delay beyond the horizon costs nothing
                     for name, kind in alg.payload_kinds.items():
                         new_slots.append(Slot(("payload", j, s, name), kind, j, s, alg.dim(kind, j)))
                         rows.append(payloads[j][name] if s == k else get(("payload", j, s, name)))

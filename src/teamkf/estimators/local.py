@@ -75,8 +75,8 @@ def design_local(
     --------
     >>> from teamkf import LinearGaussianSystem, TeamCost, design_local
     >>> d = design_local(LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 10.0), None, 10)
-    >>> float(d.total_cost) > 0
-    True
+    >>> float(d.total_cost) > 0, d.label
+    (True, 'local')
     """
     check_model(system, cost)
     if graph is not None:
@@ -84,7 +84,7 @@ def design_local(
     variant = check_variant(variant, "variant")
     T = finite_horizon(horizon, "local", system, cost)
     alg = LocalAlgorithm(system, cost, graph, T, np.eye(system.n_agents), honest=True)
-    return finish_design("local", alg, variant)
+    return finish_design("local", alg, variant, {"communicates": False})  # labelled "local", not "local [honest]"
 
 
 FAMILY = _register_builtin(

@@ -245,6 +245,9 @@ def save_figure(fig: Any, out_dir: Path | None, name: str, figures: Sequence[str
     from ..study.outputs import write_atomic
 
     out_dir.mkdir(exist_ok=True)  # the folder itself, never missing parents (checked by the caller)
+    from ..plotting import legends_off_the_data
+
+    legends_off_the_data(fig)  # no legend over a panel's data, whichever experiment drew it
     path = out_dir / f"{name}.png"
     write_atomic(path, lambda fh: fig.savefig(fh, dpi=120, bbox_inches="tight", format="png"))
     import matplotlib.pyplot as plt

@@ -78,6 +78,7 @@ import numpy as np
 
 from ..estimators import design_centralized, design_mtmse
 from ..estimators.registry import families, get_family
+from ..exceptions import TeamkfError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network import CommGraph
 from . import ExperimentResult, plotting_available, register, save_figure
@@ -226,6 +227,21 @@ def _cache_dir() -> Path | None:
     if where is None:
         return None
     return Path(where) if where else Path.home() / ".cache" / "teamkf"
+
+
+def _check_cache_dir() -> None:
+    """Refuse, before any work, a ``TEAMKF_CACHE_DIR`` that is a file, an input, or lies in a missing folder (the output guard)."""
+    where = os.environ.get("TEAMKF_CACHE_DIR", "")
+    if where and _cache_dir() is not None:
+        from ..study.outputs import check_output_dir
+
+        check_output_dir(where, "TEAMKF_CACHE_DIR")
+
+
+def _make_cache_dir(cache: Path) -> None:
+    """The cache folder: a named one (``TEAMKF_CACHE_DIR``) only itself, never a missing parent; the default
+    ``~/.cache/teamkf`` with ``~/.cache`` when missing (the XDG base-directory rule for a cache no one named)."""
+    cache.mkdir(parents=not os.environ.get("TEAMKF_CACHE_DIR"), exist_ok=True)
 
 
 def _fmt_options(opts: dict[str, Any]) -> str:
@@ -525,13 +541,14 @@ def _cached(key: str, compute: Any, problem: Any = None) -> dict[str, Any]:
     out = compute()
     out["network seconds"] = time.perf_counter() - t0
     out["format"], out["version"] = CACHE_FORMAT, ROWS_VERSION
-    if path is not None:
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = path.with_suffix(f".{os.getpid()}.tmp")
-            tmp.write_text(json.dumps(out))
-            tmp.replace(path)
-        except OSError:
+    if path is not None and cache is not None:
+        from ..study.outputs import write_atomic
+
+        try:  # best effort: a cache that cannot be written costs time, never a result
+            _make_cache_dir(cache)
+            text = json.dumps(out)
+            write_atomic(path, lambda fh: fh.write(text), text=True)
+        except (OSError, TeamkfError):
             pass
     out["cached"] = False
     return out
@@ -623,15 +640,25 @@ def _workers(n_jobs: int) -> int:
 
 def _parallel(jobs: list[tuple[Any, tuple[Any, ...]]]) -> list[dict[str, Any]]:
     """``[f(*args) for f, args in jobs]``, in parallel processes when there are several cores (the last jobs start first)."""
+    from .._progress import bar
+
     workers = _workers(len(jobs))
     if workers == 1:
-        return [f(*args) for f, args in jobs]
+        out = []
+        with bar(len(jobs), desc="leaderboard", unit="job") as done:
+            for f, args in jobs:
+                out.append(f(*args))
+                done.update()
+        return out
     import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures import ProcessPoolExecutor, as_completed
 
     ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as ex:
         futs = {a: ex.submit(f, *args) for a, (f, args) in reversed(list(enumerate(jobs)))}  # the larger networks are listed last
+        with bar(len(jobs), desc="leaderboard", unit="job") as done:  # after the workers forked: the bar's thread stays here
+            for _ in as_completed(futs.values()):
+                done.update()
         return [futs[a].result() for a in range(len(jobs))]
 
 
@@ -649,12 +676,15 @@ def _rank(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 #: short plot labels of the rows' forms (published rows: none)
+#: families whose agents send nothing: no exchange to be honest or ideal about, so no variant in their label
+SENDS_NOTHING = frozenset({"local"})
+
 _SHORT = {"tuned": "tuned", "heard-count": "heard-count", "drop-aware design": "drop-aware"}
 
 
 def _label(r: dict[str, Any]) -> str:
     """``estimator variant form`` for the plot, the form shortened."""
-    parts = [r["estimator"], "" if r["variant"] == "bound" else r["variant"], _SHORT.get(r["form"], "")]
+    parts = [r["estimator"], "" if r["variant"] == "bound" or r["estimator"] in SENDS_NOTHING else r["variant"], _SHORT.get(r["form"], "")]
     return " ".join(x for x in parts if x) + (" (diverging)" if r["diverging"] else "")
 
 
@@ -788,6 +818,7 @@ def _exact_results(quick: bool, T: int, which: list[int], plugins: list[str] | N
 
     ``plugins``: plug-in families ranked too (one more part per network, not cached); their failures in ``"failed"``.
     """
+    _check_cache_dir()
     nets = networks(quick)
     jobs = [(i, part) for i in which for part in PARTS]
     calls: list[tuple[Any, tuple[Any, ...]]] = [(_part_job, (i, part, quick, T)) for i, part in jobs]

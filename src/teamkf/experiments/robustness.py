@@ -12,7 +12,7 @@ delays τ + J (:func:`~teamkf.simulation.links.robust_graph`): with p = 0 it
 meets every deadline and costs exactly its analytic cost. ``mtmse_lossy`` is
 the drop-aware design (:mod:`teamkf.estimators.team_lossy`), designed for each
 (p, J); its exact expected cost and the certified lower bound (the MTMSE cost
-of the full information) are drawn as black dashed and dotted lines. Team cost J_T by
+of the full information) are drawn dashed and dotted in its colour. Team cost J_T by
 Monte Carlo with 95 % intervals; all estimators see the same sampled paths
 and the same link events (common random numbers, one link stream per run).
 
@@ -40,6 +40,7 @@ from typing import Any
 
 import numpy as np
 
+from .._progress import bar
 from . import ExperimentResult, plotting_available, register, save_figure
 
 P_FULL = (0.0, 0.01, 0.05, 0.1, 0.2, 0.5, 1.0)
@@ -93,56 +94,59 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
     rows: list[dict[str, Any]] = []
     notes_skipped: dict[str, str] = {}
     curves: dict[tuple[str, int, str], list[tuple[float, float, float, float]]] = {}
-    for sname in SCENARIOS:
-        sc = load_packaged(sname).updated({"horizon": T})
-        for J in Js:
-            designs, skipped = _designs(sc, J)
-            notes_skipped.update({f"{sname}: {k}": v for k, v in skipped.items()})
-            for p in P:
-                here = dict(designs)
-                lossy = None
-                if LOSSY in families():
-                    lossy = design_mtmse_lossy(sc.system, sc.cost, sc.graph, T, p_drop=p, jitter=J)
-                    here[LOSSY] = lossy
-                mc = monte_carlo(here, T, runs, rng=seed, path="runtime", graph=sc.graph, links=LinkModel(p_drop=p, jitter=J))
-                if lossy is not None:
-                    for name, val in ((f"{LOSSY} (exact)", float(lossy.require_cost())), ("lower bound", lossy.lower_bound)):
+    # one bar over the grid (each point's Monte Carlo is too short for a bar of its own)
+    with bar(len(SCENARIOS) * len(Js) * len(P), desc="robustness", unit="point") as grid:
+        for sname in SCENARIOS:
+            sc = load_packaged(sname).updated({"horizon": T})
+            for J in Js:
+                designs, skipped = _designs(sc, J)
+                notes_skipped.update({f"{sname}: {k}": v for k, v in skipped.items()})
+                for p in P:
+                    here = dict(designs)
+                    lossy = None
+                    if LOSSY in families():
+                        lossy = design_mtmse_lossy(sc.system, sc.cost, sc.graph, T, p_drop=p, jitter=J)
+                        here[LOSSY] = lossy
+                    mc = monte_carlo(here, T, runs, rng=seed, path="runtime", graph=sc.graph, links=LinkModel(p_drop=p, jitter=J))
+                    if lossy is not None:
+                        for name, val in ((f"{LOSSY} (exact)", float(lossy.require_cost())), ("lower bound", lossy.lower_bound)):
+                            rows.append(
+                                {
+                                    "scenario": sname,
+                                    "jitter": J,
+                                    "p_drop": p,
+                                    "estimator": name,
+                                    "J_T (MC)": val,
+                                    "ci95 low": val,
+                                    "ci95 high": val,
+                                    "J_T analytic (reliable)": None,
+                                    "packets sent": None,
+                                    "dropped": None,
+                                }
+                            )
+                            curves.setdefault((sname, J, name), []).append((p, val, val, val))
+                    for name, r in mc.items():
+                        lo, hi = r.ci95
+                        counts = r.links.counts.values() if r.links is not None else []
+                        sent = sum(c["sent"] for c in counts)
+                        lost = sum(c["dropped"] for c in counts)
+                        d = here[name]
                         rows.append(
                             {
                                 "scenario": sname,
                                 "jitter": J,
                                 "p_drop": p,
                                 "estimator": name,
-                                "J_T (MC)": val,
-                                "ci95 low": val,
-                                "ci95 high": val,
-                                "J_T analytic (reliable)": None,
-                                "packets sent": None,
-                                "dropped": None,
+                                "J_T (MC)": r.total_mean,
+                                "ci95 low": lo,
+                                "ci95 high": hi,
+                                "J_T analytic (reliable)": d.total_cost,
+                                "packets sent": sent,
+                                "dropped": lost,
                             }
                         )
-                        curves.setdefault((sname, J, name), []).append((p, val, val, val))
-                for name, r in mc.items():
-                    lo, hi = r.ci95
-                    counts = r.links.counts.values() if r.links is not None else []
-                    sent = sum(c["sent"] for c in counts)
-                    lost = sum(c["dropped"] for c in counts)
-                    d = here[name]
-                    rows.append(
-                        {
-                            "scenario": sname,
-                            "jitter": J,
-                            "p_drop": p,
-                            "estimator": name,
-                            "J_T (MC)": r.total_mean,
-                            "ci95 low": lo,
-                            "ci95 high": hi,
-                            "J_T analytic (reliable)": d.total_cost,
-                            "packets sent": sent,
-                            "dropped": lost,
-                        }
-                    )
-                    curves.setdefault((sname, J, name), []).append((p, r.total_mean, lo, hi))
+                        curves.setdefault((sname, J, name), []).append((p, r.total_mean, lo, hi))
+                    grid.update()
     figures: list[str] = []
     if out_dir is not None and plotting_available():
         from ..plotting import _pyplot, family_style
@@ -150,8 +154,9 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
         plt = _pyplot()
         fig, axes = plt.subplots(len(SCENARIOS), len(Js), figsize=(4.2 * len(Js), 3.6 * len(SCENARIOS)), squeeze=False)
 
-        # one colour per family (its variants by line style) and one marker per estimator, in every panel;
-        # the legend is ranked: the lowest geometric-mean cost over every panel and drop probability first
+        # one colour per family (its variants by line style: mtmse-robust dash-dot; the drop-aware design's exact
+        # cost dashed and its lower bound dotted) and one marker per estimator, in every panel; the legend, beside
+        # the panels, is ranked: the lowest geometric-mean cost over every panel and drop probability first
         def mean_log(name: str) -> float:
             vals = [q[1] for (_, _, n), pts in curves.items() if n == name for q in pts]
             return float(np.mean(np.log10(vals))) if vals and all(np.isfinite(v) and v > 0 for v in vals) else np.inf
@@ -168,8 +173,8 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
                     pts.sort()
                     x = np.array([q[0] for q in pts])
                     color, marker, dash = style[name]
-                    if name in (LOSSY, f"{LOSSY} (exact)", "lower bound"):  # the drop-aware design in black
-                        color = "black"
+                    if name in (LOSSY, f"{LOSSY} (exact)", "lower bound"):  # the drop-aware design: its family's colour
+                        color = family_style(LOSSY)["color"]
                         dash = {LOSSY: "-", "lower bound": ":"}.get(name, "--")
                     (line,) = ax.plot(x, [q[1] for q in pts], dash, marker=marker, color=color, label=name, ms=3)
                     ax.fill_between(x, [q[2] for q in pts], [q[3] for q in pts], alpha=0.15, color=color)
@@ -178,9 +183,15 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
                 ax.set_xlabel("packet-drop probability p")
                 ax.set_ylabel("J_T (Monte Carlo, 95 % CI)")
                 ax.set_title(f"{sname}, jitter <= {J}")
-        fig.tight_layout(rect=(0, 0, 0.8, 1))
-        fig.legend(
-            [handles[k] for k in names], [f"{k + 1}. {n}" for k, n in enumerate(names)], loc="center right", fontsize=9, frameon=False, title="ranked"
+        fig.tight_layout()
+        fig.legend(  # beside the panels, never over them (the saved image widens to hold it)
+            [handles[k] for k in names],
+            [f"{k + 1}. {n}" for k, n in enumerate(names)],
+            loc="center left",
+            bbox_to_anchor=(1.0, 0.5),
+            fontsize=9,
+            frameon=False,
+            title="ranked",
         )
         save_figure(fig, out_dir, "robustness", figures)
     skipped_txt = "; ".join(f"{k} ({v})" for k, v in notes_skipped.items())

@@ -7,7 +7,7 @@ from typing import Any, Sequence
 from .._validation import require
 from .colors import family_color, family_style
 
-__all__ = ["stage_cost_axes", "mc_band_axes", "family_color", "family_style", "legend_outside"]
+__all__ = ["stage_cost_axes", "mc_band_axes", "family_color", "family_style", "legend_outside", "legends_off_the_data", "legend_overlaps"]
 
 
 def _pyplot() -> Any:
@@ -56,6 +56,53 @@ def legend_outside(ax: Any, **kwargs: Any) -> Any:
     opts = {"loc": "upper left", "bbox_to_anchor": (1.02, 1.0), "borderaxespad": 0.0, "frameon": False, "fontsize": "small"}
     opts.update(kwargs)
     return ax.legend(handles, labels, **opts)
+
+
+def legend_overlaps(legend: Any, fig: Any) -> bool:
+    """Whether ``legend`` (of an axes or of the figure) covers part of any axes' data area, in display coordinates."""
+    try:
+        renderer = fig.canvas.get_renderer()
+    except AttributeError:  # a closed figure (its canvas reset by pyplot)
+        renderer = fig._get_renderer()
+    box = legend.get_window_extent(renderer)
+    return any(ax.get_visible() and ax.axison and box.overlaps(ax.get_window_extent(renderer)) for ax in fig.axes)
+
+
+def legends_off_the_data(fig: Any) -> int:
+    """Move every legend of ``fig`` that covers an axes' data area off the data; returns how many moved.
+
+    An axes' legend goes to the right of its axes (:func:`legend_outside`) and the layout makes room for it;
+    a figure legend goes to the right of the figure (saved with ``bbox_inches="tight"``, it widens the image).
+    The experiments' :func:`~teamkf.experiments.save_figure` calls it on every figure it writes.
+
+    Examples
+    --------
+    >>> import matplotlib
+    >>> matplotlib.use("Agg")
+    >>> import matplotlib.pyplot as plt
+    >>> fig, ax = plt.subplots()
+    >>> _ = ax.plot([0, 1], [0, 1], label="mtmse")
+    >>> _ = ax.legend(loc="center")
+    >>> legends_off_the_data(fig), legend_overlaps(ax.get_legend(), fig)
+    (1, False)
+    """
+    fig.canvas.draw()
+    moved = 0
+    for ax in fig.axes:
+        leg = ax.get_legend()
+        if leg is not None and legend_overlaps(leg, fig):
+            opts = {"title": leg.get_title().get_text() or None, "ncols": getattr(leg, "_ncols", 1)}
+            legend_outside(ax, **opts)
+            moved += 1
+    if moved and not fig.get_constrained_layout():
+        fig.tight_layout()  # the axes shrink to leave room for the legends now beside them
+    for leg in fig.legends:
+        fig.canvas.draw()
+        if legend_overlaps(leg, fig):
+            leg.set_loc("center left")
+            leg.set_bbox_to_anchor((1.0, 0.5), transform=fig.transFigure)
+            moved += 1
+    return moved
 
 
 def stage_cost_axes(designs: Sequence[Any], ax: Any = None, *, log: bool = False, title: str | None = None, monte_carlo: Any = None) -> Any:

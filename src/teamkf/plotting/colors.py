@@ -36,6 +36,7 @@ FAMILY_COLORS: dict[str, str] = {
     "ci": "#56B4E9",  # sky blue
     "icf": "#8C564B",  # brown
     "hcmci": "#BCBD22",  # olive
+    "mtmse_lossy": "#6A3D9A",  # dark purple: the drop-aware design
     "bulk": "#17BECF",  # cyan
     "lqg": "#7F7F7F",
 }

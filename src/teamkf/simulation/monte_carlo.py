@@ -227,18 +227,19 @@ class MonteCarloResult:
 
     def plot(self, ax: Any = None, **kwargs: Any) -> Any:
         """Stage cost against the step with its 95 % band (matplotlib, lazy)."""
-        from ..plotting import _pyplot
+        from ..plotting import _pyplot, family_style, legend_outside
 
         plt = _pyplot()
         if ax is None:
             _, ax = plt.subplots(figsize=(6, 4))
         t = np.arange(1, len(self.stage_mean) + 1)
         lo, hi = self.stage_ci95
-        (line,) = ax.plot(t, self.stage_mean, label=f"{self.estimator} (MC, {self.n_runs} runs)", **kwargs)
+        style = {**family_style(self.estimator), **kwargs}  # its family's colour, as in every other plot
+        (line,) = ax.plot(t, self.stage_mean, label=f"{self.estimator} (MC, {self.n_runs} runs)", **style)
         ax.fill_between(t, lo, hi, alpha=0.2, color=line.get_color())
         ax.set_xlabel("t")
         ax.set_ylabel("E[c(x(t), z(t))]")
-        ax.legend()
+        legend_outside(ax)
         return ax
 
 

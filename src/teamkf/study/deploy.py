@@ -11,7 +11,6 @@ so a deployment without misses writes the same estimate file, bit for bit.
 from __future__ import annotations
 
 import json
-import os
 import secrets
 import shutil
 import signal
@@ -31,6 +30,7 @@ from ..estimators.base import check_measurements
 from ..exceptions import ArgumentError, UnsupportedOperationError
 from . import _limits
 from . import measurements as M
+from .outputs import check_output, command_inputs, open_stream, write_atomic
 
 __all__ = [
     "Prepared",
@@ -439,7 +439,7 @@ def _fmt_ms(v: Any) -> str:
 
 def cmd_deploy(args: Any) -> int:
     """``teamkf deploy``: exit 0 when every agent completed, 1 when one failed (the report names it)."""
-    _out_suffix(args.out, "--out", (".csv", ".parquet"))
+    _deploy_outputs(args)  # before any work: no output is an input, or the other output
     sc = _load(args.scenario)
     log = M.read_measurements(args.measurements, sc.system, sc.horizon)
     _limits.check_deploy(log.n_steps, sc.system.n_agents, deadline=args.deadline, join_timeout=args.join_timeout, timeout=args.timeout)
@@ -469,8 +469,9 @@ def cmd_deploy(args: Any) -> int:
         res = deploy_processes(args, prep, on_start=started, run_id=run_id, slices=files)
     if len(res.failed) == prep.n_agents and all(r.get("steps_done", 0) == 0 for r in res.reports):  # nothing ran: one line, as any error
         raise ArgumentError(f"no agent ran: agent 0: {res.failed[0]}", argument="SCENARIO")
-    M.write_estimates(args.out, {name: res.estimates}, prep.n_agents)
-    if args.record:
+    fmt = Path(args.out).suffix.lower()
+    write_atomic(args.out, lambda fh: M.write_estimates(fh, {name: res.estimates}, prep.n_agents, fmt=fmt))
+    if args.record:  # atomic too (DropRecord.write)
         res.record.write(args.record)
     if args.json:
         from ..estimators.base import json_float  # noqa: F401  (strict JSON: the reports hold no NaN)
@@ -523,6 +524,7 @@ def _stdin_source(prep_ybar: np.ndarray | None, d_y: int, T: int) -> Callable[[i
 
 def cmd_agent(args: Any) -> int:
     """``teamkf agent``: exit 0 when it completed its steps, 1 on an error, 130 on Ctrl-C."""
+    inputs = _agent_outputs(args)  # before any work: no output is an input, or another output
     sc = _load(args.scenario, "run")
     n = sc.system.n_agents
     if not 0 <= args.id < n:
@@ -530,8 +532,6 @@ def cmd_agent(args: Any) -> int:
     roster = Roster.read(args.roster)
     roster.check(n)
     roster.check_network(args.id)  # every host resolves, this agent's endpoint is free here: one line, before any work
-    if args.out and args.out != "-":
-        _out_suffix(args.out, "--out", (".csv", ".parquet", ".npz"))
     i = args.id
     name = deploy_estimator(sc, args.estimator)
     _limits.check_agent(args, sc)  # --steps, --deadline and the work limit, before the design
@@ -572,7 +572,7 @@ def cmd_agent(args: Any) -> int:
     sinks: list[Callable[[int, np.ndarray], None]] = []
     if args.out == "-":
         sinks.append(lambda k, z: print(",".join([str(k), *(repr(float(v)) for v in z)]), flush=True))
-    stream = open(args.stream, "wb") if args.stream else None  # noqa: SIM115 - closed below, after the run
+    stream = open_stream(args.stream, "--stream", inputs=inputs) if args.stream else None  # appended as it goes; closed after the run
     if stream is not None:
 
         def write_row(k: int, z: np.ndarray, fh: Any = stream) -> None:
@@ -610,7 +610,8 @@ def cmd_agent(args: Any) -> int:
     if args.out and args.out != "-":
         _write_own(args.out, res, name)
     if args.report:
-        Path(args.report).write_text(json.dumps({**res.to_json(), "peak_rss_mb": _own_peak_rss()}) + "\n", encoding="utf-8")
+        report = json.dumps({**res.to_json(), "peak_rss_mb": _own_peak_rss()}) + "\n"
+        write_atomic(args.report, lambda fh: fh.write(report), text=True)
     if res.error == "interrupted":
         print(f"teamkf agent {i}: interrupted after {res.steps_done} steps", file=sys.stderr)
         return 130
@@ -620,21 +621,40 @@ def cmd_agent(args: Any) -> int:
     return 0
 
 
+def _deploy_outputs(args: Any) -> None:
+    """``teamkf deploy``'s --out and --record, checked against every input and each other (:mod:`teamkf.study.outputs`)."""
+    inputs = command_inputs(args.scenario, args.measurements)
+    out = check_output(args.out, "--out", fmt="table", inputs=inputs)
+    if args.record:
+        check_output(args.record, "--record", inputs=inputs, outputs=[(out, "--out")])
+
+
+def _agent_outputs(args: Any) -> list[str]:
+    """``teamkf agent``'s --out, --report and --stream, checked against every input and each other; returns the inputs."""
+    inputs = command_inputs(args.scenario, args.roster, args.measurements)
+    outs: list[tuple[Any, str]] = []
+    if args.out and args.out != "-":
+        outs.append((check_output(args.out, "--out", fmt=(".csv", ".parquet", ".npz"), inputs=inputs), "--out"))
+    if args.report:
+        outs.append((check_output(args.report, "--report", inputs=inputs, outputs=outs), "--report"))
+    if args.stream:
+        check_output(args.stream, "--stream", inputs=inputs, outputs=outs)
+    return inputs
+
+
 def _write_own(path: str, res: AgentResult, name: str) -> None:
-    tmp = Path(path).with_name(f".{Path(path).name}.tmp{os.getpid()}")
     suf = Path(path).suffix.lower()
     if suf == ".npz":
-        with open(tmp, "wb") as fh:
-            np.savez(fh, z=res.estimates, latency=np.asarray(res.latency, dtype=float), steps_done=res.steps_done)
-    else:
-        from .. import _validation as V
+        write_atomic(path, lambda fh: np.savez(fh, z=res.estimates, latency=np.asarray(res.latency, dtype=float), steps_done=res.steps_done))
+        return
+    from .. import _validation as V
 
-        pd = V.require("pandas", "dask")
-        z = res.estimates
-        cols: dict[str, Any] = {"step": np.arange(z.shape[0]), "agent": res.index, "estimator": name}
-        cols.update({f"z{c}": z[:, c] for c in range(z.shape[1])})
-        M.write_frame(pd.DataFrame(cols), str(tmp), suf)
-    os.replace(tmp, path)
+    pd = V.require("pandas", "dask")
+    z = res.estimates
+    cols: dict[str, Any] = {"step": np.arange(z.shape[0]), "agent": res.index, "estimator": name}
+    cols.update({f"z{c}": z[:, c] for c in range(z.shape[1])})
+    frame = pd.DataFrame(cols)
+    write_atomic(path, lambda fh: M.write_frame(frame, fh, suf))
 
 
 def cmd_filter_drops(args: Any) -> int:
@@ -654,7 +674,8 @@ def cmd_filter_drops(args: Any) -> int:
     _limits.check_filter(log.n_steps, sc.system.n_agents, [rec.estimator], what="teamkf filter --drops")
     prep = prepare(sc, log, rec.estimator)
     z = replay(prep.design, prep.ys, rec, prep.offsets, graph=prep.graph)  # checks the record's steps against the log's, its misses against the graph
-    M.write_estimates(args.out, {rec.estimator: z}, prep.n_agents)
+    fmt = Path(args.out).suffix.lower()
+    write_atomic(args.out, lambda fh: M.write_estimates(fh, {rec.estimator: z}, prep.n_agents, fmt=fmt))
     if args.json:
         print(json.dumps({"scenario": sc.name, "out": args.out, "estimator": rec.estimator, "steps": rec.n_steps, "missed": len(rec.missed)}))
         return 0

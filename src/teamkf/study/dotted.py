@@ -45,15 +45,24 @@ def set_dotted(d: Mapping[str, Any], key: str, value: Any) -> dict[str, Any]:
     original is not modified, and the result is not validated (pass it to
     :func:`scenario_from_dict`).
 
-    ``"graph.delay"`` on a graph given by explicit ``edges`` sets the delay of
-    every edge (a builder graph just gets its ``delay`` key).
+    ``"graph.delay"`` on a graph given by explicit ``edges`` that share one delay
+    sets the delay of every edge (a builder graph just gets its ``delay`` key).
+    On edges with different delays it is refused: one delay would silently
+    replace them (a scenario file refuses ``delay`` beside ``edges`` too); set
+    ``graph.edges`` instead, or give the graph as a builder (``kind = "line"``, ...).
+
+    Raises
+    ------
+    ScenarioError
+        If the key cannot be set (no such list item, a key inside a number, ...),
+        or is ``graph.delay`` on explicit edges with different delays.
 
     Examples
     --------
     >>> d = {"graph": {"kind": "line", "delay": 1}, "cost": {"kind": "platoon", "lambda": 1.0}}
     >>> set_dotted(d, "cost.lambda", 10.0)["cost"]
     {'kind': 'platoon', 'lambda': 10.0}
-    >>> set_dotted({"graph": {"edges": [[0, 1, 1], [1, 0, 3]]}}, "graph.delay", 2)["graph"]
+    >>> set_dotted({"graph": {"edges": [[0, 1, 1], [1, 0, 1]]}}, "graph.delay", 2)["graph"]
     {'edges': [[0, 1, 2], [1, 0, 2]]}
     """
     if isinstance(d, ScenarioBase):
@@ -68,6 +77,13 @@ def set_dotted(d: Mapping[str, Any], key: str, value: Any) -> dict[str, Any]:
         edges = graph["edges"]
         if not isinstance(edges, list):
             raise ScenarioError(f"graph.edges: expected a list of [from, to, delay] triples, found {_describe(edges)}")
+        delays = {repr(e[2]) for e in edges if isinstance(e, (list, tuple)) and len(e) == 3}
+        if len(delays) > 1:
+            raise ScenarioError(
+                f"graph.delay: the graph has explicit edges with different delays ({', '.join(sorted(delays))}), which one delay "
+                "would silently replace (a scenario file refuses delay beside edges); set graph.edges instead (a list of "
+                '[from, to, delay]), or give the graph as a builder (kind = "line", ..., with delay)'
+            )
         new_graph = dict(graph)
         new_graph["edges"] = [[*e[:2], value] if isinstance(e, (list, tuple)) and len(e) == 3 else e for e in edges]
         out["graph"] = new_graph

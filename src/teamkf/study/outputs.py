@@ -1,15 +1,20 @@
-"""Output paths that lose nothing: checked before any work, written atomically.
+"""The output guard: every file a ``teamkf`` command writes is checked before any work and written atomically.
 
-Every file or folder that a ``teamkf`` command writes goes through two functions:
+Every output of every command (``--out``, ``--plot``, ``--record``, ``--report``, ``--stream``,
+the files of a results folder, the cache) goes through this module:
 
 * :func:`check_output` (or :func:`check_output_dir` for a results folder), called
   before any computation. It refuses, with one line naming the flag,
 
-  - an output that is one of the command's inputs (the same file after resolving
-    links and relative paths, :func:`os.path.samefile`): ``teamkf design base.toml
-    --out base.toml`` would otherwise replace the scenario by an npz;
+  - an output that is one of the command's inputs (:func:`command_inputs`: the files named
+    on the command line and every plug-in file loaded) in any spelling: the same path, a
+    relative spelling, a symbolic link to the input, or a hard link to it (compared by device
+    and inode, :func:`os.path.samefile`): ``teamkf design base.toml --out base.toml`` would
+    otherwise replace the scenario by an npz;
+  - an output that is another output of the same command (``teamkf deploy --out x --record x``);
   - an output under a folder that does not exist (a typo must not become new
-    folders): the message names the missing folder;
+    folders): the message names the missing folder; teamkf creates no folder but a
+    results folder the user named, and only when its parent exists;
   - an extension that does not match the format written (``--out gains.txt`` for
     an npz), the rule pandas and numpy leave to the caller;
   - a folder where a file is expected, a file where a folder is expected, and a
@@ -18,19 +23,35 @@ Every file or folder that a ``teamkf`` command writes goes through two functions
 * :func:`write_atomic`: the bytes go to a temporary file in the same folder,
   which is renamed over the target at the end (:func:`os.replace`, atomic on
   POSIX and Windows); on any failure, or an interrupt, the target is left as it
-  was and the temporary file is removed.
+  was and the temporary file is removed. A target that is a symbolic link is
+  replaced; the file it pointed to is never written.
+
+* :func:`open_stream`, the one exception: ``teamkf agent --stream`` appends each estimate as it is
+  computed, so that a killed agent leaves the steps it finished; no rename can do that. The file is
+  opened without following a symbolic link and without truncating, compared (device and inode)
+  with every input, and only then emptied.
 """
 
 from __future__ import annotations
 
 import os
-import tempfile
+import stat
 from pathlib import Path
-from typing import Any, Callable, Iterable, Sequence
+from typing import IO, Any, Iterable, Sequence
 
+from .._files import same_file, write_atomic
 from ..exceptions import ArgumentError
 
-__all__ = ["FORMATS", "check_output", "check_output_dir", "check_scheduler", "same_file", "write_atomic"]
+__all__ = [
+    "FORMATS",
+    "check_output",
+    "check_output_dir",
+    "check_scheduler",
+    "command_inputs",
+    "open_stream",
+    "same_file",
+    "write_atomic",
+]
 
 #: the extensions of each output format (the first one is suggested in messages)
 FORMATS: dict[str, tuple[str, ...]] = {
@@ -56,24 +77,64 @@ def _text(path: Any, flag: str) -> str:
     return path
 
 
-def same_file(a: str | os.PathLike[str], b: str | os.PathLike[str]) -> bool:
-    """Whether two paths name the same file (links and relative paths resolved); False when either is missing."""
+def plugin_files() -> list[str]:
+    """The files of the plug-ins loaded in this process and named in ``TEAMKF_PLUGINS``: inputs of every command."""
+    import sys
+
+    from ..estimators.registry import PLUGINS_ENV, loaded_plugins
+
+    files = []
+    for name, path, _ in loaded_plugins():
+        where = path if path is not None else getattr(sys.modules.get(name), "__file__", None)
+        if where:
+            files.append(str(where))
+    files += [s for s in os.environ.get(PLUGINS_ENV, "").split(os.pathsep) if s.endswith(".py")]
+    return files
+
+
+def command_inputs(*paths: Any) -> list[str]:
+    """The input files of a command: ``paths`` (None, ``"-"`` and names that are not files are kept; they match nothing) and :func:`plugin_files`."""
+    return [str(p) for p in paths if p is not None and str(p) != "-"] + plugin_files()
+
+
+def _how(p: Path, inp: str) -> str:
     try:
-        return os.path.samefile(a, b)
-    except (OSError, ValueError):
-        try:  # a dangling link, or a file not there yet: compare the resolved names
-            return Path(a).resolve() == Path(b).resolve() and Path(b).exists()
-        except (OSError, RuntimeError, ValueError):
-            return False
+        if p.is_symlink():
+            return ", through a symbolic link"
+        if os.path.exists(inp) and Path(os.path.abspath(p)) != Path(os.path.abspath(inp)) and p.resolve() != Path(inp).resolve():
+            return ", a hard link to it"
+    except OSError:  # pragma: no cover
+        pass
+    return ""
 
 
 def _check_inputs(p: Path, flag: str, inputs: Iterable[Any]) -> None:
-    for inp in inputs:
+    for inp in [*inputs, *plugin_files()]:
         if inp is None:
             continue
         if same_file(p, str(inp)):
             raise ArgumentError(
-                f"{flag}: {str(p)!r} is also an input of this command ({str(inp)!r}); writing there would destroy it; choose another output path",
+                f"{flag}: {str(p)!r} is also an input of this command ({str(inp)!r}{_how(p, str(inp))}); "
+                "writing there would destroy it; choose another output path",
+                argument=flag,
+            )
+
+
+def _same_target(a: Path, b: Path) -> bool:
+    """Whether two outputs would land in one file (either may not exist yet)."""
+    if same_file(a, b):
+        return True
+    try:
+        return a.resolve() == b.resolve()
+    except (OSError, RuntimeError):  # pragma: no cover
+        return False
+
+
+def _check_others(p: Path, flag: str, outputs: Iterable[tuple[Any, str]]) -> None:
+    for other, other_flag in outputs:
+        if other is not None and _same_target(p, Path(str(other))):
+            raise ArgumentError(
+                f"{flag}: {str(p)!r} is also the {other_flag} of this command; two outputs cannot share a file; choose another path",
                 argument=flag,
             )
 
@@ -95,7 +156,14 @@ def _check_parent(p: Path, flag: str, path: str) -> None:
         raise ArgumentError(f"{flag}: cannot write {path!r}: no permission to write into {str(parent)!r}; choose another path", argument=flag)
 
 
-def check_output(path: Any, flag: str, *, fmt: str | Sequence[str] | None = None, inputs: Iterable[Any] = ()) -> Path:
+def check_output(
+    path: Any,
+    flag: str,
+    *,
+    fmt: str | Sequence[str] | None = None,
+    inputs: Iterable[Any] = (),
+    outputs: Iterable[tuple[Any, str]] = (),
+) -> Path:
     """An output file path, checked before any work.
 
     Parameters
@@ -109,7 +177,10 @@ def check_output(path: Any, flag: str, *, fmt: str | Sequence[str] | None = None
         or the allowed extensions (``(".csv", ".parquet")``); the extension must be one of them.
     inputs : iterable of paths
         The command's input files; the output must not be any of them (compared with
-        :func:`os.path.samefile`, so links and relative spellings are caught).
+        :func:`os.path.samefile`, so relative spellings, symbolic links and hard links are
+        caught). The plug-in files loaded (:func:`plugin_files`) are always inputs.
+    outputs : iterable of (path, flag)
+        The command's other outputs, already checked; the output must not be any of them.
 
     Returns
     -------
@@ -118,7 +189,7 @@ def check_output(path: Any, flag: str, *, fmt: str | Sequence[str] | None = None
     Raises
     ------
     teamkf.exceptions.ArgumentError
-        Naming ``flag``: wrong extension, an input, a folder, a missing parent folder, no permission.
+        Naming ``flag``: wrong extension, an input, another output, a folder, a missing parent folder, no permission.
     """
     path = _text(path, flag)
     p = Path(path)
@@ -135,6 +206,7 @@ def check_output(path: Any, flag: str, *, fmt: str | Sequence[str] | None = None
     if p.is_dir():
         raise ArgumentError(f"{flag}: {path!r} is a directory; give a file name", argument=flag)
     _check_inputs(p, flag, inputs)
+    _check_others(p, flag, outputs)
     _check_parent(p, flag, path)
     if p.exists() and not os.access(p, os.W_OK):
         raise ArgumentError(f"{flag}: cannot write {path!r}: the file is read-only; choose another path", argument=flag)
@@ -144,6 +216,9 @@ def check_output(path: Any, flag: str, *, fmt: str | Sequence[str] | None = None
 def check_output_dir(path: Any, flag: str, *, inputs: Iterable[Any] = ()) -> Path:
     """An output folder: an existing folder, or a new one whose parent exists; never one of the inputs or a file.
 
+    Only the folder itself may be created later (by the command that writes into it), never a
+    missing parent. The files written into it go through :func:`write_atomic`.
+
     Raises
     ------
     teamkf.exceptions.ArgumentError
@@ -151,9 +226,9 @@ def check_output_dir(path: Any, flag: str, *, inputs: Iterable[Any] = ()) -> Pat
     """
     path = _text(path, flag)
     p = Path(path)
+    _check_inputs(p, flag, inputs)
     if p.exists() and not p.is_dir():
         raise ArgumentError(f"{flag}: expected a folder, found the file {path!r}; choose another path", argument=flag)
-    _check_inputs(p, flag, inputs)
     if p.exists():
         if not os.access(p, os.W_OK | os.X_OK):
             raise ArgumentError(f"{flag}: cannot write into {path!r}: no permission; choose another path", argument=flag)
@@ -162,49 +237,50 @@ def check_output_dir(path: Any, flag: str, *, inputs: Iterable[Any] = ()) -> Pat
     return p
 
 
-def write_atomic(path: str | os.PathLike[str], writer: Callable[[Any], Any], *, text: bool = False) -> None:
-    """Write ``path`` through a temporary file in the same folder, renamed over it at the end.
+def open_stream(path: Any, flag: str, *, inputs: Iterable[Any] = ()) -> IO[bytes]:
+    """Open an append-as-you-go output (``teamkf agent --stream``), emptied only once it is known not to be an input.
 
-    Parameters
-    ----------
-    path : path
-        The target; its folder must exist (:func:`check_output` said so before the work).
-    writer : callable
-        ``writer(fh)`` writes the content into the open file ``fh`` (binary, or text with ``text=True``).
-    text : bool
-        Open the temporary file in text mode (UTF-8).
+    The one output not written by :func:`write_atomic`: its rows must reach the disk as they are
+    computed, so that a process killed mid-run leaves the steps it finished. Call :func:`check_output`
+    first (before any work); this opens the file without following a symbolic link
+    (``O_NOFOLLOW``) and without truncating it, compares the open file (device and inode) with
+    every input, and only then empties a regular file (a FIFO or a device is written as it is).
 
-    Notes
-    -----
-    On success the target is replaced in one step (:func:`os.replace`); a reader sees
-    the old file or the new one, never a part. On any exception (``KeyboardInterrupt``
-    included) the temporary file is removed, the target is untouched, and the
-    exception propagates. An existing target keeps its permission bits.
+    Raises
+    ------
+    teamkf.exceptions.ArgumentError
+        Naming ``flag``: a symbolic link, an input (any spelling or hard link), a file that cannot be opened.
     """
-    target = Path(path)
-    folder = target.parent if str(target.parent) else Path(".")
-    if not folder.is_dir():
-        raise ArgumentError(f"{target}: the folder {str(folder)!r} does not exist; create it first", argument=str(target))
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=folder)
+    path = _text(path, flag)
+    if Path(path).is_symlink():
+        raise ArgumentError(
+            f"{flag}: {path!r} is a symbolic link; a stream is written in place, so give the file itself (or a new name)", argument=flag
+        )
+    flags = os.O_WRONLY | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_BINARY", 0)
     try:
-        fh: Any = os.fdopen(fd, "w", encoding="utf-8", newline="") if text else os.fdopen(fd, "wb")
-        with fh:
-            writer(fh)
-        try:
-            mode = target.stat().st_mode & 0o777 if target.exists() else 0o666 & ~_umask()
-            os.chmod(tmp, mode)
-        except OSError:  # pragma: no cover - a file system without permission bits
-            pass
-        os.replace(tmp, target)
+        fd = os.open(path, flags, 0o666)
+    except OSError as exc:
+        raise ArgumentError(f"{flag}: cannot open {path!r} for writing ({exc.strerror}); choose another path", argument=flag) from None
+    try:
+        st = os.fstat(fd)
+        for inp in [*inputs, *plugin_files()]:
+            if inp is None:
+                continue
+            try:
+                other = os.stat(str(inp))
+            except (OSError, ValueError):
+                continue
+            if (st.st_dev, st.st_ino) == (other.st_dev, other.st_ino):
+                raise ArgumentError(
+                    f"{flag}: {path!r} is also an input of this command ({str(inp)!r}); writing there would destroy it; choose another output path",
+                    argument=flag,
+                )
+        if stat.S_ISREG(st.st_mode):
+            os.ftruncate(fd, 0)
+        return os.fdopen(fd, "wb")
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        os.close(fd)
         raise
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
 
 
 def check_scheduler(address: str, flag: str = "scheduler") -> None:

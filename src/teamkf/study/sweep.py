@@ -143,6 +143,7 @@ from .._version import __version__
 from ..exceptions import ScenarioError, TeamkfError
 from ..simulation.parallel import WORKER_ENV, _cpu_count, _open_client, local_cluster, with_plugins  # noqa: F401  (public here since 0.1)
 from .evaluate import evaluate_point, is_analytic  # noqa: F401  (evaluate_point is looked up by _module_evaluate)
+from .outputs import write_atomic
 from .results import _FIXED_COLUMNS as _ROW_COLUMNS  # columns of a row besides the grid keys, in order
 from .results import MANIFEST_NAME, SweepError, SweepResult, load_results
 from .scenario import Scenario, _describe, _estimators, _families, load_packaged, load_scenario, packaged_scenarios, read_data_file
@@ -825,7 +826,7 @@ def _readable_parts(out: Path, done: set[str], schema: Any) -> set[str]:
 
 
 class _Writer:
-    """Writes one Parquet part per point, atomically (temporary name, then ``os.replace``)."""
+    """Writes one Parquet part per point, atomically (:func:`teamkf.study.outputs.write_atomic`: a temporary name, then ``os.replace``)."""
 
     def __init__(self, spec: SweepSpec, out: Path, pa: Any) -> None:
         self.spec, self.out, self.pa = spec, out, pa
@@ -857,7 +858,7 @@ class _Writer:
     def create(self) -> None:
         """Create the folder and its ``_sweep.json`` (kept as is when resuming)."""
         self.out.mkdir(exist_ok=True)  # the results folder itself; a missing parent was refused by _check_out
-        for stale in self.out.glob(".part-*.tmp-*"):
+        for stale in [*self.out.glob(".part-*.tmp*"), *self.out.glob(f".{MANIFEST_NAME}.*tmp*")]:  # left by a killed writer
             stale.unlink(missing_ok=True)
         manifest = self.out / MANIFEST_NAME
         if manifest.exists():
@@ -878,9 +879,8 @@ class _Writer:
             "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
             "fingerprint": spec.fingerprint(),
         }
-        tmp = self.out / f".{MANIFEST_NAME}.tmp-{os.getpid()}"
-        tmp.write_text(json.dumps(info, indent=2, allow_nan=True) + "\n", encoding="utf-8")
-        os.replace(tmp, manifest)
+        text = json.dumps(info, indent=2, allow_nan=True) + "\n"
+        write_atomic(manifest, lambda fh: fh.write(text), text=True)
 
     def records(self, p: SweepPoint, rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
         spec = self.spec
@@ -909,7 +909,5 @@ class _Writer:
 
         table = self.pa.Table.from_pylist(self.records(p, rows), schema=self.schema)
         final = self.out / f"part-{p.point_id}.parquet"
-        tmp = self.out / f".part-{p.point_id}.parquet.tmp-{os.getpid()}"
-        pq.write_table(table, tmp)
-        os.replace(tmp, final)
+        write_atomic(final, lambda fh: pq.write_table(table, fh))
         return final

@@ -52,6 +52,7 @@ from ... import _validation as V
 from ..._validation import FloatArray
 from ...exceptions import TeamkfError
 from ...models import LinearGaussianSystem
+from ..outputs import write_atomic
 
 __all__ = [
     "FORMATS",
@@ -714,7 +715,11 @@ def write_measurements(
         if bb is not None:
             arrays["b"] = bb
         arrays.update({f"d_agent{i}": di for i, di in enumerate(dd or [])})
-        np.savez(path, **arrays)
+        if hasattr(path, "write"):
+            np.savez(path, **arrays)
+        else:  # atomically, to the name np.savez would give (".npz" added when missing)
+            target = str(path) if str(path).endswith(".npz") else f"{path}.npz"
+            write_atomic(target, lambda fh: np.savez(fh, **arrays))
         return
     pd = _pandas()
     m = max(a.shape[1] for a in ys)
@@ -742,16 +747,17 @@ def write_measurements(
 
 
 def write_frame(df: Any, path: Any, suffix: str) -> None:
-    """Write a DataFrame as CSV (every float with 17 significant digits, round-trip exact) or Parquet, to a path or a binary file object."""
+    """Write a DataFrame as CSV (every float with 17 significant digits, round-trip exact) or Parquet, to a path
+    (atomically: :func:`teamkf.study.outputs.write_atomic`) or a binary file object."""
+    if not hasattr(path, "write"):
+        write_atomic(path, lambda fh: write_frame(df, fh, suffix))
+        return
     if suffix == ".csv":
-        if hasattr(path, "write"):
-            import io
+        import io
 
-            buf = io.StringIO()
-            df.to_csv(buf, index=False, float_format="%.17g")
-            path.write(buf.getvalue().encode())
-        else:
-            df.to_csv(path, index=False, float_format="%.17g")
+        buf = io.StringIO()
+        df.to_csv(buf, index=False, float_format="%.17g")
+        path.write(buf.getvalue().encode())
     else:
         df.to_parquet(path, index=False)
 
