@@ -114,12 +114,10 @@ def agent_files(scenario: Any, design: Any, run_id: int) -> list[dict[str, np.nd
 
 
 def write_slices(path: str | Path, sections: dict[str, np.ndarray]) -> None:
-    """Write ``sections`` to ``path`` (an ``.npz``; written to a temporary name, then renamed)."""
-    p = Path(path)
-    tmp = p.with_name(f".{p.name}.tmp")
-    with open(tmp, "wb") as fh:
-        np.savez(fh, **sections)  # type: ignore[arg-type]
-    tmp.replace(p)
+    """Write ``sections`` to ``path`` (an ``.npz``; written to a temporary file, then renamed: :func:`~teamkf.study.outputs.write_atomic`)."""
+    from .outputs import write_atomic
+
+    write_atomic(path, lambda fh: np.savez(fh, **sections))  # type: ignore[arg-type]  # a file handle: no suffix added
 
 
 def design_out_arrays(scenario: Any, designs: dict[str, Any]) -> dict[str, np.ndarray]:
