@@ -3,6 +3,12 @@
     PYTHONPATH=src python3 benchmarks/bench_deploy.py                  # n = 2, 4, 6 agents, 200 steps
     PYTHONPATH=src python3 benchmarks/bench_deploy.py --agents 6 --steps 400 --repeat 3
     PYTHONPATH=src python3 benchmarks/bench_deploy.py --auth on off        # authentication on and off, side by side
+    PYTHONPATH=src python3 benchmarks/bench_deploy.py --scale 24 --steps 200   # memory and wall time at scale
+
+``--scale N``: one ``teamkf deploy`` of an N-vehicle platoon (d_x = N, N agent processes, KCF,
+the parent designs once and ships each agent its slice), checked byte-equal to ``teamkf filter``;
+it prints each agent process's peak resident memory (VmHWM, from the agents' reports), the
+parent's peak, and the wall times of deploy and filter.
 
 A platoon of n vehicles on a line graph with unit delays (the packaged ``platoon-6`` for n = 6,
 the same model for other n), KCF agents, a log sampled with teamkf (seed 2026). Three ways to run
@@ -63,7 +69,10 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=1)
     ap.add_argument("--modes", nargs="+", default=["zenoh processes", "zenoh threads", "queue threads"])
     ap.add_argument("--auth", nargs="+", choices=("on", "off"), default=["on"], help="signed frames (on, the default) and/or unsigned (off)")
+    ap.add_argument("--scale", type=int, metavar="N", help="one deploy of an N-vehicle platoon: per-agent peak memory and wall time")
     args = ap.parse_args()
+    if args.scale:
+        return scale(args.scale, args.steps)
     from teamkf.simulation.sampling import sample_paths
     from teamkf.study import measurements as M
     from teamkf.study.deploy import prepare, run_team
@@ -115,6 +124,50 @@ def main() -> None:
     print("|---|:---:|---:|---:|---:|---:|---:|:---:|")
     for mode, auth, n, T, med, p99, cpu, eq in rows:
         print(f"| {mode} | {auth} | {n} | {T} | {med:.2f} | {p99:.2f} | {cpu:.3f} | {'yes' if eq else 'NO'} |")
+
+
+def scale(n: int, T: int) -> None:
+    """``teamkf deploy`` of an n-vehicle platoon (d_x = n) over T steps: peak memory per agent process, wall time, byte-equal to filter."""
+    import resource
+    import time
+
+    from teamkf.simulation.sampling import sample_paths
+    from teamkf.study import measurements as M
+    from teamkf.study.scenario import scenario_from_dict
+
+    print(f"load average {os.getloadavg()}; {os.cpu_count()} CPUs; KCF, {n} agents, d_x = {n}, line graph, unit delays, T = {T}")
+    with tempfile.TemporaryDirectory() as tmp:
+        d = platoon(n, T)
+        spath, lpath = Path(tmp) / f"platoon-{n}.json", Path(tmp) / "log.csv"
+        spath.write_text(json.dumps(d))
+        sc = scenario_from_dict(d)
+        M.write_measurements(lpath, [y[0] for y in sample_paths(sc.system, T, 1, rng=2026).y])
+        walls, outs = {}, {}
+        for cmd in ("deploy", "filter"):
+            outs[cmd] = Path(tmp) / f"{cmd}.csv"
+            flags = ["--estimator", "kcf", "--deadline", "10", "--json"] if cmd == "deploy" else ["--estimators", "kcf"]
+            t0 = time.monotonic()
+            proc = subprocess.run(
+                [sys.executable, "-m", "teamkf", cmd, str(spath), "--measurements", str(lpath), "--out", str(outs[cmd]), *flags],
+                capture_output=True,
+                text=True,
+            )
+            walls[cmd] = time.monotonic() - t0
+            if proc.returncode != 0:
+                raise SystemExit(proc.stderr)
+            if cmd == "deploy":
+                summary = json.loads(proc.stdout)
+                parent = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024  # the largest child so far: deploy's parent
+        peaks = [r["peak_rss_mb"] for r in summary["reports"]]
+        equal = outs["deploy"].read_bytes() == outs["filter"].read_bytes()
+    print(
+        "\n| agents | d_x | T | agent peak RSS (MB), max | median | deploy parent peak (MB) | deploy wall (s) | agents' run (s) | filter wall (s) | byte-equal |"
+    )
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|:---:|")
+    print(
+        f"| {n} | {n} | {T} | {max(peaks):.0f} | {float(np.median(peaks)):.0f} | {parent:.0f} | {walls['deploy']:.1f} | {summary['wall_s']:.1f} "
+        f"| {walls['filter']:.1f} | {'yes' if equal else 'NO'} |"
+    )
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""The ``teamkf`` command: evaluate, design, filter, measurements, sweep, reproduce, demo, families, deploy, agent, record.
+"""The ``teamkf`` command: evaluate, design, filter, measurements, sweep, reproduce, demo, families, deploy, agent, record, roster.
 
 ``teamkf --help`` lists the commands and the families, ``teamkf COMMAND --help`` a command's options;
 ``docs/scenario-and-cli.md`` specifies them and the file formats (a contract, tested against this parser).
@@ -260,9 +260,9 @@ def _cmd_design(args: argparse.Namespace) -> int:
             _warn(f"{name}: the team cost diverges (not finite){_divergence_step(d, None)}; reported as diverged / null")
     notes = []
     if out_path is not None:
-        arrays: dict[str, np.ndarray] = {"scenario": np.asarray(sc.name), "horizon": np.asarray(-1 if sc.horizon is None else sc.horizon)}
-        for name, d in designs.items():
-            arrays.update({f"{name}/{k}": v for k, v in d.arrays().items()})
+        from .study.slices import design_out_arrays as more  # E/... and, per agent, its slice slices/E/i/... (teamkf agent --design)
+
+        arrays: dict[str, np.ndarray] = {"scenario": np.asarray(sc.name), "horizon": np.asarray(sc.horizon or -1), **more(sc, designs)}  # -1: steady
         _write_atomic(out_path, lambda fh: np.savez(fh, **arrays))  # type: ignore[arg-type]  # a file handle: no suffix added
         notes.append(f"gains written to {out_path} ({len(arrays)} arrays; keys like '{next(iter(designs))}/...'; horizon -1 means steady state)")
     if args.json:

@@ -52,6 +52,13 @@ INPUTS: dict[str, tuple[str, str]] = {
     "--drops": ("drops.json", '{"format": "teamkf-drops"}\n'),
     "--roster": ("roster.toml", ROSTER),
     "--plugin": ("plugin_guard.py", "# a plug-in that registers nothing\n"),
+    "--map": ("map.toml", 'period = 1.0\n[[topics]]\ntopic = "/a"\nagent = 0\nfields = ["x"]\n'),
+    "--design": ("slices.npz", "not read: the outputs are refused first"),
+    "input": ("table.csv", "step,agent,y0\n0,0,1.0\n"),
+    "reports": ("report0.json", "{}\n"),
+    "--tls-root-ca": ("ca.pem", "-----BEGIN CERTIFICATE-----\n"),
+    "--tls-certificate": ("cert.pem", "-----BEGIN CERTIFICATE-----\n"),
+    "--tls-private-key": ("key.pem", "-----BEGIN PRIVATE KEY-----\n"),
 }
 
 IN, OTHER = "input", "other"
@@ -87,7 +94,9 @@ OPTIONS: dict[str, dict[str, Any]] = {
         "--estimators": OTHER,
         "--chunk-rows": OTHER,
         "--drops": IN,
+        "--map": IN,
     },
+    "measurements convert": {"input": IN, "--map": IN, "--out": out(".csv")},
     "families": {},
     "deploy": {
         "scenario": IN,
@@ -102,6 +111,8 @@ OPTIONS: dict[str, dict[str, Any]] = {
         "--transport": OTHER,
         "--kill": OTHER,
         "--timeout": OTHER,
+        "--map": IN,
+        "--rate": OTHER,
     },
     "agent": {
         "scenario": IN,
@@ -118,6 +129,20 @@ OPTIONS: dict[str, dict[str, Any]] = {
         "--p-drop": OTHER,
         "--seed": OTHER,
         "--kill-at": OTHER,
+        "--map": IN,
+        "--rate": OTHER,
+        "--design": IN,
+    },
+    "record": {"action": OTHER, "reports": IN, "--out": out(".json"), "--died": OTHER},
+    "roster new": {
+        "--endpoints": OTHER,
+        "--out": out(".toml"),
+        "--key-out": out(".key"),
+        "--prefix": OTHER,
+        "--run-id": OTHER,
+        "--tls-root-ca": IN,
+        "--tls-certificate": IN,
+        "--tls-private-key": IN,
     },
 }
 #: options of every command (teamkf.cli.build_parser's add())
@@ -125,13 +150,23 @@ COMMON = {"--plugin": IN, "--max-hours": OTHER}
 #: inputs that a command reads through another input: the scenario a sweep file names
 REFERENCED: dict[str, dict[str, str]] = {"sweep": {"scenario (of the sweep file)": "scenario"}}
 #: the values a command needs besides its inputs and outputs
-REQUIRED: dict[str, list[str]] = {"reproduce": ["table1"], "agent": ["--id", "0"]}
+REQUIRED: dict[str, list[str]] = {"reproduce": ["table1"], "agent": ["--id", "0"], "roster new": ["--endpoints", "tcp/127.0.0.1:17447"]}
+#: the values a command needs before its positional inputs (``record merge REPORT...``)
+FIRST: dict[str, list[str]] = {"record": ["merge"]}
+
+
+def _subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+    found = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    return dict(found[0].choices) if found else {}
 
 
 def _commands() -> dict[str, argparse.ArgumentParser]:
-    parser = build_parser()
-    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-    return dict(sub.choices)
+    """Every command, a group's by two words (``measurements convert``, ``roster new``)."""
+    out: dict[str, argparse.ArgumentParser] = {}
+    for name, parser in _subparsers(build_parser()).items():
+        nested = _subparsers(parser)
+        out.update({f"{name} {sub}": q for sub, q in nested.items()} if nested else {name: parser})
+    return out
 
 
 def _value_options(p: argparse.ArgumentParser) -> list[tuple[str, argparse.Action]]:
@@ -204,7 +239,7 @@ def _setup(tmp: Path, command: str) -> dict[str, Path]:
 
 def _argv(command: str, files: dict[str, Path], outputs: dict[str, str]) -> list[str]:
     argv = [a for k, f in files.items() if k == "--plugin" for a in ("--plugin", str(f))]
-    argv.append(command)
+    argv += command.split() + FIRST.get(command, [])
     argv += [str(f) for k, f in files.items() if not k.startswith("-") and " " not in k]
     argv += REQUIRED.get(command, [])
     argv += [a for k, f in files.items() if k.startswith("-") and k != "--plugin" for a in (k, str(f))]

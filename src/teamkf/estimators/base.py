@@ -279,6 +279,14 @@ class Design(DesignReprMixin, abc.ABC):
         """One message-passing agent per node (default: measurement relays around :meth:`agents`)."""
         return [MeasurementRelay(a, omniscient=self.omniscient) for a in self.agents()]
 
+    def agent_slice(self, i: int) -> tuple[str, dict[str, np.ndarray], dict[str, Any]]:
+        """Agent i's slice: ``(kind, arrays, meta)``, its own gains as plain arrays (:mod:`teamkf.estimators._slices`).
+
+        ``teamkf deploy`` ships it to agent i's process, which rebuilds its graph agent from it and the
+        scenario's model instead of designing the team. The default raises: the family ships no slice.
+        """
+        raise self._unsupported("agent_slice()", "it ships no per-agent slice; its agent processes design the team themselves")
+
     def filter(self, measurements: Any) -> FloatArray:
         """Run the designed estimator on given measurements.
 

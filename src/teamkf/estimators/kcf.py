@@ -725,6 +725,49 @@ class KCFAlgorithm(Algorithm):
         xb = {(j, k): self._prior(j, k, prev[j], zero) for j in range(n)}
         return [{"xhat": self.update(i, k, xb[(i, k)], yd, xb)} for i in range(n)]
 
+    # --- one agent's slice (teamkf.estimators._slices) ------------------------------------------
+    def agent_slice(self, i: int) -> tuple[str, dict[str, np.ndarray], dict[str, Any]]:
+        """Agent i's M_i(k), γ_i(k) and the compensation gains (C̃, R̃, G̃, Y) of every y_l(s) it fuses."""
+        arrays: dict[str, np.ndarray] = {"M": np.asarray(self.M[i]), "gamma": np.asarray(self.gamma[i])}
+        by_node: dict[int, dict[tuple[int, int], tuple[FloatArray, ...]]] = {}
+        for k in range(self.horizon):
+            for lnode, s in [(i, k), *self.src[i][k]]:
+                by_node.setdefault(lnode, {}).setdefault(self._key(k, s), self.compensated(lnode, s, k))
+        for lnode, entries in sorted(by_node.items()):
+            keys = sorted(entries)
+            arrays[f"comp/{lnode}/key"] = np.asarray(keys, dtype=np.int64).reshape(-1, 2)
+            for q, name in enumerate("CRGY"):
+                arrays[f"comp/{lnode}/{name}"] = np.stack([entries[key][q] for key in keys])
+        return "linear-kcf", arrays, {"epsilon": float(self.epsilon), "horizon": int(self.horizon)}
+
+
+def kcf_agent_from_slice(ctx: Any, i: int, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> tuple[Any, Any]:
+    """Agent i of an honest KCF rebuilt from its slice (:meth:`KCFAlgorithm.agent_slice`): the same arithmetic, no team design."""
+    from ._slices import AgentRows, SliceDesign
+    from .linear_team import LinearAgent
+
+    T = int(meta["horizon"])
+    alg = KCFAlgorithm.__new__(KCFAlgorithm)
+    Algorithm.__init__(alg, ctx.system, ctx.cost, ctx.graph, T)
+    alg.honest, alg.epsilon = True, float(meta["epsilon"])
+    ins = [(j, ctx.graph.delay(j, i)) for j in ctx.graph.in_neighbors(i)]
+    src_i = [[(j, k - d) for (j, d) in ins if k - d >= 0] for k in range(T)]
+    alg.src = AgentRows(i, src_i)  # type: ignore[assignment]
+    alg.M, alg.gamma = AgentRows(i, arrays["M"]), AgentRows(i, arrays["gamma"])  # type: ignore[assignment]
+    comp: dict[tuple[int, int, int], tuple[FloatArray, ...]] = {}
+    for name in arrays:
+        if name.startswith("comp/") and name.endswith("/key"):
+            lnode = int(name.split("/")[1])
+            stacks = [arrays[f"comp/{lnode}/{q}"] for q in "CRGY"]
+            for r, key in enumerate(np.asarray(arrays[name]).tolist()):
+                comp[(lnode, int(key[0]), int(key[1]))] = tuple(st[r] for st in stacks)
+    alg.__dict__["_comp"] = comp
+    alg.gain = {(i, k, lnode, s): comp[(lnode, *alg._key(k, s))][2:] for k in range(T) for (lnode, s) in [(i, k), *src_i[k]]}  # type: ignore[misc]
+    alg.S = alg.P = None  # type: ignore[assignment]  # the nominal covariances: not an agent's
+    alg.schedules = {}
+    view = SliceDesign("kcf", T, ctx.system, ctx.cost, ctx.graph, info={"variant": meta.get("variant", "honest")}, steps=range(T), algorithm=alg)
+    return view, LinearAgent(view, i)  # type: ignore[arg-type]
+
 
 def design_kcf(
     system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph, horizon: int | None = None, *, epsilon: float = 0.1, variant: str = "honest"

@@ -705,6 +705,14 @@ class LinearTeamDesign(Design):
     def delivery_graph(self) -> Any:
         return self.graph
 
+    def agent_slice(self, i: int) -> tuple[str, dict[str, np.ndarray], dict[str, Any]]:
+        """Agent i's slice, from its algorithm's ``agent_slice`` (honest variants of families that have one)."""
+        fn = getattr(self.algorithm, "agent_slice", None)
+        if fn is None or not getattr(self.algorithm, "honest", False):
+            return super().agent_slice(i)
+        kind, arrays, meta = fn(i)
+        return kind, arrays, {"variant": self.variant, **meta}
+
     @property
     def tolerates_losses(self) -> bool:
         """True when the agents run with lost or late packets (the family defines what a missing message means)."""

@@ -316,6 +316,16 @@ class TeamDesign(Design):
     def agents(self) -> list["TeamAgent"]:
         return [TeamAgent(self, i) for i in range(self.system.n_agents)]
 
+    def agent_slice(self, i: int) -> tuple[str, dict[str, np.ndarray], dict[str, Any]]:
+        """Agent i's slice: the common gains K(k) and P(k) (every agent folds the common part) and its own F_i(k)."""
+        c = self.structure.common_lag
+        steps = range(self.horizon) if self.horizon is not None else range(c)
+        arrays = {"K": np.asarray(self.K), "P_pred": np.asarray(self.P_pred)}
+        arrays.update({f"F/{k}": np.asarray(self.gain_at(k)[i]) for k in steps})
+        if self.horizon is None:
+            arrays["F_steady"] = np.asarray(self.steady_gains[i])  # type: ignore[index]
+        return "team", arrays, {"horizon": self.horizon, "common_lag": int(c), "variant": self.info.get("variant")}
+
     def steady_form(self) -> Any:
         """The steady-state filter as an LTI map (:class:`~teamkf.estimators.steady.SteadyForm`) from step c on.
 
@@ -717,3 +727,41 @@ FAMILY_MMSE = _register_builtin(
         example="design_mmse(system, cost, graph, horizon=100)",
     )
 )
+
+
+class _TeamSlice:
+    """What a :class:`TeamAgent` reads of its design, for one agent rebuilt from its slice."""
+
+    def __init__(self, view: Any, i: int, arrays: dict[str, np.ndarray], meta: dict[str, Any]):
+        from ._slices import AgentRows
+
+        self.view, self.index = view, i
+        self.K, self.P_pred = arrays["K"], arrays["P_pred"]
+        n_f = sum(1 for name in arrays if name.startswith("F/"))
+        self._F = [AgentRows(i, arrays[f"F/{k}"]) for k in range(n_f)]
+        self._steady = AgentRows(i, arrays["F_steady"]) if "F_steady" in arrays else None
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.view, name)
+
+    def gain_at(self, k: int) -> Any:
+        if self.view.horizon is None and k >= self.view.structure.common_lag:
+            return self._steady
+        return self._F[k]
+
+    def K_at(self, m: int) -> FloatArray:
+        return self.K if self.view.horizon is None else self.K[m]  # type: ignore[no-any-return]
+
+
+def team_agent_from_slice(ctx: Any, i: int, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> tuple[Any, Any]:
+    """Agent i of an MTMSE / MMSE design rebuilt from its slice (:meth:`TeamDesign.agent_slice`): a measurement relay around it."""
+    from ._slices import SliceDesign
+    from .base import MeasurementRelay
+
+    c = int(meta["common_lag"])
+    if ctx.structure.common_lag != c:
+        raise InformationStructureError(
+            f"agent {i}'s slice was designed for common lag {c}, the scenario's information structure has {ctx.structure.common_lag}"
+        )
+    view = SliceDesign(str(meta["estimator"]), ctx.horizon, ctx.system, ctx.cost, None, ctx.structure, info={"variant": meta.get("variant")})
+    return view, MeasurementRelay(TeamAgent(_TeamSlice(view, i, arrays, meta), i))  # type: ignore[arg-type]

@@ -73,12 +73,12 @@ class AgentStream:
         self.fh.close()
 
 
-def check_rejoin(design: Any, i: int, graph: Any, *, rejoin: bool) -> Any:
+def check_rejoin(design: Any, i: int, graph: Any, *, rejoin: bool, agent: Any = None) -> Any:
     """Agent i's :class:`~teamkf.deploy.AgentCore`; with ``rejoin``, one line for a family that cannot restart at a later step."""
     from ..deploy import AgentCore
     from ..deploy.agent import restart_hook
 
-    core = AgentCore(design, i, graph=graph)
+    core = AgentCore(design, i, agent=agent, graph=graph)  # agent: rebuilt from its slice (--design), else from the design
     if rejoin and restart_hook(core) is None:
         raise ArgumentError(
             f"--rejoin: {design.estimator} defines no restart at a later step (a fresh agent from the design's prior needs "

@@ -17,13 +17,13 @@ import signal
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from ..deploy import AgentResult, DropRecord, QueueHub, Roster, ZenohTransport, check_deployable, free_ports, launch, replay, run_agent
+from ..deploy import AgentCore, AgentResult, DropRecord, QueueHub, Roster, ZenohTransport, check_deployable, free_ports, launch, replay, run_agent
 from ..deploy.agent import REFUSED
 from ..deploy.roster import write_key
 from ..deploy.transport import TransportError
@@ -246,8 +246,6 @@ def run_team(
         transports = [ZenohTransport(i, eps, prefix=f"teamkf/{run_id}") for i in range(n)]
     else:
         raise ArgumentError(f"--transport: expected 'zenoh' or 'queue', found {transport!r}", argument="--transport")
-    from ..deploy import AgentCore
-
     results: list[AgentResult | None] = [None] * n
     stop = threading.Event()
 
@@ -295,13 +293,15 @@ def run_team(
     return res
 
 
-def _agent_command(args: Any, scenario: str, i: int, roster: Path, run_dir: Path, estimator: str, plugins: Sequence[str]) -> list[str]:
+def _agent_command(
+    args: Any, scenario: str, i: int, roster: Path, run_dir: Path, estimator: str, plugins: Sequence[str], design: Path | None = None
+) -> list[str]:
     cmd = [sys.executable, "-m", "teamkf"]
     for p in plugins:
         cmd += ["--plugin", p]
     cmd += ["--quiet", "agent", scenario, "--id", str(i), "--roster", str(roster), "--measurements", str(Path(args.measurements).resolve())]
     cmd += ["--out", str(run_dir / f"agent-{i}.npz"), "--report", str(run_dir / f"agent-{i}.json"), "--stream", str(run_dir / f"agent-{i}.f8")]
-    cmd += ["--estimator", estimator]
+    cmd += ["--estimator", estimator] + (["--design", str(design)] if design is not None else [])
     if getattr(args, "map", None):
         cmd += ["--map", str(Path(args.map).resolve())]
     cmd += ["--deadline", repr(args.deadline), "--join-timeout", repr(args.join_timeout), "--p-drop", repr(args.p_drop)]
@@ -316,10 +316,21 @@ def _agent_command(args: Any, scenario: str, i: int, roster: Path, run_dir: Path
     return cmd
 
 
-def deploy_processes(args: Any, prep: Prepared, on_start: Callable[[list[int]], None] | None = None) -> DeployResult:
-    """One ``teamkf agent`` process per agent over Zenoh on loopback (what ``teamkf deploy`` runs)."""
+def deploy_processes(
+    args: Any,
+    prep: Prepared,
+    on_start: Callable[[list[int]], None] | None = None,
+    *,
+    run_id: int | None = None,
+    slices: Sequence[dict[str, np.ndarray]] | None = None,
+) -> DeployResult:
+    """One ``teamkf agent`` process per agent over Zenoh on loopback (what ``teamkf deploy`` runs).
+
+    ``slices``: each agent's slice file (:func:`teamkf.study.slices.agent_files`), written into the run
+    folder and passed as ``--design``: the agent processes then never design the team.
+    """
     n = prep.n_agents
-    run_id = secrets.randbits(63)
+    run_id = secrets.randbits(63) if run_id is None else run_id
     from ..deploy.launcher import Stopped
     from .agent_ops import new_run_dir
 
@@ -335,7 +346,14 @@ def deploy_processes(args: Any, prep: Prepared, on_start: Callable[[list[int]], 
         roster.write(rpath)
         scen = str(Path(args.scenario).resolve()) if Path(args.scenario).exists() else args.scenario
         plugins = list(getattr(args, "plugin", None) or [])
-        cmds = [_agent_command(args, scen, i, rpath, run_dir, prep.estimator, plugins) for i in range(n)]
+        designs: list[Path | None] = [None] * n
+        if slices is not None:
+            from .slices import write_slices
+
+            for i in range(n):
+                designs[i] = run_dir / f"agent-{i}.slice.npz"
+                write_slices(designs[i], slices[i])  # type: ignore[arg-type]
+        cmds = [_agent_command(args, scen, i, rpath, run_dir, prep.estimator, plugins, designs[i]) for i in range(n)]
         timeout = args.timeout if args.timeout is not None else 120.0 + args.join_timeout + prep.n_steps * args.deadline
         t0 = time.monotonic()
         signum = None
@@ -350,6 +368,7 @@ def deploy_processes(args: Any, prep: Prepared, on_start: Callable[[list[int]], 
             rep = res.reports[i]
             rep["pid"] = ch.pid
             rep["exit"] = ch.returncode
+            rep["peak_rss_mb"] = _peak_rss(run_dir / f"agent-{i}.json")
             if ch.timed_out:
                 res.failed[i] = f"killed after the run's timeout ({timeout:g} s)"
             elif ch.returncode < 0:
@@ -366,6 +385,26 @@ def deploy_processes(args: Any, prep: Prepared, on_start: Callable[[list[int]], 
         return res
     finally:
         shutil.rmtree(run_dir, ignore_errors=True)
+
+
+def _own_peak_rss() -> float | None:
+    """This process's peak resident memory in MB: VmHWM of /proc/self/status (ru_maxrss is inherited from the parent; None off Linux)."""
+    try:
+        for line in Path("/proc/self/status").read_text(encoding="ascii").splitlines():
+            if line.startswith("VmHWM:"):
+                return round(int(line.split()[1]) / 1024.0, 1)
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def _peak_rss(report: Path) -> float | None:
+    """The agent process's peak resident memory in MB, as its report says (None: no report)."""
+    try:
+        v = json.loads(report.read_text(encoding="utf-8")).get("peak_rss_mb")
+        return None if v is None else float(v)
+    except (OSError, ValueError, AttributeError):
+        return None
 
 
 def _read_agent(run_dir: Path, i: int, prep: Prepared) -> AgentResult | None:
@@ -449,7 +488,13 @@ def cmd_deploy(args: Any) -> int:
     name = deploy_estimator(sc, args.estimator)
     if args.kill is not None and not 0 <= args.kill[0] < sc.system.n_agents:
         raise ArgumentError(f"--kill: agent {args.kill[0]} is out of range 0..{sc.system.n_agents - 1}", argument="--kill")
-    prep = prepare(sc, log, name, design_here=args.transport == "queue")  # the agent processes design for themselves
+    prep = prepare(sc, log, name)  # designed once, here: each agent process gets its slice
+    run_id, files = secrets.randbits(63), None
+    if args.transport == "zenoh":
+        from .slices import agent_files
+
+        files = agent_files(sc, prep.design, run_id)
+        prep = replace(prep, design=None)  # the team design is not needed while the agents run
 
     def started(pids: list[int]) -> None:
         print(f"teamkf deploy: {len(pids)} agent processes started: pids {' '.join(map(str, pids))}", file=sys.stderr, flush=True)
@@ -473,7 +518,7 @@ def cmd_deploy(args: Any) -> int:
                 insecure=getattr(args, "insecure", False),
             )
     else:
-        res = deploy_processes(args, prep, on_start=started)
+        res = deploy_processes(args, prep, on_start=started, run_id=run_id, slices=files)
     if res.stopped_by is None and len(res.failed) == prep.n_agents and all(r.get("steps_done", 0) == 0 for r in res.reports):  # nothing ran
         raise ArgumentError(f"no agent ran: agent 0: {res.failed[0]}", argument="SCENARIO")
     fmt = Path(args.out).suffix.lower()
@@ -544,8 +589,9 @@ def cmd_agent(args: Any) -> int:
     i = args.id
     name = deploy_estimator(sc, args.estimator)
     _limits.check_agent(args, sc)  # --steps, --deadline and the work limit, before the design
-    design = sc.design(name)
-    check_deployable(design, sc.graph)
+    from .slices import agent_design
+
+    design, agent = agent_design(args, sc, name, roster.run_id)  # --design: its slice (no team design); else the team design
     dz = int(design.cost.dz)
     if args.measurements == "-":
         T = args.steps if args.steps is not None else sc.horizon
@@ -580,7 +626,7 @@ def cmd_agent(args: Any) -> int:
 
     from .agent_ops import AgentStream, check_rejoin, rate_limited, report_json
 
-    core = check_rejoin(design, i, sc.graph, rejoin=bool(getattr(args, "rejoin", False)))  # before the network: one line
+    core = check_rejoin(design, i, sc.graph, rejoin=bool(getattr(args, "rejoin", False)), agent=agent)  # before the network: one line
     transport = ZenohTransport(i, roster.endpoints, prefix=roster.prefix, tls=roster.tls)
     try:
         transport.open()  # what Zenoh still refuses (the roster was checked): one line naming the roster and the endpoint
@@ -630,7 +676,12 @@ def cmd_agent(args: Any) -> int:
     run = {"run_id": roster.run_id, "scenario": getattr(sc, "name", None), "fingerprint": scenario_fingerprint(sc, name), "estimator": name}
     run.update({"agents": n, "steps": T, "p_drop": args.p_drop, "seed": args.seed})
     if args.report:
-        extra = {"run": run, "previous_steps": None if stream is None else stream.previous, "input": getattr(source, "counts", None)}
+        extra = {
+            "run": run,
+            "previous_steps": None if stream is None else stream.previous,
+            "input": getattr(source, "counts", None),
+            "peak_rss_mb": _own_peak_rss(),
+        }
         report = json.dumps(report_json(res, **extra)) + "\n"
         write_atomic(args.report, lambda fh: fh.write(report), text=True)
     if res.error == "interrupted":
@@ -647,7 +698,7 @@ def cmd_agent(args: Any) -> int:
 
 def _deploy_outputs(args: Any) -> None:
     """``teamkf deploy``'s --out and --record, checked against every input and each other (:mod:`teamkf.study.outputs`)."""
-    inputs = command_inputs(args.scenario, args.measurements)
+    inputs = command_inputs(args.scenario, args.measurements, getattr(args, "map", None))
     out = check_output(args.out, "--out", fmt="table", inputs=inputs)
     if args.record:
         check_output(args.record, "--record", inputs=inputs, outputs=[(out, "--out")])
@@ -655,7 +706,7 @@ def _deploy_outputs(args: Any) -> None:
 
 def _agent_outputs(args: Any) -> list[str]:
     """``teamkf agent``'s --out, --report and --stream, checked against every input and each other; returns the inputs."""
-    inputs = command_inputs(args.scenario, args.roster, args.measurements)
+    inputs = command_inputs(args.scenario, args.roster, args.measurements, getattr(args, "design", None), getattr(args, "map", None))
     outs: list[tuple[Any, str]] = []
     if args.out and args.out != "-":
         outs.append((check_output(args.out, "--out", fmt=(".csv", ".parquet", ".npz"), inputs=inputs), "--out"))

@@ -143,6 +143,11 @@ def add_parsers(add: Callable[[str, str], Any]) -> None:
         metavar="FILE",
         help="append every estimate to FILE as it is computed, one row of raw little-endian float64 per step (survives a crash)",
     )
+    p.add_argument(
+        "--design",
+        metavar="FILE",
+        help="its slice of the design (.npz from teamkf design --out, or written by teamkf deploy): the agent does not design the team",
+    )
     p.add_argument("--steps", type=_count(1, "a number of steps"), metavar="T", help="steps to run (default: the log's, or the horizon for stdin)")
     _run_flags(p)
     p.add_argument("--kill-at", type=_count(0, "a step"), metavar="STEP", help="fault injection: the process kills itself (SIGKILL) before STEP")

@@ -24,11 +24,11 @@ from ..exceptions import ArgumentError
 __all__ = ["add_parser", "cmd_roster_new"]
 
 
-def add_parser(add: Callable[[str, str], Any]) -> None:
+def add_parser(add: Callable[..., Any]) -> None:
     """Add ``teamkf roster new`` (``add(name, help)`` returns a subparser)."""
     p = add("roster", "write a roster and a fresh team key for teamkf agent on real machines")
     sub = p.add_subparsers(dest="roster_command", metavar="new", required=True)
-    n = sub.add_parser("new", help="write ROSTER (TOML) and its key file (mode 0600); never overwrites")
+    n = add("new", "write ROSTER (TOML) and its key file (mode 0600); never overwrites", sub)  # with the options every command takes
     n.add_argument("--endpoints", nargs="+", required=True, metavar="ENDPOINT", help="agent 0's endpoint, agent 1's, ... (e.g. tcp/10.0.0.1:7447)")
     n.add_argument("--out", required=True, metavar="ROSTER", help="the roster to write (.toml); the key goes to ROSTER with the suffix .key")
     n.add_argument("--key-out", metavar="FILE", help="where to write the key (default: ROSTER with the suffix .key, next to it)")
