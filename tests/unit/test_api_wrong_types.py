@@ -58,3 +58,37 @@ def test_a_wrong_type_is_a_teamkf_error_naming_the_argument(call: str, value: An
 def test_an_impossible_size_is_refused_before_anything_is_allocated(call: Callable[[], Any]) -> None:
     with pytest.raises(ResourceError):
         call()
+
+
+@pytest.mark.parametrize("family", sorted(T.families()), ids=str)
+def test_a_delay_far_beyond_the_horizon_costs_nothing(family: str, tmp_path: Any, capsys: Any) -> None:
+    """A graph delay of 1e9 at T = 6 (nothing ever arrives): every family designs it at once or refuses it in one line.
+
+    Before round 4, the payload bookkeeping of the consensus designs looped over every step back to k - 1e9 and
+    the drop-aware design over every shift in [-1e9, 1e9]: both hung.
+    """
+    import signal
+
+    from teamkf.cli import main
+
+    sc = tmp_path / "far.toml"
+    sc.write_text(
+        f'name = "far"\nhorizon = 6\nestimators = ["{family}"]\n[system]\nA = [[0.9, 0.1], [0.0, 0.8]]\nQ = 1.0\nSigma_x = 1.0\n'
+        '[[agents]]\nC = [[1.0, 0.0]]\nR = 0.5\n[[agents]]\nC = [[0.0, 1.0]]\nR = 0.5\n'
+        '[graph]\nkind = "line"\ndelay = 1000000000\n[cost]\nkind = "average"\nlambda = 1.0\n'
+    )
+
+    def hung(*_: Any) -> None:
+        raise TimeoutError(f"{family}: still designing after 60 s")
+
+    old = signal.signal(signal.SIGALRM, hung)
+    signal.alarm(60)
+    try:
+        rc = main(["evaluate", str(sc)])
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+    err = capsys.readouterr().err
+    assert rc in (0, 2), err
+    if rc == 2:
+        assert len(err.splitlines()) == 1 and err.startswith("teamkf: error:"), err

@@ -139,11 +139,13 @@ class ArrivalModel:
                 by_edge.setdefault(e, []).append(key)
         candidates = {(a, b) for lst in by_edge.values() for a in lst for b in lst}
         for ka, kb in sorted(candidates):
-            for delta in range(-span, span + 1):
+            ev_a = {ev for p in paths[ka] for ev in p}
+            ev_b = {ev for p in paths[kb] for ev in p}
+            # the shifts that make the two path sets share an event: o_a - o_b on a common edge (at most 2 span + 1 of them;
+            # a loop over every shift in [-span, span] is endless for a delay of 1e9)
+            shifts = sorted({oa - ob for (ea, oa) in ev_a for (eb, ob) in ev_b if ea == eb and abs(oa - ob) <= span})
+            for delta in shifts:
                 shifted = [frozenset((e, o + delta) for (e, o) in p) for p in paths[kb]]
-                ev_a = {ev for p in paths[ka] for ev in p}
-                if not any(ev in ev_a for p in shifted for ev in p):
-                    continue
                 joint = prob[ka] + prob[kb] - _union_prob(paths[ka] + shifted, q)
                 c = float(joint - prob[ka] * prob[kb])
                 if abs(c) > 0.0:
@@ -158,11 +160,15 @@ class ArrivalModel:
         """
         n = self.n_agents
         span = int(self.ell.max()) if self.ell.size else 0
+        if span > n_steps:  # a hop that starts at or after n_steps belongs to an item that arrives after the horizon: never drawn
+            span = n_steps
         ok = rng.random((n_runs, n_steps + span, len(self.edges))) < self.q
         d = np.zeros((n_runs, n_steps, n, n), dtype=bool)
         for (j, i), plist in self.paths.items():
             acc = np.zeros((n_runs, n_steps), dtype=bool)
             for p in plist:
+                if any(o > span for _, o in p):  # arrives after the horizon (the delay exceeds it): never on time
+                    continue
                 hit = np.ones((n_runs, n_steps), dtype=bool)
                 for e, o in p:
                     hit &= ok[:, o : o + n_steps, e]
