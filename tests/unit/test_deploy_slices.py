@@ -217,7 +217,7 @@ def test_agent_cli_refuses_a_wrong_slice_and_the_hook_catches_a_design(small, tm
     hook = tmp_path / "hook"
     hook.mkdir()
     (hook / "sitecustomize.py").write_text(HOOK, encoding="utf-8")
-    base = ["agent", str(sp), "--id", "0", "--roster", str(roster), "--measurements", str(lp), "--estimator", "kcf"]
+    base = ["agent", str(sp), "--id", "0", "--roster", str(roster), "--measurements", str(lp), "--estimator", "kcf", "--insecure"]
     proc = _teamkf(*base, "--design", str(one), env=_env(hook))
     lines = proc.stderr.strip().splitlines()
     assert proc.returncode == 2 and len(lines) == 1, proc.stderr
@@ -262,3 +262,23 @@ def test_steady_state_mtmse_slices_rebuild_the_agents_bit_for_bit(tmp_path):
         built.append(agent_from_slice(kind, ctx, i, arrays, meta))
     z = pass_messages([a for _, a in built], sc.graph, ys, design=built[0][0])
     assert z.tobytes() == pass_messages(d.graph_agents(), sc.graph, ys, design=d).tobytes()
+
+
+def test_a_slice_carries_its_neighbours_payload_structures():
+    """An agent rebuilt from its slice checks its in-neighbours' frames against the structures the team's design learned
+    (it has no team design to learn them from): they travel in the slice file, as JSON, and read back the same."""
+    import json
+
+    from teamkf.deploy import check_deployable
+    from teamkf.deploy.payload import learn_payloads, specs_from_json, specs_to_json
+    from teamkf.study.scenario import load_packaged
+
+    sc = load_packaged("platoon-4")
+    design = sc.design("kcf")
+    specs, sizes = learn_payloads(design, check_deployable(design, sc.graph))
+    back, back_sizes = specs_from_json(json.loads(json.dumps(specs_to_json(specs, sizes))))
+    assert back_sizes == sizes and set(back) == set(specs)
+    for j, spec in specs.items():
+        assert back[j]._expected() == spec._expected()
+        assert back[j].why("a string") == spec.why("a string") is not None
+        assert back[j].why(np.zeros((7, 7))) == spec.why(np.zeros((7, 7))) is not None

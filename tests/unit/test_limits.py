@@ -187,7 +187,7 @@ def test_agent_applies_the_limit_and_checks_steps(monkeypatch: Any, capsys: Any,
     roster = d / "roster.toml"
     roster.write_text('run_id = 1\nprefix = "t"\n' + "".join(f'[[agents]]\nid = {i}\nendpoint = "tcp/127.0.0.1:{7450 + i}"\n' for i in range(4)))
     _no_work(monkeypatch)
-    base = ["agent", "platoon-4", "--id", "0", "--roster", str(roster), "--measurements", "-"]
+    base = ["agent", "platoon-4", "--id", "0", "--roster", str(roster), "--measurements", "-", "--insecure"]
     assert main([*base, "--steps", "0"]) == 2
     assert "--steps: expected a number of steps, an integer >= 1, found 0" in _err(capsys)
     assert main([*base, "--steps", str(10**15)]) == 2  # huge: its work exceeds the limit

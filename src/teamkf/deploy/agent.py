@@ -46,6 +46,7 @@ from ..estimators.base import checked_step, step_context
 from ..exceptions import TeamkfError, UnsupportedOperationError
 from .codec import BYE, DATA, DROPPED, HELLO, Frame, FrameError, decode_payload, encode_frame, open_frame
 from .payload import CONTROL_LIMIT, HARD_LIMIT, frame_limit, learn_payloads
+from .payload import set_tolerant as _set_tolerant
 from .transport import Transport
 
 __all__ = ["AgentCore", "AgentResult", "DeployError", "Mailbox", "REFUSED", "run_agent", "check_deployable", "drop_stream", "windows"]
@@ -113,15 +114,6 @@ def restart_hook(core: "AgentCore") -> Callable[[int, int], Any] | None:
     return None
 
 
-def _set_tolerant(agent: Any) -> bool:
-    ok = False
-    for obj in (agent, getattr(agent, "inner", None)):
-        if obj is not None and hasattr(obj, "tolerant"):
-            obj.tolerant = True
-            ok = True
-    return ok
-
-
 class AgentCore:
     """Agent i's arithmetic: the family's online agent behind the nominal inbox order.
 
@@ -150,7 +142,8 @@ class AgentCore:
         Learned once, offline, by stepping the team's design in-process (:func:`~teamkf.deploy.payload.learn_payloads`).
         """
         if self._specs is None:
-            specs, sizes = learn_payloads(self._design, self.graph)
+            shipped = getattr(self._design, "info", {}).get("payload_specs")  # an agent rebuilt from its slice: learned by the team's design
+            specs, sizes = shipped if shipped is not None else learn_payloads(self._design, self.graph)
             ins = [j for (j, _) in self.in_delays]
             self._specs = ({j: specs[j] for j in ins}, {j: frame_limit(sizes[j]) + 68 for j in ins})
         return self._specs

@@ -24,7 +24,7 @@ import numpy as np
 
 from .codec import decode_payload, encode_payload
 
-__all__ = ["PayloadSpec", "learn_payloads", "frame_limit", "CONTROL_LIMIT"]
+__all__ = ["PayloadSpec", "learn_payloads", "frame_limit", "CONTROL_LIMIT", "specs_to_json", "specs_from_json"]
 
 #: the largest hello or goodbye frame an agent accepts (its payload lists at most the team's agent ids)
 CONTROL_LIMIT = 64 * 1024
@@ -172,12 +172,72 @@ class PayloadSpec:
         return " or ".join(kinds[:4]) or "nothing"
 
 
+def _spec_json(spec: PayloadSpec) -> dict[str, Any]:
+    out: dict[str, Any] = {"leaves": sorted(spec.leaves), "arrays": [[d, list(shape)] for d, shape in sorted(spec.arrays)]}
+    out["tuples"] = [[n, [_spec_json(x) for x in slots]] for n, slots in sorted(spec.tuples.items())]
+    out["records"] = [[f"{c.__module__}:{c.__qualname__}", [_spec_json(x) for x in slots]] for c, slots in spec.records.items()]
+    out["dicts"] = [[[k, _spec_json(v)] for k, v in slots.items()] for slots in spec.dicts.values()]
+    out["items"] = None if spec.items is None else _spec_json(spec.items)
+    return out
+
+
+def _record_type(name: str) -> type:
+    """A NamedTuple or dataclass named ``module:QualName`` of a loaded module (a teamkf module is imported; nothing else is)."""
+    import importlib
+    import sys
+
+    mod_name, _, qual = name.partition(":")
+    obj: Any = sys.modules.get(mod_name)
+    if obj is None and (mod_name == "teamkf" or mod_name.startswith("teamkf.")):
+        obj = importlib.import_module(mod_name)
+    for part in qual.split("."):
+        obj = getattr(obj, part, None)
+    if not isinstance(obj, type) or not ((issubclass(obj, tuple) and hasattr(obj, "_fields")) or dataclasses.is_dataclass(obj)):
+        raise ValueError(f"record type {name} is not a NamedTuple or a dataclass of a loaded module")
+    return obj
+
+
+def _spec_from(d: Any) -> PayloadSpec:
+    spec = PayloadSpec()
+    spec.leaves = {str(x) for x in d["leaves"]}
+    spec.arrays = {(str(dt), tuple(int(v) for v in shape)) for dt, shape in d["arrays"]}
+    spec.tuples = {int(n): [_spec_from(x) for x in slots] for n, slots in d["tuples"]}
+    spec.records = {_record_type(str(name)): [_spec_from(x) for x in slots] for name, slots in d["records"]}
+    for slots in d["dicts"]:
+        keys = [k for k, _ in slots]
+        spec.dicts[frozenset(keys)] = {k: _spec_from(v) for k, v in slots}
+    spec.items = None if d["items"] is None else _spec_from(d["items"])
+    return spec
+
+
+def specs_to_json(specs: dict[int, PayloadSpec], sizes: dict[int, int]) -> dict[str, Any]:
+    """The payload structures and largest sizes per sender (:func:`learn_payloads`) as JSON data, for an agent's slice file."""
+    return {str(j): {"spec": _spec_json(specs[j]), "size": int(sizes[j])} for j in specs}
+
+
+def specs_from_json(data: Any) -> tuple[dict[int, PayloadSpec], dict[int, int]]:
+    """The inverse of :func:`specs_to_json`; raises ValueError (or KeyError, TypeError) on anything else."""
+    specs = {int(j): _spec_from(v["spec"]) for j, v in data.items()}
+    sizes = {int(j): int(v["size"]) for j, v in data.items()}
+    return specs, sizes
+
+
 def _hashable(k: Any) -> bool:
     try:
         hash(k)
     except TypeError:
         return False
     return True
+
+
+def set_tolerant(agent: Any) -> bool:
+    """Switch an online agent (or the agent it wraps) to its loss-tolerant step; False when it has none."""
+    ok = False
+    for obj in (agent, getattr(agent, "inner", None)):
+        if obj is not None and hasattr(obj, "tolerant"):
+            obj.tolerant = True
+            ok = True
+    return ok
 
 
 def learn_payloads(design: Any, graph: Any, n_steps: int | None = None) -> tuple[dict[int, PayloadSpec], dict[int, int]]:
@@ -187,8 +247,6 @@ def learn_payloads(design: Any, graph: Any, n_steps: int | None = None) -> tuple
     measurement to reach every agent, n x the largest delay + 3), once with every message delivered and once
     with every other message lost (the loss-tolerant step's payloads). Raises what the family's step raises.
     """
-    from .agent import _set_tolerant
-
     n = graph.n_agents
     max_delay = max((d for (_, _, d) in graph.edges), default=1)
     m = n_steps if n_steps is not None else n * max_delay + 3
@@ -201,7 +259,7 @@ def learn_payloads(design: Any, graph: Any, n_steps: int | None = None) -> tuple
     for lossy in (False, True):
         agents = design.graph_agents()
         for a in agents:
-            _set_tolerant(a)
+            set_tolerant(a)
         states = [a.init_state(1) for a in agents]
         sent: list[dict[int, Any]] = [{} for _ in range(n)]
         for k in range(m):

@@ -64,10 +64,22 @@ def _plain(x: Any) -> Any:
     return json.loads(json.dumps(x, default=lambda v: v.tolist() if hasattr(v, "tolist") else str(v)))
 
 
-def slice_sections(scenario: Any, design: Any, agents: Iterable[int] | None = None, *, run_id: int | None = None) -> dict[str, np.ndarray]:
+def payloads(scenario: Any, design: Any) -> dict[str, Any]:
+    """What every agent's payloads look like (:func:`teamkf.deploy.payload.learn_payloads`, from the team's design), as JSON data:
+    an agent rebuilt from its slice checks its in-neighbours' frames against it without the team design."""
+    from ..deploy import check_deployable
+    from ..deploy.payload import learn_payloads, specs_to_json
+
+    return specs_to_json(*learn_payloads(design, check_deployable(design, scenario.graph)))
+
+
+def slice_sections(
+    scenario: Any, design: Any, agents: Iterable[int] | None = None, *, run_id: int | None = None, shapes: dict[str, Any] | None = None
+) -> dict[str, np.ndarray]:
     """The file's arrays for ``agents`` (default: all) of ``design``: ``slices/E/meta`` and ``slices/E/<i>/...``.
 
-    Raises :class:`~teamkf.exceptions.UnsupportedOperationError` when the family ships no slice.
+    ``shapes``: :func:`payloads` of the design (computed here when not given). Raises
+    :class:`~teamkf.exceptions.UnsupportedOperationError` when the family ships no slice.
     """
     from .. import __version__
 
@@ -94,6 +106,7 @@ def slice_sections(scenario: Any, design: Any, agents: Iterable[int] | None = No
         "content_hash": content_hash(scenario, name),
         "run_id": None if run_id is None else int(run_id),
         "agents": per,
+        "payloads": shapes if shapes is not None else payloads(scenario, design),
     }
     out[f"slices/{name}/meta"] = np.asarray(json.dumps(head, sort_keys=True))
     return out
@@ -105,7 +118,9 @@ def agent_files(scenario: Any, design: Any, run_id: int) -> list[dict[str, np.nd
     None comes with one line on stderr: the agent processes then design the team themselves.
     """
     try:
-        return [slice_sections(scenario, design, [i], run_id=run_id) for i in range(int(design.n_agents))]
+        design.agent_slice(0)  # a family without slices says so before the payloads are learned
+        shapes = payloads(scenario, design)  # once for the team
+        return [slice_sections(scenario, design, [i], run_id=run_id, shapes=shapes) for i in range(int(design.n_agents))]
     except UnsupportedOperationError as exc:
         import sys
 
@@ -178,7 +193,13 @@ def read_slice(path: str, scenario: Any, estimator: str, index: int, run_id: int
         raise _refuse(path, f"not a readable slice file (truncated or damaged: {type(exc).__name__}: {exc})") from None
     if _digest(arrays) != entry.get("digest"):
         raise _refuse(path, f"agent {index}'s arrays do not match their digest (the file was modified or damaged); write it again")
-    meta = {**entry.get("meta", {}), "estimator": estimator}
+    try:
+        from ..deploy.payload import specs_from_json
+
+        shipped = specs_from_json(head["payloads"])
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise _refuse(path, f"its payload structures are not readable ({type(exc).__name__}: {exc}); write it again") from None
+    meta = {**entry.get("meta", {}), "estimator": estimator, "payload_specs": shipped}
     return str(entry.get("kind")), arrays, meta
 
 
@@ -195,6 +216,8 @@ def agent_design(args: Any, scenario: Any, name: str, run_id: int | None = None)
         return design, None  # the runtime builds design.graph_agents()[i]
     kind, arrays, meta = read_slice(path, scenario, name, i, run_id)
     ctx = SliceContext(scenario.system, scenario.cost, scenario.graph, scenario.information, scenario.horizon)
+    shipped = meta.pop("payload_specs")
     view, agent = agent_from_slice(kind, ctx, i, arrays, meta)
+    view.info["payload_specs"] = shipped  # its in-neighbours' payload structures, learned by the team's design (AgentCore)
     check_deployable(view, scenario.graph)
     return view, agent
