@@ -88,11 +88,12 @@ from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
 from . import _lossy_size
 from ._arrivals import ArrivalModel
+from ._lossy_bound import known_pattern_bound
 from .base import Design, check_paths
 from .checks import check_graph, check_model
 from .registry import Family, Option, _register_builtin, register_alias
 
-__all__ = ["LossyTeamDesign", "LossyTeamAgent", "design_mtmse_lossy", "local_filter_moments"]
+__all__ = ["LossyTeamDesign", "LossyTeamAgent", "design_mtmse_lossy", "local_filter_moments", "known_pattern_bound"]
 
 
 # ---------------------------------------------------------------------------
