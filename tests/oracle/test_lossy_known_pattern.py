@@ -148,3 +148,19 @@ def test_jitter_counts_late_packets_as_held_later():
     b0 = known_pattern_bound(sysm, cost, g, 4, 0.2)
     bj = known_pattern_bound(sysm, cost, g, 4, 0.2, jitter=1)
     assert b0.exact and bj.exact and bj.value > b0.value
+
+
+def test_design_reports_its_gap_to_the_known_pattern_optimum():
+    sysm, cost = _tiny(3)
+    g = CommGraph.line(3)
+    d = design_mtmse_lossy(sysm, cost, g, 4, p_drop=0.5, items="measurements", known_bound=50)
+    kb = d.info["known_pattern_bound"]
+    assert kb["exact"] and kb["relay"] == "flood" and kb["n_patterns"] == 4096
+    exact = known_pattern_bound(sysm, cost, g, 4, 0.5)
+    assert kb["value"] == pytest.approx(exact.value, rel=1e-12)  # the window ℓ_max + 4 covers T = 4: exact
+    assert d.info["known_pattern_gap"] == pytest.approx((d.total_cost - exact.value) / exact.value)
+    assert 0.0 < d.info["known_pattern_gap"] < d.gap
+    assert d.details()["known_pattern_gap"] == d.info["known_pattern_gap"]
+    di = design_mtmse_lossy(sysm, cost, g, 4, p_drop=0.5, items="innovations", known_bound=50)
+    assert di.info["known_pattern_bound"]["relay"] == "all"  # a bound for every protocol
+    assert di.info["known_pattern_bound"]["value"] <= di.total_cost

@@ -294,12 +294,16 @@ def known_pattern_stats(
     window: int | None = None,
     n_patterns: int | None = None,
     rng: Any = None,
+    exact_first: bool = False,
 ) -> KnownPatternBound:
-    """The known-pattern optimum (validated arguments; :func:`teamkf.estimators.team_lossy.known_pattern_bound`)."""
+    """The known-pattern optimum (validated arguments; :func:`teamkf.estimators.team_lossy.known_pattern_bound`).
+
+    ``exact_first``: enumerate when the patterns are few enough even when ``n_patterns`` is given.
+    """
     n = system.n_agents
     edges, p, J = _edge_params(graph, p_drop, jitter)
     win = _Windows(system, T)
-    pats = _enumerate(edges, p, J, T) if n_patterns is None else None
+    pats = _enumerate(edges, p, J, T) if n_patterns is None or exact_first else None
     if pats is not None:
         stages = np.zeros(T)
         for delay, prob in pats:
