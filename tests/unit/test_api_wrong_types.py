@@ -74,7 +74,7 @@ def test_a_delay_far_beyond_the_horizon_costs_nothing(family: str, tmp_path: Any
     sc = tmp_path / "far.toml"
     sc.write_text(
         f'name = "far"\nhorizon = 6\nestimators = ["{family}"]\n[system]\nA = [[0.9, 0.1], [0.0, 0.8]]\nQ = 1.0\nSigma_x = 1.0\n'
-        '[[agents]]\nC = [[1.0, 0.0]]\nR = 0.5\n[[agents]]\nC = [[0.0, 1.0]]\nR = 0.5\n'
+        "[[agents]]\nC = [[1.0, 0.0]]\nR = 0.5\n[[agents]]\nC = [[0.0, 1.0]]\nR = 0.5\n"
         '[graph]\nkind = "line"\ndelay = 1000000000\n[cost]\nkind = "average"\nlambda = 1.0\n'
     )
 

@@ -347,6 +347,25 @@ def test_deploy_and_agent_read_the_recording(files, tmp_path, capsys):
     rc, _, err = _run(capsys, "deploy", sc, "--measurements", rec, "--map", mp, "--transport", "queue", "--out", tmp_path / "got.csv")
     assert rc == 0, err
     assert (tmp_path / "got.csv").read_bytes() == (tmp_path / "ref.csv").read_bytes()
+    # the deployment's estimates as a recording: one topic per agent, the CSV's numbers bit for bit, stamped like filter's
+    rc, _, err = _run(capsys, "deploy", sc, "--measurements", rec, "--map", mp, "--transport", "queue", "--out", tmp_path / "got.mcap")
+    assert rc == 0, err
+    import pandas as pd
+    from mcap_ros2.reader import read_ros2_messages
+
+    ref = pd.read_csv(tmp_path / "ref.csv")
+    got: dict[str, list[tuple[int, list[float]]]] = {}
+    for m in read_ros2_messages(str(tmp_path / "got.mcap")):
+        got.setdefault(m.channel.topic, []).append((m.log_time_ns, list(m.ros_msg.data)))
+    n = len(ys)
+    assert sorted(got) == [f"/teamkf/{ref.estimator[0]}/agent{i}" for i in range(n)]
+    zc = [c for c in ref.columns if c.startswith("z")]
+    for i in range(n):
+        want = ref[ref.agent == i][zc].to_numpy()
+        have = np.array([v for _, v in got[f"/teamkf/{ref.estimator[0]}/agent{i}"]])
+        assert have.tobytes() == want.tobytes()
+    rc, _, err = _run(capsys, "deploy", sc, "--measurements", csv, "--transport", "queue", "--out", tmp_path / "nomap.mcap")
+    assert rc == 2 and "--out" in err and "--map" in err  # a recording out needs the map's period, refused before the run
     # agent i reads only its own topics: a mistake in another agent's field does not stop it
     mp.write_text(MAP.replace('"point.y", "point.z"', '"point.y", "point.w"'))
     log = M.read_log(rec, _system(sc), 20, mp, agents=[0])

@@ -521,8 +521,9 @@ def cmd_deploy(args: Any) -> int:
         res = deploy_processes(args, prep, on_start=started, run_id=run_id, slices=files)
     if res.stopped_by is None and len(res.failed) == prep.n_agents and all(r.get("steps_done", 0) == 0 for r in res.reports):  # nothing ran
         raise ArgumentError(f"no agent ran: agent 0: {res.failed[0]}", argument="SCENARIO")
-    fmt = Path(args.out).suffix.lower()
-    write_atomic(args.out, lambda fh: M.write_estimates(fh, {name: res.estimates}, prep.n_agents, fmt=fmt))
+    from .recording import write_team_estimates
+
+    write_team_estimates(args.out, {name: res.estimates}, prep.n_agents, topic_map=getattr(args, "map", None), start_ns=log.start_ns)
     if args.record:  # atomic too (DropRecord.write)
         res.record.write(args.record)
     if args.json:
@@ -699,7 +700,12 @@ def cmd_agent(args: Any) -> int:
 def _deploy_outputs(args: Any) -> None:
     """``teamkf deploy``'s --out and --record, checked against every input and each other (:mod:`teamkf.study.outputs`)."""
     inputs = command_inputs(args.scenario, args.measurements, getattr(args, "map", None))
-    out = check_output(args.out, "--out", fmt="table", inputs=inputs)
+    out = check_output(args.out, "--out", fmt=(".csv", ".parquet", ".mcap"), inputs=inputs)
+    if out.suffix.lower() == ".mcap" and getattr(args, "map", None) is None:
+        raise ArgumentError(
+            f"--out: {args.out} is a ROS 2 recording (.mcap): its time stamps need a topic map (--map MAP.toml with period and start)",
+            argument="--out",
+        )
     if args.record:
         check_output(args.record, "--record", inputs=inputs, outputs=[(out, "--out")])
 

@@ -225,3 +225,19 @@ def cmd_convert(args: argparse.Namespace) -> int:
         f"{src}: {log.n_steps} steps of {len(dy)} agents written to {out} as {len(tmap.topics)} ROS 2 topics ({', '.join(e.topic for e in tmap.topics)})"
     )
     return 0
+
+
+def write_team_estimates(path: str | Path, estimates: Any, n_agents: int, *, topic_map: str | Path | None, start_ns: int | None) -> None:
+    """The estimates of ``teamkf deploy`` (or any team run) in the format ``path`` names: a table, or MCAP (``.mcap``: one
+    topic per agent, step k at the recording's start + k x the map's period; ``topic_map`` needed, checked before the run)."""
+    from . import measurements as M
+
+    if Path(path).suffix.lower() != ".mcap":
+        fmt = Path(path).suffix.lower()
+        write_atomic(path, lambda fh: M.write_estimates(fh, estimates, n_agents, fmt=fmt))
+        return
+    from .measurements.mcap_write import write_estimates_mcap
+
+    tmap = _need_map(topic_map, f"--out {path}")
+    t0 = start_ns if start_ns is not None else (tmap.start_ns or 0)
+    write_atomic(path, lambda fh: write_estimates_mcap(fh, estimates, n_agents, start_ns=t0, period_ns=tmap.period_ns))

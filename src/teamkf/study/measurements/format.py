@@ -120,6 +120,8 @@ class MeasurementLog:
     u: FloatArray | None = None
     b: FloatArray | None = None
     d: list[FloatArray] | None = None
+    #: the time of step 0 in nanoseconds when the log came from a recording (MCAP), else None
+    start_ns: int | None = None
 
     @property
     def n_steps(self) -> int:

@@ -538,4 +538,6 @@ def read_log(
     check_sizes(tmap, system)
     rec = read_recording(path, tmap, agents=agents, horizon=horizon)
     ys = rec.y if agents is None else [y if i in agents else np.zeros_like(y) for i, y in enumerate(rec.y)]  # not read: placeholders, never used
-    return MeasurementLog.from_arrays(ys, system, horizon, source=str(path))
+    import dataclasses
+
+    return dataclasses.replace(MeasurementLog.from_arrays(ys, system, horizon, source=str(path)), start_ns=rec.start_ns)
