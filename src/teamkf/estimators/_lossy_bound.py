@@ -363,7 +363,7 @@ def known_pattern_bound(
     >>> from teamkf import CommGraph, LinearGaussianSystem, TeamCost
     >>> b = known_pattern_bound(LinearGaussianSystem.platoon(2), TeamCost.platoon(2, 10.0), CommGraph.line(2), 3, 0.5)
     >>> b.exact, b.n_patterns
-    (True, 4)
+    (True, 16)
     """
     from .. import _validation as V
     from ..exceptions import ArgumentError
