@@ -164,3 +164,16 @@ def test_design_reports_its_gap_to_the_known_pattern_optimum():
     di = design_mtmse_lossy(sysm, cost, g, 4, p_drop=0.5, items="innovations", known_bound=50)
     assert di.info["known_pattern_bound"]["relay"] == "all"  # a bound for every protocol
     assert di.info["known_pattern_bound"]["value"] <= di.total_cost
+
+
+def test_bad_arguments_are_refused_by_name():
+    from teamkf.exceptions import ArgumentError
+
+    sysm, cost = _tiny(2)
+    g = CommGraph.complete(2, delay=1)
+    with pytest.raises(ArgumentError, match="relay"):
+        known_pattern_bound(sysm, cost, g, 3, 0.2, relay="everything")
+    with pytest.raises(ArgumentError, match=r"p_drop\[\[0, 5\]\]"):
+        known_pattern_bound(sysm, cost, g, 3, {(0, 5): 0.2})
+    with pytest.raises(ArgumentError, match="p_drop"):
+        known_pattern_bound(sysm, cost, g, 3, 1.5)
