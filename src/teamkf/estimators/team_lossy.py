@@ -88,11 +88,12 @@ from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
 from . import _lossy_size
 from ._arrivals import ArrivalModel
+from ._lossy_bound import known_pattern_bound, known_pattern_stats
 from .base import Design, check_paths
 from .checks import check_graph, check_model
 from .registry import Family, Option, _register_builtin, register_alias
 
-__all__ = ["LossyTeamDesign", "LossyTeamAgent", "design_mtmse_lossy", "local_filter_moments"]
+__all__ = ["LossyTeamDesign", "LossyTeamAgent", "design_mtmse_lossy", "local_filter_moments", "known_pattern_bound"]
 
 
 # ---------------------------------------------------------------------------
@@ -562,6 +563,7 @@ class LossyTeamDesign(Design):
             "memory": self.memory,
             "lower_bound": self.lower_bound,
             "gap": self.gap,
+            **{key: self.info[key] for key in ("known_pattern_bound", "known_pattern_gap") if key in self.info},
             "local_kf_cost": float(np.sum(self.local_stages)),
             "items": self.coordinates,
             "class": f"gains per step on the on-time {self.coordinates} (pattern-independent), missed ones filled from the agent's own",
@@ -675,6 +677,8 @@ def design_mtmse_lossy(
     items: str = "auto",
     fill: bool = True,
     bound: bool = True,
+    known_bound: int = 0,
+    known_window: int | None = None,
     threads: int | None = 1,
     progress: bool | None = None,
 ) -> LossyTeamDesign:
@@ -710,6 +714,13 @@ def design_mtmse_lossy(
         BLAS threads for the design (1: robust on a shared machine; None: the library's default).
     bound : bool
         Also compute the certified lower bound (the MTMSE stage costs of the full information).
+    known_bound : int
+        Also compute the known-pattern optimum (:func:`known_pattern_bound`: the team told every drop; relays
+        flooding raw measurements for ``items="measurements"``, relaying everything held otherwise) over this
+        many sampled patterns, or every pattern when there are at most ``EXACT_LIMIT``; 0: not computed.
+        ``info["known_pattern_bound"]`` (value, sem, interval) and ``info["known_pattern_gap"]``.
+    known_window : int or None
+        Its window (data older than k - W given to every agent: a looser bound, less work); None: W = ℓ_max + 4.
 
     Returns
     -------
@@ -787,6 +798,13 @@ def design_mtmse_lossy(
     )
     d.info["lower_bound"] = d.lower_bound
     d.info["gap"] = d.gap
+    nkb = V.integer(known_bound, "known_bound", minimum=0)
+    if nkb:
+        W = int(arr.ell.max()) + 4 if known_window is None else V.integer(known_window, "known_window", minimum=0)
+        relay = "flood" if coords == "measurements" else "all"
+        kb = known_pattern_stats(system, cost, graph, T, p, J, relay=relay, window=W, n_patterns=nkb, rng=0, exact_first=True)
+        d.info["known_pattern_bound"] = kb.as_dict()
+        d.info["known_pattern_gap"] = (d.total_cost - kb.value) / kb.value  # type: ignore[operator]
     return d
 
 
@@ -843,6 +861,13 @@ FAMILY = _register_builtin(
             Option(name="p_drop", default=None, check=_check_p, doc="drop probability (default: the scenario's [network] p_drop)"),
             Option(name="jitter", default=0, check=lambda v, k: _jitter_value(v, k), doc="late packets (by up to J steps) count as lost"),
             Option(name="memory", default=None, check=_check_memory, doc="use the items of the last m steps only (none: all)"),
+            Option(
+                name="known_bound",
+                default=0,
+                check=lambda v, k: V.integer(v, k, minimum=0),
+                doc="also compute the known-pattern optimum over this many sampled drop patterns (0: not)",
+            ),
+            Option(name="known_window", default=None, check=_check_memory, doc="its window W (none: the largest geodesic delay + 4)"),
             Option(
                 name="items",
                 default="auto",
