@@ -43,7 +43,7 @@ import numpy as np
 
 from .._blas import single_thread_blas
 from .._lazy import scipy_linalg as sla  # SciPy / networkx load on first use
-from .._linalg import block_diag
+from .._linalg import block_diag, inv
 from .._validation import FloatArray
 from ..exceptions import DivergenceError, ShapeError, TeamkfError, UnsupportedOperationError
 from ..models import LinearGaussianSystem, TeamCost
@@ -720,6 +720,15 @@ class LinearTeamDesign(Design):
         return {**super().arrays(), **{k: np.asarray(v) for k, v in getattr(self.algorithm, "schedules", {}).items()}}
 
 
+def _in_positions(graph: CommGraph, i: int) -> dict[int, int]:
+    """{in-neighbour j: its position in ``graph.in_neighbors(i)``}, cached on the (immutable) graph."""
+    cache: dict[int, dict[int, int]] = graph.__dict__.setdefault("_in_positions", {})
+    pos = cache.get(i)
+    if pos is None:
+        pos = cache[i] = {j: a for a, j in enumerate(graph.in_neighbors(i))}
+    return pos
+
+
 def delivered(graph: CommGraph | None, i: int, inbox: Sequence[tuple[int, int, Any]]) -> list[tuple[int, int, Any]]:
     """The packets of agent i's inbox in the nominal order: in-neighbour order (as the graph lists them), then sent step.
 
@@ -729,9 +738,9 @@ def delivered(graph: CommGraph | None, i: int, inbox: Sequence[tuple[int, int, A
     (sender, step) is kept once; a packet from an agent that is not an
     in-neighbour is not used.
     """
-    if graph is None:
+    if graph is None or not inbox:
         return []
-    pos = {j: a for a, j in enumerate(graph.in_neighbors(i))}
+    pos = _in_positions(graph, i)
     seen: set[tuple[int, int]] = set()
     out = []
     for l, s, p in sorted(((l, s, p) for (l, s, p) in inbox if l in pos), key=lambda e: (pos[e[0]], e[1])):
@@ -861,7 +870,7 @@ def compensate_information(system: LinearGaussianSystem, Y: FloatArray, s: int, 
     if s == k:
         return Y, Y
     Phi = transition(system, k, s)
-    P = Phi @ np.linalg.inv(Y) @ Phi.T + process_noise(system, k, s)
-    Yn = np.linalg.inv(0.5 * (P + P.T))
+    P = Phi @ inv(Y) @ Phi.T + process_noise(system, k, s)
+    Yn = inv(0.5 * (P + P.T))
     Yn = 0.5 * (Yn + Yn.T)
     return Yn, np.asarray(Yn @ Phi, dtype=float)
