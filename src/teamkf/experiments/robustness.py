@@ -52,8 +52,10 @@ SCENARIOS = ("platoon-4", "uav-4")
 LOSSY = "mtmse_lossy"
 
 
-def _designs(sc: Any) -> tuple[dict[str, Any], dict[str, str]]:
-    """Every family designed for the scenario (the same for every jitter bound and drop probability of the grid)."""
+def _designs(sc: Any, jitter: int = 0) -> tuple[dict[str, Any], dict[str, str]]:
+    """Every family designed for the scenario, and MTMSE for the delays τ + J when J = ``jitter`` > 0 (:func:`_with_robust`).
+
+    Only ``mtmse-robust`` depends on the jitter bound, so :func:`run` calls this once per scenario."""
     from ..estimators.registry import families
     from ..exceptions import TeamkfError
 
@@ -73,7 +75,7 @@ def _designs(sc: Any) -> tuple[dict[str, Any], dict[str, str]]:
             skipped[name] = "its agents need every message (no defined behaviour for lost packets yet)"
             continue
         out[name] = d
-    return out, skipped
+    return _with_robust(sc, out, jitter), skipped
 
 
 def _with_robust(sc: Any, designs: dict[str, Any], jitter: int) -> dict[str, Any]:
