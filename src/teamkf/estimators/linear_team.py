@@ -242,15 +242,21 @@ class Algorithm:
         P⁺ = (P⁻¹ + S)⁻¹ (Joseph form, as the designs): the update is x̄ + P⁺ r, before any consensus term.
         """
         ys = [((i, k), y_i), *[((lnode, s), p["y"]) for (lnode, s, p) in packets]]
-        Cs, Rs = [], []
         r: Any = None
         for (lnode, s), y in ys:
-            Ct, Rt, G, Y = self.compensated(lnode, s, k)
-            Cs.append(Ct)
-            Rs.append(Rt)
+            _, _, G, Y = self.compensated(lnode, s, k)
             term = G @ y - Y @ xbar
             r = term if r is None else r + term
-        _, P_post = kalman_step(P, np.vstack(Cs), block_diag(*Rs))
+        # the stacked C̃ and block-diagonal R̃ of these packets (cached: they depend on which packets, not on the run)
+        cache = self.__dict__.setdefault("_stacked", {})
+        key = (k, tuple(ls for ls, _ in ys)) if self.system.is_time_varying else tuple((ls[0], k - ls[1]) for ls, _ in ys)
+        CR = cache.get(key)
+        if CR is None:
+            comp = [self.compensated(lnode, s, k) for (lnode, s), _ in ys]
+            CR = np.vstack([c[0] for c in comp]), block_diag(*[c[1] for c in comp])
+            if len(cache) < 4096:
+                cache[key] = CR
+        _, P_post = kalman_step(P, CR[0], CR[1])
         return r, P_post
 
 
