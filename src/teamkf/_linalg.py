@@ -12,6 +12,8 @@ without importing an estimator.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -41,21 +43,25 @@ def inv(a: FloatArray) -> FloatArray:
     A singular matrix raises ``LinAlgError`` as ``np.linalg.inv`` does (it is handed to it when the fast path
     returns a NaN); anything but a float64 square matrix goes to ``np.linalg.inv`` directly.
     """
-    if type(a) is not np.ndarray or a.dtype != np.float64 or a.ndim != 2 or a.shape[0] != a.shape[1] or not a.size:
-        return np.linalg.inv(a)  # type: ignore[no-any-return]
+    if _INV is None or type(a) is not np.ndarray or a.dtype != np.float64 or a.ndim != 2 or a.shape[0] != a.shape[1] or not a.size:
+        return np.asarray(np.linalg.inv(a), dtype=float)
     with np.errstate(invalid="ignore", over="ignore", divide="ignore", under="ignore"):
         out = _INV(a, signature="d->d")
     if np.isnan(out).any():  # singular (or NaN in a): np.linalg.inv raises, or returns the same NaNs
-        return np.linalg.inv(a)  # type: ignore[no-any-return]
+        return np.asarray(np.linalg.inv(a), dtype=float)
     return out  # type: ignore[no-any-return]
 
 
-try:
-    from numpy.linalg._umath_linalg import inv as _INV  # the gufunc behind np.linalg.inv
-except ImportError:  # pragma: no cover - another numpy layout: the public function
+def _gufunc_inv() -> Any:
+    try:
+        from numpy.linalg import _umath_linalg  # the gufunc behind np.linalg.inv
 
-    def _INV(a: FloatArray, signature: str = "") -> FloatArray:
-        return np.linalg.inv(a)  # type: ignore[no-any-return]
+        return _umath_linalg.inv
+    except (ImportError, AttributeError):  # pragma: no cover - another numpy layout: the public function
+        return None
+
+
+_INV: Any = _gufunc_inv()
 
 
 def block_diag(*blocks: ArrayLike) -> FloatArray:
