@@ -12,6 +12,8 @@ without importing an estimator.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -20,7 +22,7 @@ from ._lazy import scipy_linalg as sla  # SciPy loads on first use
 from ._validation import FloatArray
 from .exceptions import DetectabilityError, ShapeError
 
-__all__ = ["block_diag", "unstable_unobservable_modes", "is_detectable", "is_stabilizable", "check_detectable", "check_stabilizable"]
+__all__ = ["block_diag", "inv", "unstable_unobservable_modes", "is_detectable", "is_stabilizable", "check_detectable", "check_stabilizable"]
 
 #: relative tolerance of the PBH rank test (scaled by max(||A||_F, ||C||_F))
 PBH_RTOL = 1e-8
@@ -32,6 +34,34 @@ _CLUSTER_RTOL = 1e-6
 #: above this many unstable eigenvalues, simple eigenvalues are tested with
 #: their eigenvectors (O(k^3) in all) instead of one k x k SVD each (O(k^4))
 _SVD_MAX_K = 96
+
+
+def inv(a: FloatArray) -> FloatArray:
+    """``np.linalg.inv(a)`` of one float64 square matrix, without its per-call argument checks (the same LAPACK
+    routine, the same numbers: for the small matrices that the lossy runtime inverts once per agent, step and run).
+
+    A singular matrix raises ``LinAlgError`` as ``np.linalg.inv`` does (it is handed to it when the fast path
+    returns a NaN); anything but a float64 square matrix goes to ``np.linalg.inv`` directly.
+    """
+    if _INV is None or type(a) is not np.ndarray or a.dtype != np.float64 or a.ndim != 2 or a.shape[0] != a.shape[1] or not a.size:
+        return np.asarray(np.linalg.inv(a), dtype=float)
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore", under="ignore"):
+        out = _INV(a, signature="d->d")
+    if np.isnan(out).any():  # singular (or NaN in a): np.linalg.inv raises, or returns the same NaNs
+        return np.asarray(np.linalg.inv(a), dtype=float)
+    return out  # type: ignore[no-any-return]
+
+
+def _gufunc_inv() -> Any:
+    try:
+        from numpy.linalg import _umath_linalg  # the gufunc behind np.linalg.inv
+
+        return _umath_linalg.inv
+    except (ImportError, AttributeError):  # pragma: no cover - another numpy layout: the public function
+        return None
+
+
+_INV: Any = _gufunc_inv()
 
 
 def block_diag(*blocks: ArrayLike) -> FloatArray:

@@ -267,7 +267,7 @@ ENVIRONMENT = {
     "TEAMKF_MAX_HOURS": "the work limit in hours (a finite number > 0; default 2)",
     "TEAMKF_PROGRESS": "progress bars on a terminal (0/false/no/off hides them; 1/true/yes/on or empty shows them)",
     "TEAMKF_CACHE_DIR": "the folder of the leaderboard's cache (off/0/none/no: no cache; default ~/.cache/teamkf)",
-    "TEAMKF_WORKERS": "processes of teamkf reproduce leaderboard (a whole number >= 1; default: the number of cores)",
+    "TEAMKF_WORKERS": "processes of teamkf reproduce (leaderboard, robustness, the bulk-* grids; a whole number >= 1; default: the number of cores)",
     "TEAMKF_PLUGINS": "plug-in modules or .py files to import, separated by the path separator",
 }
 #: variables the scripts in examples/ read (not the package): never warned about

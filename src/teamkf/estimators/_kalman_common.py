@@ -32,8 +32,16 @@ __all__ = ["kalman_step", "kalman_covariances", "steady_state", "predictor_error
 def kalman_step(P: FloatArray, C: FloatArray, R: FloatArray) -> tuple[FloatArray, FloatArray]:
     """One measurement update: returns (K, P(k|k)) from the predictor covariance P (eq. 21)."""
     Sy = C @ P @ C.T + R
-    cf = sla.cho_factor(0.5 * (Sy + Sy.T), lower=True, check_finite=False)
-    K = sla.cho_solve(cf, C @ P, check_finite=False).T
+    # LAPACK's potrf / potrs directly: the arithmetic of sla.cho_factor / cho_solve (lower), without their
+    # per-call wrappers (this step runs once per agent, step and run in the lossy runtime)
+    lapack = sla.lapack
+    c, info = lapack.dpotrf(0.5 * (Sy + Sy.T), lower=1, clean=0)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"{info}-th leading minor of the innovation covariance not positive definite")
+    X, info = lapack.dpotrs(c, C @ P, lower=1)
+    if info != 0:  # pragma: no cover - potrs fails only on bad arguments
+        raise ValueError(f"illegal value in argument {-info} of potrs")
+    K = X.T
     IKC = np.eye(P.shape[0]) - K @ C
     Pf = IKC @ P @ IKC.T + K @ R @ K.T
     return K, 0.5 * (Pf + Pf.T)

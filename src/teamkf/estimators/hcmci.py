@@ -65,6 +65,7 @@ from typing import Any
 
 import numpy as np
 
+from .._linalg import inv
 from ..exceptions import ArgumentError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
@@ -203,10 +204,11 @@ class HCMCIAlgorithm(Algorithm):
             dq = dq + self.pi[i, j] * (Gc @ p["y"])
         om = self.omega if self.count == "all" else float(1 + len({j for j, _, _ in pk}))
         Om = Oi + om * dOi
-        xh = np.linalg.inv(Om) @ (q + om * dq)
+        Om_inv = inv(Om)
+        xh = Om_inv @ (q + om * dq)
         A = sysm.A_at(k)
-        P = A @ np.linalg.inv(Om) @ A.T + sysm.Q_at(k)
-        On = np.linalg.inv(0.5 * (P + P.T))
+        P = A @ Om_inv @ A.T + sysm.Q_at(k)
+        On = inv(0.5 * (P + P.T))
         On = 0.5 * (On + On.T)
         return {"xhat": xh, "Obar": On}, {"xbar": xbar, "y": y_i, "Obar": Obar}
 

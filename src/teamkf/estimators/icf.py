@@ -67,6 +67,7 @@ import numpy as np
 
 from .. import _validation as V
 from .._lazy import scipy_linalg as sla  # SciPy loads on first use
+from .._linalg import inv
 from ..exceptions import ArgumentError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
@@ -206,10 +207,10 @@ class ICFAlgorithm(Algorithm):
             Yc, Tm = compensate_information(sysm, p["V"], s, k)
             Vi = Vi + self.eps * (Yc - V0)
             v = v + self.eps * (Tm @ p["xhat"] - v0)
-        xh = np.linalg.inv(Vi) @ v
+        xh = inv(Vi) @ v
         A = sysm.A_at(k)
-        Jinv = np.linalg.inv(n * Vi)
-        Jn = np.linalg.inv(A @ Jinv @ A.T + sysm.Q_at(k))
+        Jinv = inv(n * Vi)
+        Jn = inv(A @ Jinv @ A.T + sysm.Q_at(k))
         Jn = 0.5 * (Jn + Jn.T)
         return {"xhat": xh, "Jbar": Jn}, {"xhat": xh, "V": Vi}
 

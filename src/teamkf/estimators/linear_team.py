@@ -43,7 +43,7 @@ import numpy as np
 
 from .._blas import single_thread_blas
 from .._lazy import scipy_linalg as sla  # SciPy / networkx load on first use
-from .._linalg import block_diag
+from .._linalg import block_diag, inv
 from .._validation import FloatArray
 from ..exceptions import DivergenceError, ShapeError, TeamkfError, UnsupportedOperationError
 from ..models import LinearGaussianSystem, TeamCost
@@ -242,15 +242,21 @@ class Algorithm:
         P⁺ = (P⁻¹ + S)⁻¹ (Joseph form, as the designs): the update is x̄ + P⁺ r, before any consensus term.
         """
         ys = [((i, k), y_i), *[((lnode, s), p["y"]) for (lnode, s, p) in packets]]
-        Cs, Rs = [], []
         r: Any = None
         for (lnode, s), y in ys:
-            Ct, Rt, G, Y = self.compensated(lnode, s, k)
-            Cs.append(Ct)
-            Rs.append(Rt)
+            _, _, G, Y = self.compensated(lnode, s, k)
             term = G @ y - Y @ xbar
             r = term if r is None else r + term
-        _, P_post = kalman_step(P, np.vstack(Cs), block_diag(*Rs))
+        # the stacked C̃ and block-diagonal R̃ of these packets (cached: they depend on which packets, not on the run)
+        cache = self.__dict__.setdefault("_stacked", {})
+        key = (k, tuple(ls for ls, _ in ys)) if self.system.is_time_varying else tuple((ls[0], k - ls[1]) for ls, _ in ys)
+        CR = cache.get(key)
+        if CR is None:
+            comp = [self.compensated(lnode, s, k) for (lnode, s), _ in ys]
+            CR = np.vstack([c[0] for c in comp]), block_diag(*[c[1] for c in comp])
+            if len(cache) < 4096:
+                cache[key] = CR
+        _, P_post = kalman_step(P, CR[0], CR[1])
         return r, P_post
 
 
@@ -726,6 +732,15 @@ class LinearTeamDesign(Design):
         return {**super().arrays(), **{k: np.asarray(v) for k, v in getattr(self.algorithm, "schedules", {}).items()}}
 
 
+def _in_positions(graph: CommGraph, i: int) -> dict[int, int]:
+    """{in-neighbour j: its position in ``graph.in_neighbors(i)``}, cached on the (immutable) graph."""
+    cache: dict[int, dict[int, int]] = graph.__dict__.setdefault("_in_positions", {})
+    pos = cache.get(i)
+    if pos is None:
+        pos = cache[i] = {j: a for a, j in enumerate(graph.in_neighbors(i))}
+    return pos
+
+
 def delivered(graph: CommGraph | None, i: int, inbox: Sequence[tuple[int, int, Any]]) -> list[tuple[int, int, Any]]:
     """The packets of agent i's inbox in the nominal order: in-neighbour order (as the graph lists them), then sent step.
 
@@ -735,9 +750,9 @@ def delivered(graph: CommGraph | None, i: int, inbox: Sequence[tuple[int, int, A
     (sender, step) is kept once; a packet from an agent that is not an
     in-neighbour is not used.
     """
-    if graph is None:
+    if graph is None or not inbox:
         return []
-    pos = {j: a for a, j in enumerate(graph.in_neighbors(i))}
+    pos = _in_positions(graph, i)
     seen: set[tuple[int, int]] = set()
     out = []
     for l, s, p in sorted(((l, s, p) for (l, s, p) in inbox if l in pos), key=lambda e: (pos[e[0]], e[1])):
@@ -881,7 +896,7 @@ def compensate_information(system: LinearGaussianSystem, Y: FloatArray, s: int, 
     if s == k:
         return Y, Y
     Phi = transition(system, k, s)
-    P = Phi @ np.linalg.inv(Y) @ Phi.T + process_noise(system, k, s)
-    Yn = np.linalg.inv(0.5 * (P + P.T))
+    P = Phi @ inv(Y) @ Phi.T + process_noise(system, k, s)
+    Yn = inv(0.5 * (P + P.T))
     Yn = 0.5 * (Yn + Yn.T)
     return Yn, np.asarray(Yn @ Phi, dtype=float)

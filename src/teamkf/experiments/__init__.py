@@ -195,8 +195,9 @@ def _check_work(name: str, quick: bool) -> None:
 def run(name: str, out_dir: str | Path | None = None, *, quick: bool = False, scheduler: Any = None) -> ExperimentResult:
     """Run one experiment; with ``out_dir`` write its CSV (and PNG plots when matplotlib is installed).
 
-    ``scheduler``: where the grid points of an experiment with independent points run (``"serial"``, the
-    default; ``"local"``, a Dask scheduler address or a ``Client``); the numbers do not depend on it. An
+    ``scheduler``: where the grid points of an experiment with independent points run (None, the default:
+    forked processes, one per core or ``TEAMKF_WORKERS``, :func:`~teamkf.simulation.parallel.process_map`;
+    ``"serial"``: this process; ``"local"``, a Dask scheduler address or a ``Client``); the numbers do not depend on it. An
     experiment without such a grid refuses any other scheduler (an ArgumentError naming ``scheduler``).
     """
     from ..exceptions import ArgumentError
@@ -206,7 +207,9 @@ def run(name: str, out_dir: str | Path | None = None, *, quick: bool = False, sc
     _check_work(name, quick)
     out = Path(out_dir) if out_dir is not None else None
     owned: list[Any] = []
-    sched: Any = "serial"
+    # by default the independent grid points run in forked processes, one per core (TEAMKF_WORKERS); the numbers
+    # do not depend on it (each point is seeded on its own); scheduler="serial" keeps them in this process
+    sched: Any = "processes" if scheduler is None else "serial"
     if scheduler not in (None, "serial"):
         if not exp.uses_scheduler:
             users = ", ".join(n for n in names() if get(n).uses_scheduler)

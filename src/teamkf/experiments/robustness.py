@@ -40,7 +40,6 @@ from typing import Any
 
 import numpy as np
 
-from .._progress import bar
 from . import ExperimentResult, plotting_available, register, save_figure
 
 P_FULL = (0.0, 0.01, 0.05, 0.1, 0.2, 0.5, 1.0)
@@ -53,10 +52,12 @@ SCENARIOS = ("platoon-4", "uav-4")
 LOSSY = "mtmse_lossy"
 
 
-def _designs(sc: Any, jitter: int) -> tuple[dict[str, Any], dict[str, str]]:
+def _designs(sc: Any, jitter: int = 0) -> tuple[dict[str, Any], dict[str, str]]:
+    """Every family designed for the scenario, and MTMSE for the delays τ + J when J = ``jitter`` > 0 (:func:`_with_robust`).
+
+    Only ``mtmse-robust`` depends on the jitter bound, so :func:`run` calls this once per scenario."""
     from ..estimators.registry import families
     from ..exceptions import TeamkfError
-    from ..simulation.links import robust_graph
 
     out, skipped = {}, {}
     for name, fam in families().items():
@@ -74,19 +75,50 @@ def _designs(sc: Any, jitter: int) -> tuple[dict[str, Any], dict[str, str]]:
             skipped[name] = "its agents need every message (no defined behaviour for lost packets yet)"
             continue
         out[name] = d
+    return _with_robust(sc, out, jitter), skipped
+
+
+def _with_robust(sc: Any, designs: dict[str, Any], jitter: int) -> dict[str, Any]:
+    """The designs of jitter bound J: those of :func:`_designs`, and MTMSE designed for the delays τ + J when J > 0."""
+    out = dict(designs)
     if jitter > 0 and "mtmse" in out:
         from ..estimators.team import design_mtmse
+        from ..simulation.links import robust_graph
 
         out["mtmse-robust"] = design_mtmse(sc.system, sc.cost, robust_graph(sc.graph, jitter), sc.horizon)
-    return out, skipped
+    return out
 
 
-@register("robustness", "Robustness: team cost vs packet-drop probability and jitter (platoon-4, UAV n = 4)")
-def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
+#: (scenario, J) -> (scenario, designs): set by :func:`run` before the grid points are mapped (forked workers inherit it)
+_GRID: dict[tuple[str, int], tuple[Any, dict[str, Any]]] = {}
+
+
+def _point(key: tuple[str, int, float, int, int, int]) -> tuple[tuple[float, float] | None, Any, dict[str, Any]]:
+    """One grid point (scenario, J, p, T, runs, seed): the drop-aware design's (exact cost, lower bound) and the Monte Carlo.
+
+    Independent of the other points (its own designs and the fixed seed), so the points can run in any order, in
+    any process. Returns also each design's analytic cost on reliable links.
+    """
     from ..estimators.registry import families
     from ..estimators.team_lossy import design_mtmse_lossy
     from ..simulation.links import LinkModel
     from ..simulation.monte_carlo import monte_carlo
+
+    sname, J, p, T, runs, seed = key
+    sc, designs = _GRID[(sname, J)]
+    here = dict(designs)
+    exact = None
+    if LOSSY in families():
+        lossy = design_mtmse_lossy(sc.system, sc.cost, sc.graph, T, p_drop=p, jitter=J)
+        here[LOSSY] = lossy
+        exact = (float(lossy.require_cost()), float(lossy.lower_bound))
+    mc = monte_carlo(here, T, runs, rng=seed, path="runtime", graph=sc.graph, links=LinkModel(p_drop=p, jitter=J))
+    return exact, mc, {name: d.total_cost for name, d in here.items()}
+
+
+@register("robustness", "Robustness: team cost vs packet-drop probability and jitter (platoon-4, UAV n = 4)")
+def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
+    from ..simulation.parallel import process_map
     from ..study.scenario import load_packaged
 
     P, Js = (P_QUICK, J_QUICK) if quick else (P_FULL, J_FULL)
@@ -94,59 +126,59 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
     rows: list[dict[str, Any]] = []
     notes_skipped: dict[str, str] = {}
     curves: dict[tuple[str, int, str], list[tuple[float, float, float, float]]] = {}
-    # one bar over the grid (each point's Monte Carlo is too short for a bar of its own)
-    with bar(len(SCENARIOS) * len(Js) * len(P), desc="robustness", unit="point") as grid:
-        for sname in SCENARIOS:
-            sc = load_packaged(sname).updated({"horizon": T})
-            for J in Js:
-                designs, skipped = _designs(sc, J)
-                notes_skipped.update({f"{sname}: {k}": v for k, v in skipped.items()})
-                for p in P:
-                    here = dict(designs)
-                    lossy = None
-                    if LOSSY in families():
-                        lossy = design_mtmse_lossy(sc.system, sc.cost, sc.graph, T, p_drop=p, jitter=J)
-                        here[LOSSY] = lossy
-                    mc = monte_carlo(here, T, runs, rng=seed, path="runtime", graph=sc.graph, links=LinkModel(p_drop=p, jitter=J))
-                    if lossy is not None:
-                        for name, val in ((f"{LOSSY} (exact)", float(lossy.require_cost())), ("lower bound", lossy.lower_bound)):
-                            rows.append(
-                                {
-                                    "scenario": sname,
-                                    "jitter": J,
-                                    "p_drop": p,
-                                    "estimator": name,
-                                    "J_T (MC)": val,
-                                    "ci95 low": val,
-                                    "ci95 high": val,
-                                    "J_T analytic (reliable)": None,
-                                    "packets sent": None,
-                                    "dropped": None,
-                                }
-                            )
-                            curves.setdefault((sname, J, name), []).append((p, val, val, val))
-                    for name, r in mc.items():
-                        lo, hi = r.ci95
-                        counts = r.links.counts.values() if r.links is not None else []
-                        sent = sum(c["sent"] for c in counts)
-                        lost = sum(c["dropped"] for c in counts)
-                        d = here[name]
-                        rows.append(
-                            {
-                                "scenario": sname,
-                                "jitter": J,
-                                "p_drop": p,
-                                "estimator": name,
-                                "J_T (MC)": r.total_mean,
-                                "ci95 low": lo,
-                                "ci95 high": hi,
-                                "J_T analytic (reliable)": d.total_cost,
-                                "packets sent": sent,
-                                "dropped": lost,
-                            }
-                        )
-                        curves.setdefault((sname, J, name), []).append((p, r.total_mean, lo, hi))
-                    grid.update()
+    # every family is designed once per scenario (MTMSE for tau + J once per J); the (scenario, J, p) points are
+    # independent (each its own drop-aware design and the same seed), so they run in parallel processes
+    _GRID.clear()
+    keys = []
+    for sname in SCENARIOS:
+        sc = load_packaged(sname).updated({"horizon": T})
+        designs, skipped = _designs(sc)
+        notes_skipped.update({f"{sname}: {k}": v for k, v in skipped.items()})
+        for J in Js:
+            _GRID[(sname, J)] = (sc, _with_robust(sc, designs, J))
+            keys += [(sname, J, p, T, runs, seed) for p in P]
+    try:
+        results = process_map(_point, keys, desc="robustness")
+    finally:
+        _GRID.clear()
+    for (sname, J, p, *_), (exact, mc, analytic) in zip(keys, results):
+        if exact is not None:
+            for name, val in ((f"{LOSSY} (exact)", exact[0]), ("lower bound", exact[1])):
+                rows.append(
+                    {
+                        "scenario": sname,
+                        "jitter": J,
+                        "p_drop": p,
+                        "estimator": name,
+                        "J_T (MC)": val,
+                        "ci95 low": val,
+                        "ci95 high": val,
+                        "J_T analytic (reliable)": None,
+                        "packets sent": None,
+                        "dropped": None,
+                    }
+                )
+                curves.setdefault((sname, J, name), []).append((p, val, val, val))
+        for name, r in mc.items():
+            lo, hi = r.ci95
+            counts = r.links.counts.values() if r.links is not None else []
+            sent = sum(c["sent"] for c in counts)
+            lost = sum(c["dropped"] for c in counts)
+            rows.append(
+                {
+                    "scenario": sname,
+                    "jitter": J,
+                    "p_drop": p,
+                    "estimator": name,
+                    "J_T (MC)": r.total_mean,
+                    "ci95 low": lo,
+                    "ci95 high": hi,
+                    "J_T analytic (reliable)": analytic[name],
+                    "packets sent": sent,
+                    "dropped": lost,
+                }
+            )
+            curves.setdefault((sname, J, name), []).append((p, r.total_mean, lo, hi))
     figures: list[str] = []
     if out_dir is not None and plotting_available():
         from ..plotting import _pyplot, family_style

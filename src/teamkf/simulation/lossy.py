@@ -606,26 +606,34 @@ def _run_grouped(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArra
     n = graph.n_agents
     R, T = ys[0].shape[:2]
     ok = out.delivered
+    omni = [bool(getattr(ag, "omniscient", False)) for ag in agents]
+    ends = [(a, b) for (a, b, _) in out.edges]
     results = []
     for r in progress(range(R), desc="lossy runtime (run by run)", total=R, unit="run"):
         states = [ag.init_state(1) for ag in agents]
         inbox: dict[int, list[list[Any]]] = {}
+        # run r's deliveries, by sending step: (edge, arrival step), edges in order
+        ks, qs = np.nonzero(ok[r])
+        sends: dict[int, list[tuple[int, int]]] = {}
+        for k_, q_, t_ in zip(ks.tolist(), qs.tolist(), out.arrive[r, ks, qs].tolist()):
+            sends.setdefault(k_, []).append((q_, t_))
+        yr = [y[r : r + 1] for y in ys]
         zr = []
         for k in range(T):
             box = inbox.pop(k, None) or [[] for _ in range(n)]
             zs, payloads = [], []
             for i, ag in enumerate(agents):
-                if getattr(ag, "omniscient", False):
-                    own: Any = [(j, k, ys[j][r : r + 1, k]) for j in range(n)]
+                if omni[i]:
+                    own: Any = [(j, k, yr[j][:, k]) for j in range(n)]
                     msgs: list[Any] = []
                 else:
-                    own, msgs = ys[i][r : r + 1, k], box[i]
+                    own, msgs = yr[i][:, k], box[i]
                 states[i], z, payload = checked_step(ag, i, states[i], k, own, msgs, 1, dz, who)
                 zs.append(z)
                 payloads.append(payload)
-            for q, (a, b, _) in enumerate(out.edges):
-                if ok[r, k, q]:
-                    inbox.setdefault(int(out.arrive[r, k, q]), [[] for _ in range(n)])[b].append((a, k, payloads[a]))
+            for q, t_arr in sends.get(k, ()):
+                a, b = ends[q]
+                inbox.setdefault(t_arr, [[] for _ in range(n)])[b].append((a, k, payloads[a]))
             zr.append(np.concatenate(zs, axis=1))
         results.append(np.stack(zr, axis=1))
         for i in range(n):

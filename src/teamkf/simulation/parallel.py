@@ -20,7 +20,7 @@ from .. import _validation as V
 from .._progress import progress
 from ..exceptions import ArgumentError
 
-__all__ = ["map_points", "use_scheduler", "current_scheduler", "local_cluster", "with_plugins", "WORKER_ENV"]
+__all__ = ["map_points", "process_map", "pool_workers", "use_scheduler", "current_scheduler", "local_cluster", "with_plugins", "WORKER_ENV"]
 
 #: environment of the worker processes of the embedded LocalCluster (one BLAS thread each)
 WORKER_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
@@ -38,7 +38,8 @@ def current_scheduler() -> Any:
 
 @contextlib.contextmanager
 def use_scheduler(scheduler: Any) -> Iterator[None]:
-    """Within the block, :func:`map_points` runs on ``scheduler`` ("serial", "local", an address or a Client)."""
+    """Within the block, :func:`map_points` runs on ``scheduler`` ("serial", "processes" (:func:`process_map`: forked
+    workers, one per core), "local", an address or a Client)."""
     token = _SCHEDULER.set(scheduler or "serial")
     try:
         yield
@@ -52,6 +53,8 @@ def map_points(func: Callable[[P], R], points: Iterable[P], *, scheduler: Any = 
     sched = scheduler if scheduler is not None else _SCHEDULER.get()
     if sched in (None, "serial") or len(pts) <= 1:
         return [func(p) for p in progress(pts, desc=getattr(func, "__name__", "points"), unit="point")]
+    if sched == "processes":
+        return process_map(func, pts, desc=getattr(func, "__name__", "points"))
     client, owned = _open_client(sched, None)
     try:
         futures = client.map(with_plugins(func, client), pts, pure=False, retries=3)
@@ -59,6 +62,74 @@ def map_points(func: Callable[[P], R], points: Iterable[P], *, scheduler: Any = 
     finally:
         for obj in owned:
             obj.close()
+
+
+def pool_workers(n_jobs: int) -> int:
+    """Worker processes for ``n_jobs`` independent jobs: one per available core (``TEAMKF_WORKERS`` overrides), at most ``n_jobs``."""
+    env = V.env_count("TEAMKF_WORKERS")  # not a whole number >= 1: one ArgumentError naming the variable
+    return max(1, min(int(n_jobs), env if env is not None else _cpu_count()))
+
+
+#: set in :func:`process_map`'s workers (a worker maps its own points serially: no nested pools)
+_IN_WORKER = [False]
+#: (func, items) of the running :func:`process_map`: inherited by the forked workers, so neither is pickled
+_JOB: list[Any] = []
+
+
+def _quiet_worker() -> None:
+    """Initializer of :func:`process_map`'s workers: no progress bars of their own, one BLAS thread each."""
+    from .._progress import set_quiet
+
+    _IN_WORKER[0] = True
+    set_quiet(True)
+    try:
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(1)
+    except Exception:  # pragma: no cover - threadpoolctl missing: BLAS as configured
+        pass
+
+
+def _call(q: int) -> Any:
+    func, xs = _JOB[0]
+    return func(xs[q])
+
+
+def process_map(func: Callable[[P], R], items: Iterable[P], *, desc: str = "points", unit: str = "point", workers: int | None = None) -> list[R]:
+    """``[func(x) for x in items]`` in forked worker processes (one per core), results in item order.
+
+    For the grid points of a reproduction that are independent and each seeded on its own, so the results
+    do not depend on the number of workers. Serial (in this process) with one worker, one item, inside a
+    worker, or where ``fork`` is not available; ``TEAMKF_WORKERS`` sets the number of workers. ``func`` and
+    the items are inherited by the forked workers (not pickled: ``func`` may be a closure or read module
+    state set up before the call); only the results are pickled back. A progress bar over the items is shown
+    on a terminal (:mod:`teamkf._progress`); the workers' own bars are silenced and they use one BLAS
+    thread each.
+    """
+    import multiprocessing as mp
+
+    xs = list(items)
+    n = pool_workers(len(xs)) if workers is None else max(1, min(int(workers), len(xs)))
+    if n <= 1 or _IN_WORKER[0] or _JOB or "fork" not in mp.get_all_start_methods():
+        return [func(x) for x in progress(xs, desc=desc, unit=unit)]
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    from .._progress import bar
+
+    out: list[Any] = [None] * len(xs)
+    _JOB.append((func, xs))
+    try:
+        with (
+            bar(len(xs), desc=desc, unit=unit) as b,
+            ProcessPoolExecutor(max_workers=n, mp_context=mp.get_context("fork"), initializer=_quiet_worker) as ex,
+        ):
+            futs = {ex.submit(_call, q): q for q in range(len(xs))}
+            for fut in as_completed(futs):
+                out[futs[fut]] = fut.result()
+                b.update(1)
+    finally:
+        _JOB.clear()
+    return out
 
 
 def _cpu_count() -> int:
