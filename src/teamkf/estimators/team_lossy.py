@@ -679,6 +679,7 @@ def design_mtmse_lossy(
     bound: bool = True,
     known_bound: int = 0,
     known_window: int | None = None,
+    keyed: int = 0,
     threads: int | None = 1,
     progress: bool | None = None,
 ) -> LossyTeamDesign:
@@ -721,6 +722,10 @@ def design_mtmse_lossy(
         ``info["known_pattern_bound"]`` (value, sem, interval) and ``info["known_pattern_gap"]``.
     known_window : int or None
         Its window (data older than k - W given to every agent: a looser bound, less work); None: W = ℓ_max + 4.
+    keyed : 0 or 1
+        1: gains keyed on the agent's current arrivals (the on-time indicators of the items due at step k;
+        :mod:`teamkf.estimators._lossy_keyed`): a larger class containing today's, exact cost, small teams only
+        (no ``memory``). 0: gains independent of the arrival pattern.
 
     Returns
     -------
@@ -754,9 +759,23 @@ def design_mtmse_lossy(
     coords = V.choice(items, "items", ("auto", "measurements", "innovations"))
     arr = ArrivalModel.build(graph, p, J)
     _lossy_size.check(system, arr, T, mem, cost.dz, prefix=mem is None and not cost.is_time_varying)  # sized before anything is allocated
+    kw = V.integer(keyed, "keyed", minimum=0, maximum=1, what="the window w (0: gains independent of the pattern, 1: keyed on the current arrivals)")
+    if kw and mem is not None:
+        raise ArgumentError(
+            f"keyed: the keyed gains use every item (memory = None), found memory = {mem}; drop memory or use keyed = 0", argument="keyed"
+        )
     candidates = _auto_items(system, arr, T, mem) if coords == "auto" else (coords,)
     with blas_threads(threads):
         mom0 = local_filter_moments(system, T)
+        if kw:
+            from . import _lossy_keyed
+
+            tried = {}
+            for c in candidates:
+                mc = _item_moments(system, mom0, T, c)
+                tried[c] = _lossy_keyed.solve_keyed(system, cost, arr, mc, _slots(system, arr, mc.Sigma, T, fill), T)
+            coords = min(candidates, key=lambda c: float(np.sum(tried[c][4])))
+            return _lossy_keyed.keyed_design(system, cost, graph, T, p, J, coords, arr, mom0, tried, bound)
         tried = {c: _solve_all(system, cost, arr, _item_moments(system, mom0, T, c), T, mem, fill, progress) for c in candidates}
     coords = min(candidates, key=lambda c: float(np.sum(tried[c][3])))  # the lower exact expected cost (ties: the first)
     held, gains, fills, stage, local = tried[coords]
