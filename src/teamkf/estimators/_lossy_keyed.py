@@ -44,7 +44,7 @@ from .._linalg import block_diag
 from ..exceptions import ArgumentError
 from ._arrivals import ArrivalModel, _union_prob
 
-__all__ = ["MAX_EVENTS", "MAX_DUE", "solve_keyed", "pattern_index"]
+__all__ = ["MAX_EVENTS", "MAX_DUE", "design_keyed", "solve_keyed", "pattern_index"]
 
 #: at most this many edge-step events decide the current arrivals of one step (2^events assignments)
 MAX_EVENTS = 14
@@ -419,3 +419,35 @@ def keyed_design(
     d.info["lower_bound"] = d.lower_bound
     d.info["gap"] = d.gap
     return d
+
+
+def design_keyed(
+    system: Any,
+    cost: Any,
+    graph: Any,
+    T: int,
+    p: Any,
+    J: Any,
+    arr: ArrivalModel,
+    candidates: tuple[str, ...],
+    memory: int | None,
+    fill: bool,
+    bound: bool,
+    threads: int | None,
+) -> Any:
+    """``design_mtmse_lossy(..., keyed=1)``: every item kind of ``candidates`` designed, the lower exact cost kept."""
+    from .._blas import blas_threads
+    from .team_lossy import _item_moments, _slots, local_filter_moments
+
+    if memory is not None:
+        raise ArgumentError(
+            f"keyed: the keyed gains use every item (memory = None), found memory = {memory}; drop memory or use keyed = 0", argument="keyed"
+        )
+    tried = {}
+    with blas_threads(threads):
+        mom0 = local_filter_moments(system, T)
+        for c in candidates:
+            mc = _item_moments(system, mom0, T, c)
+            tried[c] = solve_keyed(system, cost, arr, mc, _slots(system, arr, mc.Sigma, T, fill), T)
+    coords = min(candidates, key=lambda c: float(np.sum(tried[c][4])))  # the lower exact expected cost (ties: the first)
+    return keyed_design(system, cost, graph, T, p, J, coords, arr, mom0, tried, bound)

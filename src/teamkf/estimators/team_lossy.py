@@ -760,22 +760,13 @@ def design_mtmse_lossy(
     arr = ArrivalModel.build(graph, p, J)
     _lossy_size.check(system, arr, T, mem, cost.dz, prefix=mem is None and not cost.is_time_varying)  # sized before anything is allocated
     kw = V.integer(keyed, "keyed", minimum=0, maximum=1, what="the window w (0: gains independent of the pattern, 1: keyed on the current arrivals)")
-    if kw and mem is not None:
-        raise ArgumentError(
-            f"keyed: the keyed gains use every item (memory = None), found memory = {mem}; drop memory or use keyed = 0", argument="keyed"
-        )
     candidates = _auto_items(system, arr, T, mem) if coords == "auto" else (coords,)
+    if kw:  # gains keyed on the current arrivals (a module of its own)
+        from ._lossy_keyed import design_keyed
+
+        return design_keyed(system, cost, graph, T, p, J, arr, candidates, mem, fill, bound, threads)
     with blas_threads(threads):
         mom0 = local_filter_moments(system, T)
-        if kw:
-            from . import _lossy_keyed
-
-            tried = {}
-            for c in candidates:
-                mc = _item_moments(system, mom0, T, c)
-                tried[c] = _lossy_keyed.solve_keyed(system, cost, arr, mc, _slots(system, arr, mc.Sigma, T, fill), T)
-            coords = min(candidates, key=lambda c: float(np.sum(tried[c][4])))
-            return _lossy_keyed.keyed_design(system, cost, graph, T, p, J, coords, arr, mom0, tried, bound)
         tried = {c: _solve_all(system, cost, arr, _item_moments(system, mom0, T, c), T, mem, fill, progress) for c in candidates}
     coords = min(candidates, key=lambda c: float(np.sum(tried[c][3])))  # the lower exact expected cost (ties: the first)
     held, gains, fills, stage, local = tried[coords]
@@ -887,6 +878,12 @@ FAMILY = _register_builtin(
                 doc="also compute the known-pattern optimum over this many sampled drop patterns (0: not)",
             ),
             Option(name="known_window", default=None, check=_check_memory, doc="its window W (none: the largest geodesic delay + 4)"),
+            Option(
+                name="keyed",
+                default=0,
+                check=lambda v, k: V.integer(v, k, minimum=0, maximum=1),
+                doc="1: gains keyed on the current arrivals (the items due at each step; small teams, no memory); 0: pattern-independent",
+            ),
             Option(
                 name="items",
                 default="auto",
