@@ -44,7 +44,9 @@ def main() -> None:
     nominal = design_mtmse(sysm, cost, g, T)
     print(f"unlike-sensor line, n = 3, T = {T}; nominal MTMSE (perfect links) {nominal.total_cost:.2f}")
     print()
-    print("| p | rule (MC) | keyed = 0, exact | keyed = 1, exact | keyed = 1 (MC) | local KF | known-pattern bound | keyed 0 vs rule | keyed 1 vs rule |")
+    print(
+        "| p | rule (MC) | keyed = 0, exact | keyed = 1, exact | keyed = 1 (MC) | local KF | known-pattern bound | keyed 0 vs rule | keyed 1 vs rule |"
+    )
     print("|---|---|---|---|---|---|---|---|---|")
     S = cost.S_at(0)
     for p in PS:

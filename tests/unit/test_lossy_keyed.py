@@ -78,3 +78,6 @@ def test_refusals_and_registry(team):
         design_mtmse_lossy(s5, c5, CommGraph.complete(6, delay=1), 3, p_drop=0.3, keyed=1)
     d = get_family("mtmse_lossy").build(sysm, cost, graph=g, structure=g, horizon=4, options={"p_drop": 0.3, "keyed": 1})
     assert d.info["keyed"] == 1
+    arrays = d.arrays()
+    assert arrays["due_0_t3"].tolist() == [[1, 2], [2, 1]]  # agent 0's items due at step 3: ν₁(2), ν₂(1); 4 patterns
+    assert {f"G_0_t3_p{p}" for p in range(4)} <= set(arrays)

@@ -345,7 +345,8 @@ def _design_class() -> Any:
         """Agent i of a keyed design: as :class:`LossyTeamAgent`, with the gains of the pattern of its current arrivals."""
 
         def step(self, state: dict[str, Any], k: int, own: Any, inbox: Any) -> Any:
-            d, i = self.design, self.index
+            d: Any = self.design
+            i = self.index
             new_state, _, new = super().step(state, k, own, inbox)
             items = new_state["items"]
             bits = [items.get(it) is not None for it in d.due[k][i]]
