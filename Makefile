@@ -21,10 +21,10 @@ venv: $(STAMP)
 # `make demo` and `make docs` install only what they need (not the dev toolchain), each once: demo the plot and
 # dask extras, which every command of the README needs (matplotlib; pandas and pyarrow for filter and sweep, Dask);
 # a full dev install ($(STAMP)) already has both.
-DEMO_STAMP := $(VENV)/.installed-demo
+DEMO_STAMP := $(VENV)/.installed-demo-ros
 DOCS_STAMP := $(VENV)/.installed-docs
 $(DEMO_STAMP): pyproject.toml constraints.txt
-	@test -f $(STAMP) || { $(PYTHON) -m venv $(VENV) && $(BIN)/python -m pip install --quiet --upgrade pip && $(BIN)/python -m pip install --quiet $(CONSTRAINTS) -e '.[plot,dask]'; }
+	@test -f $(STAMP) || { $(PYTHON) -m venv $(VENV) && $(BIN)/python -m pip install --quiet --upgrade pip && $(BIN)/python -m pip install --quiet $(CONSTRAINTS) -e '.[plot,dask,ros]'; }
 	touch $@
 $(DOCS_STAMP): pyproject.toml constraints.txt
 	@test -f $(STAMP) || { $(PYTHON) -m venv $(VENV) && $(BIN)/python -m pip install --quiet --upgrade pip && $(BIN)/python -m pip install --quiet $(CONSTRAINTS) -e '.[docs]'; }
