@@ -229,6 +229,27 @@ def test_far_future_oversize_and_replayed_frames_are_refused_and_memory_stays_bo
     assert set(box.counts) <= set(REFUSED) | {"received"}
 
 
+def test_a_restarted_process_is_heard_again_and_the_old_ones_hellos_stay_replays(kcf):
+    """A process restarted with --rejoin counts its hellos from 1 again: its authenticated rejoin announcement resets
+    the counter (once per rejoin step); hellos captured from the process before it are then refused, whatever their
+    counter, and a replay of the new process's own hellos is refused by its counter."""
+    sc, design, core = kcf
+    box = _box(core)
+    old = [encode_frame(Frame(HELLO, 11, 0, 1, 0, c, {"heard": [1], "step": 40 + c}), KEY) for c in range(1, 301)]
+    for f in old:
+        box.put(f)
+    assert box.beats[0] == 300 and box.counts["replayed"] == 0
+    box.put(encode_frame(Frame(HELLO, 11, 0, 1, 0, 3, {"heard": [1], "step": 500, "rejoin": 500}), KEY))  # the restarted process
+    assert box.resume[0] == 500 and box.beats[0] == 3 and box.counts["rejoins"] == 1
+    box.put(encode_frame(Frame(HELLO, 11, 0, 1, 0, 4, {"heard": [1], "step": 501, "rejoin": 500}), KEY))  # its next hello
+    assert box.beats[0] == 4
+    before = dict(box.counts)
+    for f in old[-50:]:  # a stranger replays the old process's hellos, counters far above the new ones
+        box.put(f)
+    box.put(encode_frame(Frame(HELLO, 11, 0, 1, 0, 4, {"heard": [1], "step": 501, "rejoin": 500}), KEY))  # and the new one's
+    assert box.counts["replayed"] - before.get("replayed", 0) == 51 and box.beats[0] == 4 and box.resume[0] == 500
+
+
 def test_forged_goodbyes_and_frames_of_strangers_change_nothing(kcf):
     sc, design, core = kcf
     box = _box(core)

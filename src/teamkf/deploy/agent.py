@@ -356,6 +356,9 @@ class Mailbox:
             if f.origin <= self.beats.get(f.sender, 0) and not restarted:
                 c["replayed"] += 1
                 return
+            if not restarted and f.sender in self.resume and r != self.resume[f.sender]:  # a hello of the process before the restart
+                c["replayed"] += 1
+                return
             self.beats[f.sender] = f.origin
             self.last_seen[f.sender] = time.monotonic()
             self.heard.add(f.sender)
