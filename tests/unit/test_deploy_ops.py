@@ -137,8 +137,11 @@ def _run_report(r, prep, run_id):
     return d
 
 
-def test_rejoined_agent_in_process_is_fused_again_and_its_merged_record_replays_bit_for_bit(p3):
+@pytest.mark.parametrize("family", ["kcf", "mtmse", "mmse"])
+def test_rejoined_agent_in_process_is_fused_again_and_its_merged_record_replays_bit_for_bit(p3, family):
     sc, d, log, prep = p3
+    if family != "kcf":
+        prep = prepare(sc, log, family)
     n, T, rate = 3, prep.n_steps, 30.0
     hub = QueueHub(n)
     first: list = [None] * n
@@ -186,9 +189,10 @@ def test_rejoin_is_refused_in_one_line_for_a_family_without_a_restart(p3):
     from teamkf.study.agent_ops import check_rejoin
 
     sc, *_ = p3
-    with pytest.raises(ArgumentError, match="--rejoin: mtmse defines no restart"):
-        check_rejoin(sc.design("mtmse"), 0, sc.graph, rejoin=True)
-    assert check_rejoin(sc.design("kcf"), 0, sc.graph, rejoin=True).tolerant
+    with pytest.raises(ArgumentError, match="--rejoin: diffusion defines no restart"):
+        check_rejoin(sc.design("diffusion"), 0, sc.graph, rejoin=True)
+    for family in ("kcf", "mtmse", "mmse"):
+        assert check_rejoin(sc.design(family), 0, sc.graph, rejoin=True).tolerant
 
 
 # ---------------------------------------------------------------------------
@@ -342,3 +346,26 @@ def test_killed_agent_restarted_with_rejoin_over_zenoh_is_fused_again_and_the_me
     z = z[[c for c in z.columns if c.startswith("z")]].to_numpy().reshape(60, -1)
     want = [np.load(tmp_path / f"a{i}.npz")["z"] for i in (0, 1)] + [stream]
     assert z.tobytes() == np.concatenate(want, axis=1).tobytes()
+
+
+@pytest.mark.parametrize("family", ["mtmse", "mmse"])
+def test_a_restarted_team_agent_returns_to_the_nominal_estimates(family):
+    """An MTMSE / MMSE agent restarted at step k0 from the prior (nothing held) and then given what a nominal agent gets
+    from k0 on: its estimates differ at first and return to the nominal agent's (the predictor's error decays)."""
+    import teamkf as T
+    from teamkf.estimators.team import TeamAgent
+
+    system, cost, graph = T.LinearGaussianSystem.platoon(3), T.TeamCost.platoon(3, lam=10.0), T.CommGraph.line(3, delay=1)
+    d = (T.design_mtmse if family == "mtmse" else T.design_mmse)(system, cost, graph, horizon=60)
+    _, y = T.sample(system, 60, n_runs=1, rng=3)
+    nominal, restarted = TeamAgent(d, 2), TeamAgent(d, 2, tolerant=True)
+    sa, sb, k0, diff = nominal.init_state(1), None, 20, []
+    for k in range(60):
+        packets = [(j, s, y[j][:, s]) for j in range(3) for s in range(k + 1) if s + d.structure.arrival_lag(2, j) == k]
+        sa, za = nominal.step(sa, k, packets)
+        if k == k0:
+            sb = restarted.restart_state(1, k)
+        if k >= k0:
+            sb, zb = restarted.step(sb, k, packets)
+            diff.append(float(np.abs(za - zb).max()))
+    assert diff[0] > 1e-3 and max(diff[10:]) < 1e-6 * max(1.0, diff[0])

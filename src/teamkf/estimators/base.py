@@ -486,6 +486,15 @@ class MeasurementRelay:
     def init_state(self, n_runs: int) -> dict[str, Any]:
         return {"inner": self.inner.init_state(n_runs), "seen": set()}
 
+    @property
+    def restart_state(self) -> Any:
+        """``(n_runs, k) -> state``: the wrapped agent's restart at step k (a restarted process), nothing relayed yet; None
+        when the wrapped agent defines no restart."""
+        inner = getattr(self.inner, "restart_state", None)
+        if not callable(inner):
+            return None
+        return lambda n_runs, k: {"inner": inner(n_runs, k), "seen": set()}
+
     def step(self, state: dict[str, Any], k: int, own: Any, inbox: Sequence[Message]) -> tuple[dict[str, Any], FloatArray, list[Packet]]:
         seen = set(state["seen"])
         new: list[Packet] = []

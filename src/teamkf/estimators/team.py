@@ -602,6 +602,20 @@ class TeamAgent:
     def init_state(self, n_runs: int) -> dict[str, Any]:
         return {"xhat": np.zeros((n_runs, self.system.dx)), "anchor": 0, "buf": {}}
 
+    def restart_state(self, n_runs: int, k: int) -> dict[str, Any]:
+        """A fresh agent at step ``k`` (a restarted process, ``teamkf agent --rejoin``), from the design's prior.
+
+        Its common estimate restarts at the prior mean of x(a), a = max(0, k - common_lag + 1) (zero: known
+        means are removed from y and added back to ẑ), with nothing held; the loss-tolerant step then fills
+        every window measurement it never received by its conditional expectation (:meth:`expected_measurements`)
+        and folds each newly common y(a) into the predictor as it arrives. The predictor's extra error from
+        the restart is propagated by A - K C (stable for a detectable system) and so decays; until it has,
+        the agent's estimates are those of a team member that missed everything before k, not the team
+        optimum's.
+        """
+        a = max(0, int(k) - self.structure.common_lag + 1)
+        return {"xhat": np.zeros((n_runs, self.system.dx)), "anchor": a, "buf": {}, "missed_keys": set(), "missed": 0}
+
     def step(self, state: dict[str, Any], k: int, received: Sequence[Packet]) -> tuple[dict[str, Any], FloatArray]:
         sys, c, d = self.system, self.structure.common_lag, self.design
         buf = dict(state["buf"])

@@ -82,7 +82,7 @@ def check_rejoin(design: Any, i: int, graph: Any, *, rejoin: bool, agent: Any = 
     if rejoin and restart_hook(core) is None:
         raise ArgumentError(
             f"--rejoin: {design.estimator} defines no restart at a later step (a fresh agent from the design's prior needs "
-            "the family's restart_state and its loss-tolerant step; teamkf's KCF has them); restart the whole team instead",
+            "the family's restart_state and its loss-tolerant step; teamkf's KCF, MTMSE and MMSE have them); restart the whole team instead",
             argument="--rejoin",
         )
     return core
