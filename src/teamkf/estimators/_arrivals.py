@@ -28,7 +28,8 @@ from typing import Any
 
 import numpy as np
 
-from ..exceptions import GraphError
+from .. import _validation as V
+from ..exceptions import ArgumentError, GraphError
 
 __all__ = ["ArrivalModel", "MAX_GEODESICS"]
 
@@ -175,3 +176,35 @@ class ArrivalModel:
                 acc |= hit
             d[:, :, j, i] = acc
         return d
+
+
+# the link values of a design's options and a scenario's [network]: a number, or one per edge
+def _per_edge(x: Any, name: str) -> Any:
+    """A number, or per edge: {(source, target): value} or [[source, target, value], ...] (as in ``[network]``)."""
+    if isinstance(x, (list, tuple)):
+        try:
+            x = {(int(a), int(b)): v for (a, b, v) in x}
+        except (TypeError, ValueError):
+            raise ArgumentError(f"{name}: expected a number or [[source, target, value], ...], found {V.describe(x)}", argument=name) from None
+    if isinstance(x, dict):
+        out = {}
+        for e, v in x.items():
+            if not (isinstance(e, tuple) and len(e) == 2 and all(isinstance(u, (int, np.integer)) for u in e)):
+                raise ArgumentError(f"{name}: expected a number or {{(source, target): value}}, found the key {e!r}", argument=name)
+            out[(int(e[0]), int(e[1]))] = v
+        return out
+    return x
+
+
+def _p_value(x: Any, name: str) -> Any:
+    x = _per_edge(x, name)
+    if isinstance(x, dict):
+        return {e: V.probability(p, f"{name}[{list(e)}]") for e, p in x.items()}
+    return V.probability(x, name)
+
+
+def _jitter_value(x: Any, name: str) -> Any:
+    x = _per_edge(x, name)
+    if isinstance(x, dict):
+        return {e: V.integer(j, f"{name}[{list(e)}]", minimum=0) for e, j in x.items()}
+    return V.integer(x, name, minimum=0)

@@ -176,7 +176,11 @@ def check_declared(family: Any) -> None:
             )
 
 
+#: modules that extend a family module (imported after it; each registers its part with the family module)
+EXTENSIONS: tuple[str, ...] = ("_lossy_keyed",)  # mtmse_lossy's keyed=1 (gains keyed on the current arrivals)
+
+
 def load() -> None:
-    """Import every built-in family module; each registers its records (see :mod:`.registry`)."""
-    for name in MODULES:
+    """Import every built-in family module, then their extensions; each registers itself (see :mod:`.registry`)."""
+    for name in (*MODULES, *EXTENSIONS):
         import_module(f"{__package__}.{name}")

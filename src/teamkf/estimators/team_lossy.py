@@ -87,7 +87,7 @@ from ..exceptions import ArgumentError, ShapeError
 from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
 from . import _lossy_size
-from ._arrivals import ArrivalModel
+from ._arrivals import ArrivalModel, _jitter_value, _p_value
 from ._lossy_bound import known_pattern_bound, known_pattern_stats
 from .base import Design, check_paths
 from .checks import check_graph, check_model
@@ -634,35 +634,13 @@ class LossyTeamAgent:
 # ---------------------------------------------------------------------------
 # entry point
 # ---------------------------------------------------------------------------
-def _per_edge(x: Any, name: str) -> Any:
-    """A number, or per edge: {(source, target): value} or [[source, target, value], ...] (as in ``[network]``)."""
-    if isinstance(x, (list, tuple)):
-        try:
-            x = {(int(a), int(b)): v for (a, b, v) in x}
-        except (TypeError, ValueError):
-            raise ArgumentError(f"{name}: expected a number or [[source, target, value], ...], found {V.describe(x)}", argument=name) from None
-    if isinstance(x, dict):
-        out = {}
-        for e, v in x.items():
-            if not (isinstance(e, tuple) and len(e) == 2 and all(isinstance(u, (int, np.integer)) for u in e)):
-                raise ArgumentError(f"{name}: expected a number or {{(source, target): value}}, found the key {e!r}", argument=name)
-            out[(int(e[0]), int(e[1]))] = v
-        return out
-    return x
+#: the keyed design (``keyed=1``), registered by :mod:`teamkf.estimators._lossy_keyed` when the family loader imports it
+_KEYED: list[Any] = []
 
 
-def _p_value(x: Any, name: str) -> Any:
-    x = _per_edge(x, name)
-    if isinstance(x, dict):
-        return {e: V.probability(p, f"{name}[{list(e)}]") for e, p in x.items()}
-    return V.probability(x, name)
-
-
-def _jitter_value(x: Any, name: str) -> Any:
-    x = _per_edge(x, name)
-    if isinstance(x, dict):
-        return {e: V.integer(j, f"{name}[{list(e)}]", minimum=0) for e, j in x.items()}
-    return V.integer(x, name, minimum=0)
+def register_keyed(design: Any) -> None:
+    """Called by :mod:`teamkf.estimators._lossy_keyed` (it extends this module, which therefore never imports it)."""
+    _KEYED[:] = [design]
 
 
 def design_mtmse_lossy(
@@ -761,10 +739,12 @@ def design_mtmse_lossy(
     _lossy_size.check(system, arr, T, mem, cost.dz, prefix=mem is None and not cost.is_time_varying)  # sized before anything is allocated
     kw = V.integer(keyed, "keyed", minimum=0, maximum=1, what="the window w (0: gains independent of the pattern, 1: keyed on the current arrivals)")
     candidates = _auto_items(system, arr, T, mem) if coords == "auto" else (coords,)
-    if kw:  # gains keyed on the current arrivals (a module of its own)
-        from ._lossy_keyed import design_keyed
+    if kw:  # gains keyed on the current arrivals: a module of its own, which imports this one and registers itself here
+        if not _KEYED:
+            from .registry import families
 
-        return design_keyed(system, cost, graph, T, p, J, arr, candidates, mem, fill, bound, threads)
+            families()  # loads the built-in modules and their extensions (_builtin.EXTENSIONS)
+        return _KEYED[0](system, cost, graph, T, p, J, arr, candidates, mem, fill, bound, threads)
     with blas_threads(threads):
         mom0 = local_filter_moments(system, T)
         tried = {c: _solve_all(system, cost, arr, _item_moments(system, mom0, T, c), T, mem, fill, progress) for c in candidates}

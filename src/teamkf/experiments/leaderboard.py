@@ -852,6 +852,7 @@ def run(out_dir: Path | None, quick: bool) -> ExperimentResult:
     T = HORIZON
     t0 = time.perf_counter()
     nets = networks(quick)
+    _check_cache_dir()  # a bad TEAMKF_CACHE_DIR is the one line, before any notice
     entrants, left = plugin_entrants()
     notice = _announce(entrants, left, "exact cost, published defaults")  # before the long run, not after it
     results = _exact_results(quick, T, list(range(len(nets))), entrants)
@@ -884,6 +885,7 @@ def run_drops(out_dir: Path | None, quick: bool) -> ExperimentResult:
     T = HORIZON
     t0 = time.perf_counter()
     nets = networks(quick)
+    _check_cache_dir()  # a bad TEAMKF_CACHE_DIR is the one line, before any notice
     entrants, left = plugin_entrants(lossy=True)
     notice = _announce(entrants, left, "Monte Carlo under p_drop, published defaults")  # before the long run, not after it
     exact = _exact_results(quick, T, list(LOSSY_NETWORKS))

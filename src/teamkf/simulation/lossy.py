@@ -557,7 +557,21 @@ def _events(streams: Sequence[Any], T: int, edges: list, links: Any, omni: tuple
 def run_lossy(
     agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray], links: Any, streams: Sequence[Any], stats: Any, *, design: Any = None
 ) -> FloatArray:
-    """The lossy message-passing loop for a block of runs (see :func:`teamkf.simulation.links.pass_messages_lossy`)."""
+    """The lossy message-passing loop for a block of runs (see :func:`teamkf.simulation.links.pass_messages_lossy`).
+
+    Runs on one BLAS thread, as the Monte Carlo's chunks do: the step maps and fill gains it caches per design
+    are then the same bits whoever computed them first (a caller on two BLAS threads could cache results
+    one ulp apart from a Dask worker's, and the serial and distributed Monte Carlo would differ).
+    """
+    from .._blas import single_thread_blas
+
+    with single_thread_blas():
+        return _run_lossy(agents, graph, ys, links, streams, stats, design=design)
+
+
+def _run_lossy(
+    agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray], links: Any, streams: Sequence[Any], stats: Any, *, design: Any = None
+) -> FloatArray:
     from ..estimators.base import pass_messages
 
     n = graph.n_agents
