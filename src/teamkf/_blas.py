@@ -45,12 +45,23 @@ def _openblas_handles() -> list[tuple[Any, Any]]:
     return out
 
 
+def _load_blas() -> None:
+    """Load SciPy's BLAS/LAPACK (it may bundle its own OpenBLAS) before the limit is set: a library loaded inside the
+    block would run on its default threads there, and a process that loaded it earlier would not (the serial and Dask
+    runs of one computation could then differ in their last bits)."""
+    try:
+        import scipy.linalg  # noqa: F401
+    except ImportError:  # pragma: no cover - SciPy is a dependency
+        pass
+
+
 @contextlib.contextmanager
 def blas_threads(n: int | None) -> Iterator[None]:
     """Limit BLAS to ``n`` threads inside the block (None: leave it alone)."""
     if n is None:
         yield
         return
+    _load_blas()
     try:
         from threadpoolctl import threadpool_limits
     except ImportError:

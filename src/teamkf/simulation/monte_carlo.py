@@ -324,6 +324,9 @@ class _Spec:
 
 
 def _limit_blas() -> Any:
+    from .._blas import _load_blas
+
+    _load_blas()  # every BLAS loaded before the limit, in this process as in a fresh Dask worker
     try:
         from threadpoolctl import threadpool_limits
 
