@@ -574,6 +574,8 @@ def run_lossy(
     if relays:
         assert t is not None
         return _run_team(agents, graph, ys, t, streams, stats)
+    if _stackable(agents, graph):
+        return _run_stacked(agents, graph, ys, out)
     return _run_grouped(agents, graph, ys, out, stats, design)
 
 
@@ -591,6 +593,67 @@ def _run_team(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray],
     for i, m in enumerate(ts.misses().tolist()):
         if m:
             stats.missed[i] = stats.missed.get(i, 0) + int(m)
+    return z
+
+
+# ---------------------------------------------------------------------------
+# families with a stacked tolerant step: all runs at once
+# ---------------------------------------------------------------------------
+def _stackable(agents: Sequence[Any], graph: CommGraph) -> bool:
+    """The agents are one linear design's loss-tolerant agents and its algorithm steps all runs at once (``agent_step_runs``)."""
+    from ..estimators.linear_team import LinearAgent
+
+    if not agents or any(type(ag) is not LinearAgent or not ag.tolerant or ag.index != i for i, ag in enumerate(agents)):
+        return False
+    d = agents[0].design
+    if any(ag.design is not d for ag in agents) or getattr(d.algorithm, "agent_step_runs", None) is None:
+        return False
+    pairs = [(a, b) for (a, b, _) in graph.edges]
+    return len(pairs) == len(set(pairs)) and getattr(d.algorithm, "graph", None) is not None
+
+
+def _run_stacked(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray], out: LinkOutcomes) -> FloatArray:
+    """Every run of the block at once through the family's ``agent_step_runs`` (:mod:`teamkf.estimators._runs`).
+
+    The same estimates as :func:`_run_grouped` bit for bit: each run's packets enter in the order
+    :func:`~teamkf.estimators.linear_team.delivered` gives them, and the stacked step repeats the one-run arithmetic.
+    """
+    from ..exceptions import ShapeError
+
+    d = agents[0].design
+    alg = d.algorithm
+    n = graph.n_agents
+    R, T = ys[0].shape[:2]
+    if T > len(d.steps):
+        raise ShapeError(f"k: the design has horizon = {len(d.steps)} steps, found step {len(d.steps)}; design a longer horizon")
+    # arrival step of each (run, sent step, edge) packet, -1 when it is not delivered
+    arr = np.where(out.delivered, out.arrive, -1)
+    late = out.extra.max(axis=(0, 1)) if out.extra.size else np.zeros(len(out.edges), dtype=np.int64)
+    ins: list[list[tuple[int, int, int, int]]] = []  # per target: (position, source, edge, delay), in position order
+    for i in range(n):
+        pos = {j: a for a, j in enumerate(alg.graph.in_neighbors(i))}
+        ins.append(sorted((pos[a], a, q, dl) for q, (a, b, dl) in enumerate(out.edges) if b == i and a in pos))
+    keep = max((dl + int(late[q]) for q, (_, _, dl) in enumerate(out.edges)), default=0)  # the oldest packet still in flight
+    pay: dict[int, list[dict]] = {}
+    states: list[Any] = [None] * n
+    z = np.empty((R, T, sum(int(d.cost.L_block(i, 0).shape[0]) for i in range(n))))
+    for k in progress(range(T), desc="lossy runtime (all runs)", total=T, unit="step"):
+        now, col = [], 0
+        for i in range(n):
+            slots = []
+            for _, a, q, dl in ins[i]:
+                for s in range(max(0, k - dl - int(late[q])), k - dl + 1):
+                    m = arr[:, s, q] == k
+                    if m.any():
+                        slots.append((a, s, m, pay[s][a]))
+            y_i = ys[i][:, k, :, None]
+            states[i], payload = alg.agent_step_runs(i, k, states[i], y_i, slots)
+            zi = (d.cost.L_block(i, k) @ states[i][alg.output])[:, :, 0]
+            z[:, k, col : col + zi.shape[1]] = zi
+            col += zi.shape[1]
+            now.append(payload)
+        pay[k] = now
+        pay.pop(k - keep - 1, None)
     return z
 
 
