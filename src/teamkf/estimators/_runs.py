@@ -86,3 +86,65 @@ def per_run(values: dict[Any, float], keys: np.ndarray) -> FloatArray:
     """(R, 1, 1) array of ``values[key]`` for each run's key."""
     uniq, inverse = np.unique(keys, return_inverse=True)
     return np.array([values[int(u)] for u in uniq], dtype=float)[inverse].reshape(-1, 1, 1)  # type: ignore[no-any-return]
+
+
+def kalman_runs(P: FloatArray, C: FloatArray, Rm: FloatArray) -> FloatArray:
+    """P(k|k) of :func:`~teamkf.estimators._kalman_common.kalman_step` for each predictor covariance of a stack P (R, d, d).
+
+    The products are stacked; the Cholesky factor and solve are LAPACK's, one matrix at a time, as in the one-run step."""
+    from .._lazy import scipy_linalg as sla
+
+    lapack = sla.lapack
+    Sy = sym(C @ P @ C.T + Rm)
+    CP = C @ P
+    K = np.empty((P.shape[0], C.shape[1], C.shape[0]))
+    for r in range(P.shape[0]):
+        c, info = lapack.dpotrf(Sy[r], lower=1, clean=0)
+        if info != 0:
+            raise np.linalg.LinAlgError(f"{info}-th leading minor of the innovation covariance not positive definite")
+        X, info = lapack.dpotrs(c, CP[r], lower=1)
+        if info != 0:  # pragma: no cover - potrs fails only on bad arguments
+            raise ValueError(f"illegal value in argument {-info} of potrs")
+        K[r] = X.T
+    IKC = np.eye(P.shape[-1]) - K @ C
+    return sym(IKC @ P @ IKC.swapaxes(-1, -2) + K @ Rm @ K.swapaxes(-1, -2))
+
+
+def patterns(slots: Sequence[Slot], R: int) -> list[tuple[np.ndarray, list[int]]]:
+    """The runs grouped by which slots they received: [(run indices, slot positions)]."""
+    code = np.zeros(R, dtype=np.int64)
+    for b, (_, _, m, _) in enumerate(slots):  # a few slots (in-neighbours x jitter)
+        code |= m.astype(np.int64) << b
+    uniq, inverse = np.unique(code, return_inverse=True)
+    out = []
+    for u_, c in enumerate(uniq.tolist()):
+        out.append((np.flatnonzero(inverse == u_), [b for b in range(len(slots)) if (int(c) >> b) & 1]))
+    return out
+
+
+def fuse_delivered_runs(
+    alg: Any, i: int, k: int, xbar: FloatArray, P: FloatArray, y_i: FloatArray, slots: Sequence[Slot]
+) -> tuple[FloatArray, FloatArray]:
+    """:meth:`~teamkf.estimators.linear_team.Algorithm.fuse_delivered` of every run: (r (R, d_x, 1), P⁺ (R, d_x, d_x))."""
+    from .._linalg import block_diag
+
+    R = xbar.shape[0]
+    _, _, G, Y = alg.compensated(i, k, k)
+    r = G @ y_i - Y @ xbar
+    for j, s, m, p in slots:
+        idx = np.flatnonzero(m)
+        _, _, Gj, Yj = alg.compensated(j, s, k)
+        r[idx] = r[idx] + (Gj @ p["y"][idx] - Yj @ xbar[idx])
+    Pf = np.empty((R, *P.shape[-2:]))
+    cache = alg.__dict__.setdefault("_stacked", {})
+    for idx, which in patterns(slots, R):
+        ls = [(i, k), *[(slots[b][0], slots[b][1]) for b in which]]
+        key = (k, tuple(ls)) if alg.system.is_time_varying else tuple((a, k - s) for a, s in ls)
+        CR = cache.get(key)
+        if CR is None:
+            comp = [alg.compensated(a, s, k) for a, s in ls]
+            CR = np.vstack([c[0] for c in comp]), block_diag(*[c[1] for c in comp])
+            if len(cache) < 4096:
+                cache[key] = CR
+        Pf[idx] = kalman_runs(P[idx], CR[0], CR[1])
+    return r, Pf

@@ -606,10 +606,14 @@ def _stackable(agents: Sequence[Any], graph: CommGraph) -> bool:
     if not agents or any(type(ag) is not LinearAgent or not ag.tolerant or ag.index != i for i, ag in enumerate(agents)):
         return False
     d = agents[0].design
-    if any(ag.design is not d for ag in agents) or getattr(d.algorithm, "agent_step_runs", None) is None:
+    if any(ag.design is not d for ag in agents) or not getattr(d.algorithm, "stacks_runs", True):
+        return False
+    # the class whose tolerant step the agents run must be the one that stacks it (a subclass may change the step)
+    owner = next((c for c in type(d.algorithm).__mro__ if "agent_step_tolerant" in c.__dict__), None)
+    if owner is None or "agent_step_runs" not in owner.__dict__:
         return False
     pairs = [(a, b) for (a, b, _) in graph.edges]
-    return len(pairs) == len(set(pairs)) and getattr(d.algorithm, "graph", None) is not None
+    return len(pairs) == len(set(pairs))
 
 
 def _run_stacked(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray], out: LinkOutcomes) -> FloatArray:
@@ -630,8 +634,9 @@ def _run_stacked(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArra
     arr = np.where(out.delivered, out.arrive, -1)
     late = out.extra.max(axis=(0, 1)) if out.extra.size else np.zeros(len(out.edges), dtype=np.int64)
     ins: list[list[tuple[int, int, int, int]]] = []  # per target: (position, source, edge, delay), in position order
+    info = alg.info_graph if hasattr(alg, "info_graph") else alg.graph  # the graph whose packets the step uses (``delivered``)
     for i in range(n):
-        pos = {j: a for a, j in enumerate(alg.graph.in_neighbors(i))}
+        pos = {j: a for a, j in enumerate(info.in_neighbors(i))} if info is not None else {}
         ins.append(sorted((pos[a], a, q, dl) for q, (a, b, dl) in enumerate(out.edges) if b == i and a in pos))
     keep = max((dl + int(late[q]) for q, (_, _, dl) in enumerate(out.edges)), default=0)  # the oldest packet still in flight
     pay: dict[int, list[dict]] = {}
