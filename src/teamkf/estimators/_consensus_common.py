@@ -493,6 +493,11 @@ class DiffusionAlgorithm(Algorithm):
         return {"xhat": xhat, "P": P}, {"y": y_i, "psi": psi, "P": Pf}
 
     @property
+    def runs_graph(self) -> CommGraph | None:
+        """The graph whose packets :meth:`agent_step_runs` uses (as :meth:`agent_step_tolerant`: ``info_graph``)."""
+        return self.info_graph
+
+    @property
     def stacks_runs(self) -> bool:
         """Whether :meth:`agent_step_runs` applies (the published combination, nominal gains)."""
         return self._published and not self.exact_gains

@@ -634,7 +634,7 @@ def _run_stacked(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArra
     arr = np.where(out.delivered, out.arrive, -1)
     late = out.extra.max(axis=(0, 1)) if out.extra.size else np.zeros(len(out.edges), dtype=np.int64)
     ins: list[list[tuple[int, int, int, int]]] = []  # per target: (position, source, edge, delay), in position order
-    info = alg.info_graph if hasattr(alg, "info_graph") else alg.graph  # the graph whose packets the step uses (``delivered``)
+    info = alg.runs_graph if hasattr(alg, "runs_graph") else alg.graph  # the graph whose packets the step uses (``delivered``)
     for i in range(n):
         pos = {j: a for a, j in enumerate(info.in_neighbors(i))} if info is not None else {}
         ins.append(sorted((pos[a], a, q, dl) for q, (a, b, dl) in enumerate(out.edges) if b == i and a in pos))
