@@ -567,13 +567,17 @@ def run_lossy(
     relays = not any(omni) and all(
         _is_team_relay(ag) and ag.inner.index == i and ag.inner.design is agents[0].inner.design for i, ag in enumerate(agents)
     )
-    out, t = _events(streams, T, edges, links, omni, n, relays)
+    flood = not any(omni) and _is_lossy_team(agents)
+    out, t = _events(streams, T, edges, links, omni, n, relays or flood)
     count_links(out, stats)
     if all(omni):  # the centralized bound: every y_j(k) at step k, whatever the links
         return pass_messages(agents, graph, ys, design=design)
     if relays:
         assert t is not None
         return _run_team(agents, graph, ys, t, streams, stats)
+    if flood:
+        assert t is not None
+        return _run_lossy_team(agents, ys, t)
     if _stackable(agents, graph):
         return _run_stacked(agents, graph, ys, out)
     return _run_grouped(agents, graph, ys, out, stats, design)
@@ -594,6 +598,53 @@ def _run_team(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray],
         if m:
             stats.missed[i] = stats.missed.get(i, 0) + int(m)
     return z
+
+
+# ---------------------------------------------------------------------------
+# the drop-aware team filter (mtmse_lossy): every run at once
+# ---------------------------------------------------------------------------
+def _is_lossy_team(agents: Sequence[Any]) -> bool:
+    from ..estimators.team_lossy import LossyTeamAgent
+
+    return bool(agents) and all(type(ag) is LossyTeamAgent and ag.index == i and ag.design is agents[0].design for i, ag in enumerate(agents))
+
+
+def _run_lossy_team(agents: Sequence[Any], ys: Sequence[FloatArray], t: np.ndarray) -> FloatArray:
+    """:class:`~teamkf.estimators.team_lossy.LossyTeamAgent` for every run at once, the same numbers run by run.
+
+    Its agents flood every item they learn for the first time, as the relays of stage 2 do, so agent i first
+    holds item (j, s) at t[r, i, j, s] (:func:`relay_arrivals`); the item enters (1) when that is s + ℓ_ji (on
+    time), else its prediction from the agent's own items does. Rows are stacked as (R, 1, d): each product has
+    the core shapes of the one-run step's."""
+    d = agents[0].design
+    sysm, n = d.system, len(agents)
+    R, T = ys[0].shape[:2]
+    ell = np.asarray(d.arrivals.ell, dtype=int)
+    mine: list[list[Any]] = [[None] * T for _ in range(n)]
+    xh: list[Any] = [np.zeros((R, 1, sysm.dx)) for _ in range(n)]
+    zs: list[list[FloatArray]] = [[] for _ in range(n)]
+    for k in progress(range(T), desc="lossy runtime (all runs)", total=T, unit="step"):
+        for i in range(n):
+            xhat = xh[i] if k == 0 else xh[i] @ sysm.A_at(k - 1).T
+            y = ys[i][:, k, None, :]
+            nu = y - xhat @ sysm.C_at(i, k).T
+            xh[i] = xhat = xhat + nu @ d.K_local[k][i].T
+            mine[i][k] = y if d.coordinates == "measurements" else nu
+        for i in range(n):
+            z = xh[i] @ d.cost.L_block(i, k).T
+            its = d.items[k][i]
+            if its:
+                fill = np.concatenate([mine[i][s] for s in range(k + 1)], axis=-1) @ d.fills[k][i].T
+                parts, col = [], 0
+                for j, s in its:
+                    dj = int(sysm.dy[j])
+                    due = s + int(ell[j, i])
+                    on = t[:, i, j, s] == due if due <= k else np.zeros(R, dtype=bool)
+                    parts.append(np.where(on[:, None, None], mine[j][s], fill[:, :, col : col + dj]))
+                    col += dj
+                z = z + np.concatenate(parts, axis=-1) @ d.gains[k][i].T
+            zs[i].append(z[:, 0, :])
+    return np.concatenate([np.stack(zi, axis=1) for zi in zs], axis=2)  # type: ignore[no-any-return]
 
 
 # ---------------------------------------------------------------------------
