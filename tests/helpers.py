@@ -137,3 +137,20 @@ def brute_force_team(system, cost, info_sets, k, *, mmse=False, rows=None):
     E = L @ Xk - np.vstack([F[i] @ M[i] for i in range(n)])  # maps primitives to the error
     J = float(np.trace(E.T @ S @ E @ Cov))
     return J, F
+
+
+def cli_commands() -> dict:
+    """Every ``teamkf`` command and its parser: ``evaluate``, ..., a group's commands by two words (``measurements convert``)."""
+    import argparse
+
+    from teamkf.cli import build_parser
+
+    def subparsers(parser: argparse.ArgumentParser) -> dict:
+        found = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+        return dict(found[0].choices) if found else {}
+
+    out: dict = {}
+    for name, parser in subparsers(build_parser()).items():
+        nested = subparsers(parser)
+        out.update({f"{name} {sub}": q for sub, q in nested.items()} if nested else {name: parser})
+    return out

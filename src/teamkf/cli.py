@@ -21,6 +21,7 @@ from . import _budget
 from ._lazy import lazy_module
 from ._version import __version__
 from .exceptions import ArgumentError, ScenarioError, TeamkfError
+from .study.deploy_args import count  # the argparse type of a whole number with a floor
 from .study.textout import dumps_json, format_table
 
 if TYPE_CHECKING:
@@ -422,23 +423,8 @@ def _apply_network_flags(sc: Any, args: argparse.Namespace) -> Any:
 # ---------------------------------------------------------------------------
 # parser and main
 # ---------------------------------------------------------------------------
-def _int_at_least(minimum: int, what: str) -> Any:
-    """An argparse type: an integer >= ``minimum``, with the message naming ``what``."""
-
-    def parse(text: str) -> int:
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {what}, found {text!r}") from None
-        if v < minimum:
-            raise argparse.ArgumentTypeError(f"expected {what}, found {v}")
-        return v
-
-    return parse
-
-
-_positive_int = _int_at_least(1, "a whole number >= 1")
-_seed = _int_at_least(0, "a non-negative integer seed")
+_positive_int = count(1, "a whole number", phrase="a whole number >= 1")
+_seed = count(0, "a seed", phrase="a non-negative integer seed")
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:

@@ -14,6 +14,7 @@ import pytest
 
 from teamkf import cli
 from teamkf.cli import build_parser
+from tests.helpers import cli_commands
 
 ROOT = Path(__file__).resolve().parents[2]
 SPEC = ROOT / "docs" / "scenario-and-cli.md"
@@ -38,18 +39,8 @@ def _accepted(parser: argparse.ArgumentParser) -> set[str]:
     return {o for a in parser._actions for o in a.option_strings}
 
 
-def _subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
-    found = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
-    return dict(found[0].choices) if found else {}
-
-
 def _commands() -> dict[str, argparse.ArgumentParser]:
-    """Every command: ``evaluate``, ..., and a group's commands by two words (``measurements convert``)."""
-    out: dict[str, argparse.ArgumentParser] = {}
-    for name, parser in _subparsers(build_parser()).items():
-        nested = _subparsers(parser)
-        out.update({f"{name} {sub}": q for sub, q in nested.items()} if nested else {name: parser})
-    return out
+    return cli_commands()
 
 
 def _command_of(first: str, second: str | None, commands: Any) -> str | None:

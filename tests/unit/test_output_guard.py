@@ -19,8 +19,9 @@ from typing import Any
 
 import pytest
 
-from teamkf.cli import build_parser, main
+from teamkf.cli import main
 from teamkf.study.outputs import check_output, open_stream, write_atomic
+from tests.helpers import cli_commands
 
 SCENARIO = """name = "guard"
 horizon = 4
@@ -155,18 +156,8 @@ REQUIRED: dict[str, list[str]] = {"reproduce": ["table1"], "agent": ["--id", "0"
 FIRST: dict[str, list[str]] = {"record": ["merge"]}
 
 
-def _subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
-    found = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
-    return dict(found[0].choices) if found else {}
-
-
 def _commands() -> dict[str, argparse.ArgumentParser]:
-    """Every command, a group's by two words (``measurements convert``, ``roster new``)."""
-    out: dict[str, argparse.ArgumentParser] = {}
-    for name, parser in _subparsers(build_parser()).items():
-        nested = _subparsers(parser)
-        out.update({f"{name} {sub}": q for sub, q in nested.items()} if nested else {name: parser})
-    return out
+    return cli_commands()
 
 
 def _value_options(p: argparse.ArgumentParser) -> list[tuple[str, argparse.Action]]:

@@ -165,10 +165,11 @@ def test_the_leaderboard_ranks_plugins_or_says_why_not(rec, monkeypatch, tmp_pat
     teamkf.register_family(name="exact_local", design=design, title="an exact plug-in", uses="graph")
     teamkf.register_family(name="steady_only", design=steady_only, title="no finite horizon", uses="graph", horizons={"infinite"})
     try:
+        mine = {"rec", "exact_local", "steady_only"}  # other test files of this process may have registered plug-ins too
         ranked, left = lb.plugin_entrants()
-        assert ranked == ["exact_local"]
+        assert [n for n in ranked if n in mine] == ["exact_local"]
         assert "analytic_cost=False" in left["rec"] and "finite-horizon" in left["steady_only"]
-        assert lb.plugin_entrants(lossy=True)[0] == ["rec"]
+        assert [n for n in lb.plugin_entrants(lossy=True)[0] if n in mine] == ["rec"]
         # one small network, the base part only (no tuning): the plug-in rows are added to it
         small = [(name, build) for name, build in lb.networks(True) if name.startswith("platoon")][:1]
         monkeypatch.setattr(lb, "networks", lambda quick: small)
@@ -182,7 +183,7 @@ def test_the_leaderboard_ranks_plugins_or_says_why_not(rec, monkeypatch, tmp_pat
         row = next(r for r in res.rows if r["estimator"] == "exact_local")
         assert row["form"] == "plug-in" and row["J / J*"] >= 1.0 - 1e-9
         assert "Plug-ins: plug-ins ranked" in res.notes and "'steady_only' left out" in res.notes
-        assert set(res.data["plugins"]["left_out"]) == {"rec", "steady_only"}
+        assert set(res.data["plugins"]["left_out"]) & mine == {"rec", "steady_only"}
     finally:
         teamkf.unregister_family("exact_local")
         teamkf.unregister_family("steady_only")

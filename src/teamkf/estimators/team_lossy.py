@@ -679,6 +679,7 @@ def design_mtmse_lossy(
     bound: bool = True,
     known_bound: int = 0,
     known_window: int | None = None,
+    keyed: int = 0,
     threads: int | None = 1,
     progress: bool | None = None,
 ) -> LossyTeamDesign:
@@ -721,6 +722,10 @@ def design_mtmse_lossy(
         ``info["known_pattern_bound"]`` (value, sem, interval) and ``info["known_pattern_gap"]``.
     known_window : int or None
         Its window (data older than k - W given to every agent: a looser bound, less work); None: W = ℓ_max + 4.
+    keyed : 0 or 1
+        1: gains keyed on the agent's current arrivals (the on-time indicators of the items due at step k;
+        :mod:`teamkf.estimators._lossy_keyed`): a larger class containing today's, exact cost, small teams only
+        (no ``memory``). 0: gains independent of the arrival pattern.
 
     Returns
     -------
@@ -754,7 +759,12 @@ def design_mtmse_lossy(
     coords = V.choice(items, "items", ("auto", "measurements", "innovations"))
     arr = ArrivalModel.build(graph, p, J)
     _lossy_size.check(system, arr, T, mem, cost.dz, prefix=mem is None and not cost.is_time_varying)  # sized before anything is allocated
+    kw = V.integer(keyed, "keyed", minimum=0, maximum=1, what="the window w (0: gains independent of the pattern, 1: keyed on the current arrivals)")
     candidates = _auto_items(system, arr, T, mem) if coords == "auto" else (coords,)
+    if kw:  # gains keyed on the current arrivals (a module of its own)
+        from ._lossy_keyed import design_keyed
+
+        return design_keyed(system, cost, graph, T, p, J, arr, candidates, mem, fill, bound, threads)
     with blas_threads(threads):
         mom0 = local_filter_moments(system, T)
         tried = {c: _solve_all(system, cost, arr, _item_moments(system, mom0, T, c), T, mem, fill, progress) for c in candidates}
@@ -868,6 +878,12 @@ FAMILY = _register_builtin(
                 doc="also compute the known-pattern optimum over this many sampled drop patterns (0: not)",
             ),
             Option(name="known_window", default=None, check=_check_memory, doc="its window W (none: the largest geodesic delay + 4)"),
+            Option(
+                name="keyed",
+                default=0,
+                check=lambda v, k: V.integer(v, k, minimum=0, maximum=1),
+                doc="1: gains keyed on the current arrivals (the items due at each step; small teams, no memory); 0: pattern-independent",
+            ),
             Option(
                 name="items",
                 default="auto",

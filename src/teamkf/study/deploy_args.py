@@ -23,14 +23,23 @@ def _command(name: str) -> Callable[[Any], int]:
     return run
 
 
-def _kill_spec(text: str) -> tuple[int, int]:
-    try:
-        a, s = (int(v) for v in text.split(":"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected AGENT:STEP (e.g. 2:100), found {text!r}") from None
-    if a < 0 or s < 0:
-        raise argparse.ArgumentTypeError(f"expected AGENT:STEP with both >= 0, found {text!r}")
-    return a, s
+def _agent_step(form: str) -> Callable[[str], tuple[int, int]]:
+    """An argparse type: ``AGENT:STEP`` as two integers >= 0 (``form`` names the two in the message)."""
+
+    def parse(text: str) -> tuple[int, int]:
+        try:
+            a, s = (int(v) for v in text.split(":"))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {form} (e.g. 2:100), found {text!r}") from None
+        if a < 0 or s < 0:
+            raise argparse.ArgumentTypeError(f"expected {form} with both >= 0, found {text!r}")
+        return a, s
+
+    return parse
+
+
+_kill_spec = _agent_step("AGENT:STEP")
+_died = _agent_step("AGENT:STEPS")
 
 
 def _probability(text: str) -> float:
@@ -55,29 +64,23 @@ def _seconds(text: str) -> float:
     return v
 
 
-def _count(least: int, what: str) -> Callable[[str], int]:
-    """An argparse type: an integer >= ``least`` (``what`` names it in the message)."""
+def count(least: int, what: str, *, phrase: str | None = None) -> Callable[[str], int]:
+    """An argparse type: an integer >= ``least``; the message says ``expected <what>, an integer >= <least>`` (or ``phrase``)."""
+    expected = phrase or f"{what}, an integer >= {least}"
 
     def parse(text: str) -> int:
         try:
             v = int(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {what}, an integer >= {least}, found {text!r}") from None
+            raise argparse.ArgumentTypeError(f"expected {expected}, found {text!r}") from None
         if v < least:
-            raise argparse.ArgumentTypeError(f"expected {what}, an integer >= {least}, found {v}")
+            raise argparse.ArgumentTypeError(f"expected {expected}, found {v}")
         return v
 
     return parse
 
 
-def _seed(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer seed, found {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer seed, found {v}")
-    return v
+_seed = count(0, "a seed", phrase="a non-negative integer seed")
 
 
 def _run_flags(p: Any) -> None:
@@ -125,7 +128,7 @@ def add_parsers(add: Callable[[str, str], Any]) -> None:
 
     p = add("agent", "run one agent of a scenario on this machine: it talks to the others through the roster's Zenoh endpoints")
     p.add_argument("scenario", metavar="SCENARIO")
-    p.add_argument("--id", type=_count(0, "an agent id"), required=True, metavar="I", help="this agent's id (0-based, as in the scenario)")
+    p.add_argument("--id", type=count(0, "an agent id"), required=True, metavar="I", help="this agent's id (0-based, as in the scenario)")
     p.add_argument("--roster", required=True, metavar="FILE", help="the roster (TOML/JSON): run_id, prefix, [[agents]] id and endpoint")
     p.add_argument(
         "--measurements",
@@ -148,9 +151,9 @@ def add_parsers(add: Callable[[str, str], Any]) -> None:
         metavar="FILE",
         help="its slice of the design (.npz from teamkf design --out, or written by teamkf deploy): the agent does not design the team",
     )
-    p.add_argument("--steps", type=_count(1, "a number of steps"), metavar="T", help="steps to run (default: the log's, or the horizon for stdin)")
+    p.add_argument("--steps", type=count(1, "a number of steps"), metavar="T", help="steps to run (default: the log's, or the horizon for stdin)")
     _run_flags(p)
-    p.add_argument("--kill-at", type=_count(0, "a step"), metavar="STEP", help="fault injection: the process kills itself (SIGKILL) before STEP")
+    p.add_argument("--kill-at", type=count(0, "a step"), metavar="STEP", help="fault injection: the process kills itself (SIGKILL) before STEP")
     p.add_argument(
         "--rejoin",
         action="store_true",
@@ -177,16 +180,6 @@ def _hertz(text: str) -> float:
     if not (v > 0 and math.isfinite(v) and v <= 1e6):
         raise argparse.ArgumentTypeError(f"expected a rate in steps per second in (0, 1e6], found {v:g}")
     return v
-
-
-def _died(text: str) -> tuple[int, int]:
-    try:
-        a, s = (int(v) for v in text.split(":"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected AGENT:STEPS (e.g. 2:100), found {text!r}") from None
-    if a < 0 or s < 0:
-        raise argparse.ArgumentTypeError(f"expected AGENT:STEPS with both >= 0, found {text!r}")
-    return a, s
 
 
 def _add_record_parser(add: Callable[[str, str], Any]) -> None:
