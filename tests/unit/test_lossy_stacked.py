@@ -76,5 +76,21 @@ def test_non_published_combination_falls_back(monkeypatch: pytest.MonkeyPatch) -
 def test_lossy_team_all_runs_match_run_by_run(monkeypatch: pytest.MonkeyPatch, links: LinkModel) -> None:
     sc = load_packaged("platoon-4").updated({"horizon": T})
     d = design_mtmse_lossy(sc.system, sc.cost, sc.graph, T, p_drop=0.3, jitter=1)
+    calls = []
+    real = lossy._run_lossy_team
+    monkeypatch.setattr(lossy, "_run_lossy_team", lambda *a: calls.append(1) or real(*a))
     new, old = _both(monkeypatch, d, sc, links, "_is_lossy_team")
+    assert calls, "the all-runs path was not taken"
+    assert np.array_equal(new, old)
+
+
+@pytest.mark.parametrize("links", LINKS, ids=["drops+jitter", "all lost", "outage+failure"])
+def test_cikf_all_runs_match_run_by_run(monkeypatch: pytest.MonkeyPatch, links: LinkModel) -> None:
+    sc = load_packaged("platoon-4").updated({"horizon": T})
+    d = sc.design("cikf")
+    calls = []
+    real = lossy._run_cikf
+    monkeypatch.setattr(lossy, "_run_cikf", lambda *a: calls.append(1) or real(*a))
+    new, old = _both(monkeypatch, d, sc, links, "_is_cikf")
+    assert calls, "the all-runs path was not taken"
     assert np.array_equal(new, old)

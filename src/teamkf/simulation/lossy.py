@@ -578,6 +578,8 @@ def run_lossy(
     if flood:
         assert t is not None
         return _run_lossy_team(agents, ys, t)
+    if _is_cikf(agents):
+        return _run_cikf(agents, ys, out)
     if _stackable(agents, graph):
         return _run_stacked(agents, graph, ys, out)
     return _run_grouped(agents, graph, ys, out, stats, design)
@@ -644,6 +646,54 @@ def _run_lossy_team(agents: Sequence[Any], ys: Sequence[FloatArray], t: np.ndarr
                     col += dj
                 z = z + np.concatenate(parts, axis=-1) @ d.gains[k][i].T
             zs[i].append(z[:, 0, :])
+    return np.concatenate([np.stack(zi, axis=1) for zi in zs], axis=2)  # type: ignore[no-any-return]
+
+
+def _is_cikf(agents: Sequence[Any]) -> bool:
+    from ..estimators.cikf.filter import CIKFAgent
+
+    return bool(agents) and all(
+        type(ag) is CIKFAgent and ag.tolerant and ag.index == i and ag.design is agents[0].design for i, ag in enumerate(agents)
+    )
+
+
+def _run_cikf(agents: Sequence[Any], ys: Sequence[FloatArray], out: LinkOutcomes) -> FloatArray:
+    """:class:`~teamkf.estimators.cikf.filter.CIKFAgent` (tolerant) for every run at once, the same numbers run by run.
+
+    A neighbour's step-(k-1) prediction enters where it arrived at k; elsewhere its difference is an exact zero,
+    as in the one-run step. Rows are stacked as (R, 1, d): each product has the core shapes of the one-run step's."""
+    from ..exceptions import ShapeError
+
+    d = agents[0].design
+    m, n = d.model, len(agents)
+    R, T = ys[0].shape[:2]
+    if T > d.horizon:
+        raise ShapeError(f"k: the CIKF was designed for horizon = {d.horizon} steps, found step {d.horizon}; design a longer horizon")
+    arr = np.where(out.delivered, out.arrive, -1)
+    edge = {(a, b): q for q, (a, b, _) in enumerate(out.edges)}
+    yh: list[Any] = [np.zeros((R, 1, m.rank)) for _ in range(n)]
+    xh: list[Any] = [np.zeros((R, 1, d.system.dx)) for _ in range(n)]
+    sent: list[Any] = [None] * n
+    zs: list[list[FloatArray]] = [[] for _ in range(n)]
+    for k in progress(range(T), desc="lossy runtime (all runs)", total=T, unit="step"):
+        now = []
+        for i in range(n):
+            u = ys[i][:, k, None, :] - yh[i] @ m.C_tilde[i].T
+            yf = yh[i] + u @ d.B_innov[k][i].T
+            nb = d.neighbors[i]
+            if nb and k > 0:
+                parts = []
+                for lnode in nb:
+                    q = edge.get((lnode, i))
+                    on = arr[:, k - 1, q] == k if q is not None else np.zeros(R, dtype=bool)
+                    parts.append(np.where(on[:, None, None], sent[lnode] @ m.U - yh[i], 0.0))
+                yf = yf + np.concatenate(parts, axis=-1) @ d.B_cons[k][i].T
+            xf = xh[i] + (yf - xh[i] @ m.G_r.T) @ d.K[k, i].T
+            zs[i].append(((xf if d.form == "filter" else xh[i]) @ d.cost.L_block(i, k).T)[:, 0, :])
+            yh[i] = yf @ m.A_tilde_r.T + xf @ m.A_check_r.T
+            xh[i] = xf @ d.system.A_at(0).T
+            now.append(yh[i] @ m.U.T)
+        sent = now
     return np.concatenate([np.stack(zi, axis=1) for zi in zs], axis=2)  # type: ignore[no-any-return]
 
 
