@@ -46,9 +46,15 @@ r"""The lossy runtime batched over runs: link events as arrays, relays and packe
    stepped by one batched matrix product. The estimates are those of the agents' own online step
    to round-off (checked in ``tests/unit/test_lossy_mc.py``), with the same miss counts.
 
-Other families (KCF, CIKF, local, diffusion, CI, ICF, HCMCI) run their own tolerant ``step`` one
-run at a time on the same precomputed link events (:func:`_run_grouped`; their states are not
-batched by arrival pattern yet, so they keep the speed of teamkf 0.2). An omniscient design (the
+Other families step every run of the block at once too, with each run's own arrivals: KCF, diffusion
+(published combination), local, CI, ICF and HCMCI through their algorithm's ``agent_step_runs``
+(:mod:`teamkf.estimators._runs`: per-run covariances stacked as (R, d, d), a packet's terms added to
+the runs that received it, in the one-run order), CIKF and the drop-aware team filter
+(``mtmse_lossy``, whose flooding is stage 2's) here. Their estimates are those of the agents' own
+one-run ``step`` bit for bit (``tests/unit/test_lossy_stacked.py``): a stacked product is one BLAS
+call per run with the one-run core shapes. Any other tolerant agent (a plug-in, the other
+combination rules) runs its own ``step`` one run at a time on the same precomputed link events
+(:func:`_run_grouped`). An omniscient design (the
 centralized bound) receives every y_j(k) at step k whatever the links do, so it runs as on reliable
 links, vectorized.
 
