@@ -492,6 +492,43 @@ class DiffusionAlgorithm(Algorithm):
             P = 0.5 * (P + P.T)
         return {"xhat": xhat, "P": P}, {"y": y_i, "psi": psi, "P": Pf}
 
+    @property
+    def runs_graph(self) -> CommGraph | None:
+        """The graph whose packets :meth:`agent_step_runs` uses (as :meth:`agent_step_tolerant`: ``info_graph``)."""
+        return self.info_graph
+
+    @property
+    def stacks_runs(self) -> bool:
+        """Whether :meth:`agent_step_runs` applies (the published combination, nominal gains)."""
+        return self._published and not self.exact_gains
+
+    def agent_step_runs(self, i: int, k: int, prev: dict | None, y_i: Any, slots: Any) -> tuple[dict, dict]:
+        """:meth:`agent_step_tolerant` (published combination) for every run of a block at once (:mod:`._runs`)."""
+        from ._runs import freshest_runs, fuse_delivered_runs, heard, sym
+
+        sysm, R, dx = self.system, y_i.shape[0], self.system.dx
+        xbar = np.zeros((R, dx, 1)) if prev is None else sysm.A_at(k - 1) @ prev["xhat"]
+        P = np.broadcast_to(sysm.Sigma_x, (R, dx, dx)) if prev is None else prev["P"]
+        r, Pf = fuse_delivered_runs(self, i, k, xbar, P, y_i, slots)
+        psi = xbar + Pf @ r
+        hd = heard(slots, R)
+        code = np.zeros(R, dtype=np.int64)
+        order = list(hd)  # senders in slot order (in-neighbour position): the order ``freshest`` lists them
+        for b, j in enumerate(order):
+            code |= hd[j].astype(np.int64) << b
+        uniq, inv_code = np.unique(code, return_inverse=True)
+        cw = [self.c[i, i] + sum(self.c[lnode, i] for lnode in self.nbrs[i] - {j for b, j in enumerate(order) if (int(c) >> b) & 1}) for c in uniq]
+        xhat = np.array(cw, dtype=float)[inv_code].reshape(R, 1, 1) * psi
+        for lnode, groups in freshest_runs(slots, R):
+            if self.c[lnode, i] == 0.0:
+                continue
+            for s, idx, p in groups:
+                xhat[idx] = xhat[idx] + self.c[lnode, i] * (self.Phi(k, s) @ p["psi"][idx])
+        if k + 1 < self.horizon:
+            A = sysm.A_at(k)
+            P = sym(A @ Pf @ A.T + sysm.Q_at(k))
+        return {"xhat": xhat, "P": P}, {"y": y_i, "psi": psi, "P": Pf}
+
     def team_step(self, k: int, prev: list[dict | None], ys: list[Any], zero: Any) -> list[dict]:
         n = self.system.n_agents
         yd = {(j, k): ys[j] for j in range(n)}

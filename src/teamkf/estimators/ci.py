@@ -169,6 +169,45 @@ class CIAlgorithm(DiffusionAlgorithm):
             out = t if out is None else out + t
         return {"xloc": xloc, "xhat": out}, {"xloc": xloc}
 
+    @property
+    def runs_graph(self) -> CommGraph | None:
+        """The graph whose packets :meth:`agent_step_runs` fuses (the local estimates of the in-neighbours)."""
+        return self.graph
+
+    def agent_step_runs(self, i: int, k: int, prev: dict | None, y_i: Any, slots: Any) -> tuple[dict, dict]:
+        """:meth:`agent_step_tolerant` for every run of a block at once (:mod:`._runs`: the same numbers, run by run).
+
+        The runs are grouped by the packets they fuse (the freshest of each neighbour), each group with its gains."""
+        from ._runs import freshest_runs
+
+        sysm, R, dx = self.system, y_i.shape[0], self.system.dx
+        xbar = np.zeros((R, dx, 1)) if prev is None else sysm.A_at(k - 1) @ prev["xloc"]
+        xloc = self.adapt(i, k, xbar, {(i, k): y_i})
+        fr = freshest_runs(slots, R)
+        got = np.full((R, len(fr)), -1, dtype=np.int64)  # per run, the sent step of each sender's freshest packet (-1: none)
+        pays: dict[tuple[int, int], Any] = {}
+        for c, (j, groups) in enumerate(fr):
+            for s, idx, p in groups:
+                got[idx, c] = s
+                pays[(j, s)] = p
+        uniq, inverse = np.unique(got, axis=0, return_inverse=True)
+        out = np.empty((R, dx, 1))
+        for u_, row in enumerate(uniq.tolist()):
+            idx = np.flatnonzero(inverse.reshape(-1) == u_)
+            srcs = ((i, k), *[(fr[c][0], s) for c, s in enumerate(row) if s >= 0])
+            if list(srcs) == [(i, k), *self.fuse_src[i][k]]:
+                gains = self.fuse[(i, k)]
+            else:
+                if srcs not in self._tolerant_fuse:
+                    self._tolerant_fuse[srcs] = self._fusion(k, list(srcs))[0]
+                gains = self._tolerant_fuse[srcs]
+            acc: Any = None
+            for lnode, s, Gm in gains:
+                t = Gm @ (xloc[idx] if (lnode, s) == (i, k) else pays[(lnode, s)]["xloc"][idx])
+                acc = t if acc is None else acc + t
+            out[idx] = acc
+        return {"xloc": xloc, "xhat": out}, {"xloc": xloc}
+
     def team_step(self, k: int, prev: list[dict | None], ys: list[Any], zero: Any) -> list[dict]:
         n = self.system.n_agents
         xl = {(i, k): self.adapt(i, k, self._prior(i, k, prev[i], zero), {(i, k): ys[i]}) for i in range(n)}

@@ -212,6 +212,53 @@ class HCMCIAlgorithm(Algorithm):
         On = 0.5 * (On + On.T)
         return {"xhat": xh, "Obar": On}, {"xbar": xbar, "y": y_i, "Obar": Obar}
 
+    def agent_step_runs(self, i: int, k: int, prev: dict | None, y_i: Any, slots: Any) -> tuple[dict, dict]:
+        """:meth:`agent_step_tolerant` for every run of a block at once (:mod:`._runs`: the same numbers, run by run).
+
+        ``prev``: None or the stacked state {"xhat": (R, d_x, 1), "Obar": (R, d_x, d_x)}; ``y_i`` (R, d_y, 1);
+        ``slots``: the possible packets of the inbox with the runs that received each (:mod:`._runs`)."""
+        from ._runs import compensate_information_runs, freshest_runs, heard, inv_runs, sym
+
+        sysm, R, dx = self.system, y_i.shape[0], self.system.dx
+        Obar = np.broadcast_to(self.Obar[i, 0], (R, dx, dx)) if prev is None else prev["Obar"]
+        xbar = np.zeros((R, dx, 1)) if prev is None else sysm.A_at(k - 1) @ prev["xhat"]
+        _, _, G, dO = self.compensated(i, k, k)
+        hd = heard(slots, R)
+        code = np.zeros(R, dtype=np.int64)  # which in-neighbours each run heard, as bits
+        for b, j in enumerate(self.ins[i]):
+            if j in hd:
+                code |= hd[j].astype(np.int64) << b
+        uniq, inv_code = np.unique(code, return_inverse=True)
+        w = [self.pi[i, i] + sum(self.pi[i, j] for b, j in enumerate(self.ins[i]) if not (int(c) >> b) & 1) for c in uniq]
+        wii = np.array(w, dtype=float)[inv_code].reshape(R, 1, 1)
+        Oi, dOi = wii * Obar, wii * dO
+        q = wii * (Obar @ xbar)
+        dq = wii * (G @ y_i)
+        for j, groups in freshest_runs(slots, R):
+            for s, idx, p in groups:
+                Yc, Tm = compensate_information_runs(sysm, p["Obar"][idx], s, k)
+                Oi[idx] = Oi[idx] + self.pi[i, j] * Yc
+                q[idx] = q[idx] + self.pi[i, j] * (Tm @ p["xbar"][idx])
+        for j, s, m, p in slots:
+            idx = np.flatnonzero(m)
+            if not idx.size:
+                continue
+            _, _, Gc, Yn = self.compensated(j, s, k)
+            dOi[idx] = dOi[idx] + self.pi[i, j] * Yn
+            dq[idx] = dq[idx] + self.pi[i, j] * (Gc @ p["y"][idx])
+        if self.count == "all":
+            om: Any = self.omega
+        else:
+            nh = sum((hd[j].astype(np.int64) for j in hd), np.zeros(R, dtype=np.int64))
+            om = (1.0 + nh).reshape(R, 1, 1)
+        Om = Oi + om * dOi
+        Om_inv = inv_runs(Om)
+        xh = Om_inv @ (q + om * dq)
+        A = sysm.A_at(k)
+        P = A @ Om_inv @ A.T + sysm.Q_at(k)
+        On = sym(inv_runs(sym(P)))
+        return {"xhat": xh, "Obar": On}, {"xbar": xbar, "y": y_i, "Obar": Obar}
+
     def team_step(self, k: int, prev: list[dict | None], ys: list[Any], zero: Any) -> list[dict]:
         n = self.system.n_agents
         qs = [self.Obar[i, k] @ self._xbar(i, k, prev[i], zero) for i in range(n)]

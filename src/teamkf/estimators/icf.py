@@ -214,6 +214,34 @@ class ICFAlgorithm(Algorithm):
         Jn = 0.5 * (Jn + Jn.T)
         return {"xhat": xh, "Jbar": Jn}, {"xhat": xh, "V": Vi}
 
+    def agent_step_runs(self, i: int, k: int, prev: dict | None, y_i: Any, slots: Any) -> tuple[dict, dict]:
+        """:meth:`agent_step_tolerant` for every run of a block at once (:mod:`._runs`: the same numbers, run by run).
+
+        ``prev``: None or the stacked state {"xhat": (R, d_x, 1), "Jbar": (R, d_x, d_x)}; ``y_i`` (R, d_y, 1);
+        ``slots``: the possible packets of the inbox with the runs that received each (:mod:`._runs`)."""
+        from ._runs import compensate_information_runs, freshest_runs, heard, inv_runs, sym
+
+        sysm, R, dx = self.system, y_i.shape[0], self.system.dx
+        Jbar = np.broadcast_to(self.Jbar[i, 0], (R, dx, dx)) if prev is None else prev["Jbar"]
+        xbar = np.zeros((R, dx, 1)) if prev is None else sysm.A_at(k - 1) @ prev["xhat"]
+        n: Any = sysm.n_agents
+        if self.count == "heard":
+            hd = heard(slots, R)
+            n = (1 + sum((hd[j].astype(np.int64) for j in hd), np.zeros(R, dtype=np.int64))).reshape(R, 1, 1)
+        V0 = Jbar / n + self.U[i]
+        v0 = (Jbar / n) @ xbar + self.G[i] @ y_i
+        Vi, v = V0.copy(), v0.copy()
+        for _j, groups in freshest_runs(slots, R):
+            for s, idx, p in groups:
+                Yc, Tm = compensate_information_runs(sysm, p["V"][idx], s, k)
+                Vi[idx] = Vi[idx] + self.eps * (Yc - V0[idx])
+                v[idx] = v[idx] + self.eps * (Tm @ p["xhat"][idx] - v0[idx])
+        xh = inv_runs(Vi) @ v
+        A = sysm.A_at(k)
+        Jinv = inv_runs(n * Vi)
+        Jn = sym(inv_runs(A @ Jinv @ A.T + sysm.Q_at(k)))
+        return {"xhat": xh, "Jbar": Jn}, {"xhat": xh, "V": Vi}
+
     def team_step(self, k: int, prev: list[dict | None], ys: list[Any], zero: Any) -> list[dict]:
         n = self.system.n_agents
         vs = [self._v0(i, k, prev[i], ys[i], zero) for i in range(n)]

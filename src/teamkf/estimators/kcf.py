@@ -699,6 +699,22 @@ class KCFAlgorithm(Algorithm):
         P_next = A @ M @ A.T + self.system.Q_at(k)
         return {"xhat": xh, "P": 0.5 * (P_next + P_next.T)}, {"y": y_i, "xbar": xbar}
 
+    def agent_step_runs(self, i: int, k: int, prev: dict | None, y_i: Any, slots: Any) -> tuple[dict, dict]:
+        """:meth:`agent_step_tolerant` for every run of a block at once (:mod:`._runs`: the same numbers, run by run)."""
+        from ._runs import freshest_runs, fuse_delivered_runs, sym
+
+        sysm, R, dx = self.system, y_i.shape[0], self.system.dx
+        xbar = np.zeros((R, dx, 1)) if prev is None else sysm.A_at(k - 1) @ prev["xhat"]
+        P = np.broadcast_to(sysm.Sigma_x, (R, dx, dx)) if prev is None else prev["P"]
+        r, M = fuse_delivered_runs(self, i, k, xbar, P, y_i, slots)
+        gamma = np.array([self.epsilon / (1.0 + np.linalg.norm(M[q], "fro")) for q in range(R)]).reshape(R, 1, 1)
+        for _j, groups in freshest_runs(slots, R):
+            for s, idx, p in groups:
+                r[idx] = r[idx] + gamma[idx] * (self.Phi(k, s) @ p["xbar"][idx] - xbar[idx])
+        xh = xbar + M @ r
+        A = sysm.A_at(k)
+        return {"xhat": xh, "P": sym(A @ M @ A.T + sysm.Q_at(k))}, {"y": y_i, "xbar": xbar}
+
     def agent_restart(self, i: int, k: int, zero: Any) -> dict:
         """The state of a fresh agent i at step k > 0 (a restarted process, ``teamkf agent --rejoin``): the prior of x(k).
 

@@ -45,6 +45,11 @@ class LocalAlgorithm(DiffusionAlgorithm):
     #: no messages are used, so lost or late ones change nothing (unreliable links)
     agent_step_tolerant = agent_step
 
+    def agent_step_runs(self, i: int, k: int, prev: dict | None, y_i: Any, slots: Any) -> tuple[dict, dict]:
+        """:meth:`agent_step` for every run of a block at once (stacked columns (R, d, 1): the same numbers, run by run)."""
+        R = y_i.shape[0]
+        return self.agent_step(i, k, prev, y_i, [], lambda dim: np.zeros((R, dim, 1)))
+
 
 def design_local(
     system: LinearGaussianSystem, cost: TeamCost, graph: CommGraph | None = None, horizon: int | None = None, *, variant: str = "honest"

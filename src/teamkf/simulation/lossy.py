@@ -46,9 +46,15 @@ r"""The lossy runtime batched over runs: link events as arrays, relays and packe
    stepped by one batched matrix product. The estimates are those of the agents' own online step
    to round-off (checked in ``tests/unit/test_lossy_mc.py``), with the same miss counts.
 
-Other families (KCF, CIKF, local, diffusion, CI, ICF, HCMCI) run their own tolerant ``step`` one
-run at a time on the same precomputed link events (:func:`_run_grouped`; their states are not
-batched by arrival pattern yet, so they keep the speed of teamkf 0.2). An omniscient design (the
+Other families step every run of the block at once too, with each run's own arrivals: KCF, diffusion
+(published combination), local, CI, ICF and HCMCI through their algorithm's ``agent_step_runs``
+(:mod:`teamkf.estimators._runs`: per-run covariances stacked as (R, d, d), a packet's terms added to
+the runs that received it, in the one-run order), CIKF and the drop-aware team filter
+(``mtmse_lossy``, whose flooding is stage 2's) here. Their estimates are those of the agents' own
+one-run ``step`` bit for bit (``tests/unit/test_lossy_stacked.py``): a stacked product is one BLAS
+call per run with the one-run core shapes. Any other tolerant agent (a plug-in, the other
+combination rules) runs its own ``step`` one run at a time on the same precomputed link events
+(:func:`_run_grouped`). An omniscient design (the
 centralized bound) receives every y_j(k) at step k whatever the links do, so it runs as on reliable
 links, vectorized.
 
@@ -581,13 +587,21 @@ def _run_lossy(
     relays = not any(omni) and all(
         _is_team_relay(ag) and ag.inner.index == i and ag.inner.design is agents[0].inner.design for i, ag in enumerate(agents)
     )
-    out, t = _events(streams, T, edges, links, omni, n, relays)
+    flood = not any(omni) and _is_lossy_team(agents)
+    out, t = _events(streams, T, edges, links, omni, n, relays or flood)
     count_links(out, stats)
     if all(omni):  # the centralized bound: every y_j(k) at step k, whatever the links
         return pass_messages(agents, graph, ys, design=design)
     if relays:
         assert t is not None
         return _run_team(agents, graph, ys, t, streams, stats)
+    if flood:
+        assert t is not None
+        return _run_lossy_team(agents, ys, t)
+    if _is_cikf(agents):
+        return _run_cikf(agents, ys, out)
+    if _stackable(agents, graph):
+        return _run_stacked(agents, graph, ys, out)
     return _run_grouped(agents, graph, ys, out, stats, design)
 
 
@@ -605,6 +619,167 @@ def _run_team(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray],
     for i, m in enumerate(ts.misses().tolist()):
         if m:
             stats.missed[i] = stats.missed.get(i, 0) + int(m)
+    return z
+
+
+# ---------------------------------------------------------------------------
+# the drop-aware team filter (mtmse_lossy): every run at once
+# ---------------------------------------------------------------------------
+def _is_lossy_team(agents: Sequence[Any]) -> bool:
+    from ..estimators.team_lossy import LossyTeamAgent
+
+    return bool(agents) and all(type(ag) is LossyTeamAgent and ag.index == i and ag.design is agents[0].design for i, ag in enumerate(agents))
+
+
+def _run_lossy_team(agents: Sequence[Any], ys: Sequence[FloatArray], t: np.ndarray) -> FloatArray:
+    """:class:`~teamkf.estimators.team_lossy.LossyTeamAgent` for every run at once, the same numbers run by run.
+
+    Its agents flood every item they learn for the first time, as the relays of stage 2 do, so agent i first
+    holds item (j, s) at t[r, i, j, s] (:func:`relay_arrivals`); the item enters (1) when that is s + ℓ_ji (on
+    time), else its prediction from the agent's own items does. Rows are stacked as (R, 1, d): each product has
+    the core shapes of the one-run step's."""
+    d = agents[0].design
+    sysm, n = d.system, len(agents)
+    R, T = ys[0].shape[:2]
+    ell = np.asarray(d.arrivals.ell, dtype=int)
+    mine: list[list[Any]] = [[None] * T for _ in range(n)]
+    xh: list[Any] = [np.zeros((R, 1, sysm.dx)) for _ in range(n)]
+    zs: list[list[FloatArray]] = [[] for _ in range(n)]
+    for k in progress(range(T), desc="lossy runtime (all runs)", total=T, unit="step"):
+        for i in range(n):
+            xhat = xh[i] if k == 0 else xh[i] @ sysm.A_at(k - 1).T
+            y = ys[i][:, k, None, :]
+            nu = y - xhat @ sysm.C_at(i, k).T
+            xh[i] = xhat = xhat + nu @ d.K_local[k][i].T
+            mine[i][k] = y if d.coordinates == "measurements" else nu
+        for i in range(n):
+            z = xh[i] @ d.cost.L_block(i, k).T
+            its = d.items[k][i]
+            if its:
+                fill = np.concatenate([mine[i][s] for s in range(k + 1)], axis=-1) @ d.fills[k][i].T
+                parts, col = [], 0
+                for j, s in its:
+                    dj = int(sysm.dy[j])
+                    due = s + int(ell[j, i])
+                    on = t[:, i, j, s] == due if due <= k else np.zeros(R, dtype=bool)
+                    parts.append(np.where(on[:, None, None], mine[j][s], fill[:, :, col : col + dj]))
+                    col += dj
+                z = z + np.concatenate(parts, axis=-1) @ d.gains[k][i].T
+            zs[i].append(z[:, 0, :])
+    return np.concatenate([np.stack(zi, axis=1) for zi in zs], axis=2)  # type: ignore[no-any-return]
+
+
+def _is_cikf(agents: Sequence[Any]) -> bool:
+    from ..estimators.cikf.filter import CIKFAgent
+
+    return bool(agents) and all(
+        type(ag) is CIKFAgent and ag.tolerant and ag.index == i and ag.design is agents[0].design for i, ag in enumerate(agents)
+    )
+
+
+def _run_cikf(agents: Sequence[Any], ys: Sequence[FloatArray], out: LinkOutcomes) -> FloatArray:
+    """:class:`~teamkf.estimators.cikf.filter.CIKFAgent` (tolerant) for every run at once, the same numbers run by run.
+
+    A neighbour's step-(k-1) prediction enters where it arrived at k; elsewhere its difference is an exact zero,
+    as in the one-run step. Rows are stacked as (R, 1, d): each product has the core shapes of the one-run step's."""
+    from ..exceptions import ShapeError
+
+    d = agents[0].design
+    m, n = d.model, len(agents)
+    R, T = ys[0].shape[:2]
+    if T > d.horizon:
+        raise ShapeError(f"k: the CIKF was designed for horizon = {d.horizon} steps, found step {d.horizon}; design a longer horizon")
+    arr = np.where(out.delivered, out.arrive, -1)
+    edge = {(a, b): q for q, (a, b, _) in enumerate(out.edges)}
+    yh: list[Any] = [np.zeros((R, 1, m.rank)) for _ in range(n)]
+    xh: list[Any] = [np.zeros((R, 1, d.system.dx)) for _ in range(n)]
+    sent: list[Any] = [None] * n
+    zs: list[list[FloatArray]] = [[] for _ in range(n)]
+    for k in progress(range(T), desc="lossy runtime (all runs)", total=T, unit="step"):
+        now = []
+        for i in range(n):
+            u = ys[i][:, k, None, :] - yh[i] @ m.C_tilde[i].T
+            yf = yh[i] + u @ d.B_innov[k][i].T
+            nb = d.neighbors[i]
+            if nb and k > 0:
+                parts = []
+                for lnode in nb:
+                    q = edge.get((lnode, i))
+                    on = arr[:, k - 1, q] == k if q is not None else np.zeros(R, dtype=bool)
+                    parts.append(np.where(on[:, None, None], sent[lnode] @ m.U - yh[i], 0.0))
+                yf = yf + np.concatenate(parts, axis=-1) @ d.B_cons[k][i].T
+            xf = xh[i] + (yf - xh[i] @ m.G_r.T) @ d.K[k, i].T
+            zs[i].append(((xf if d.form == "filter" else xh[i]) @ d.cost.L_block(i, k).T)[:, 0, :])
+            yh[i] = yf @ m.A_tilde_r.T + xf @ m.A_check_r.T
+            xh[i] = xf @ d.system.A_at(0).T
+            now.append(yh[i] @ m.U.T)
+        sent = now
+    return np.concatenate([np.stack(zi, axis=1) for zi in zs], axis=2)  # type: ignore[no-any-return]
+
+
+# ---------------------------------------------------------------------------
+# families with a stacked tolerant step: all runs at once
+# ---------------------------------------------------------------------------
+def _stackable(agents: Sequence[Any], graph: CommGraph) -> bool:
+    """The agents are one linear design's loss-tolerant agents and its algorithm steps all runs at once (``agent_step_runs``)."""
+    from ..estimators.linear_team import LinearAgent
+
+    if not agents or any(type(ag) is not LinearAgent or not ag.tolerant or ag.index != i for i, ag in enumerate(agents)):
+        return False
+    d = agents[0].design
+    if any(ag.design is not d for ag in agents) or not getattr(d.algorithm, "stacks_runs", True):
+        return False
+    # the class whose tolerant step the agents run must be the one that stacks it (a subclass may change the step)
+    owner = next((c for c in type(d.algorithm).__mro__ if "agent_step_tolerant" in c.__dict__), None)
+    if owner is None or "agent_step_runs" not in owner.__dict__:
+        return False
+    pairs = [(a, b) for (a, b, _) in graph.edges]
+    return len(pairs) == len(set(pairs))
+
+
+def _run_stacked(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray], out: LinkOutcomes) -> FloatArray:
+    """Every run of the block at once through the family's ``agent_step_runs`` (:mod:`teamkf.estimators._runs`).
+
+    The same estimates as :func:`_run_grouped` bit for bit: each run's packets enter in the order
+    :func:`~teamkf.estimators.linear_team.delivered` gives them, and the stacked step repeats the one-run arithmetic.
+    """
+    from ..exceptions import ShapeError
+
+    d = agents[0].design
+    alg = d.algorithm
+    n = graph.n_agents
+    R, T = ys[0].shape[:2]
+    if T > len(d.steps):
+        raise ShapeError(f"k: the design has horizon = {len(d.steps)} steps, found step {len(d.steps)}; design a longer horizon")
+    # arrival step of each (run, sent step, edge) packet, -1 when it is not delivered
+    arr = np.where(out.delivered, out.arrive, -1)
+    late = out.extra.max(axis=(0, 1)) if out.extra.size else np.zeros(len(out.edges), dtype=np.int64)
+    ins: list[list[tuple[int, int, int, int]]] = []  # per target: (position, source, edge, delay), in position order
+    info = alg.runs_graph if hasattr(alg, "runs_graph") else alg.graph  # the graph whose packets the step uses (``delivered``)
+    for i in range(n):
+        pos = {j: a for a, j in enumerate(info.in_neighbors(i))} if info is not None else {}
+        ins.append(sorted((pos[a], a, q, dl) for q, (a, b, dl) in enumerate(out.edges) if b == i and a in pos))
+    keep = max((dl + int(late[q]) for q, (_, _, dl) in enumerate(out.edges)), default=0)  # the oldest packet still in flight
+    pay: dict[int, list[dict]] = {}
+    states: list[Any] = [None] * n
+    z = np.empty((R, T, sum(int(d.cost.L_block(i, 0).shape[0]) for i in range(n))))
+    for k in progress(range(T), desc="lossy runtime (all runs)", total=T, unit="step"):
+        now, col = [], 0
+        for i in range(n):
+            slots = []
+            for _, a, q, dl in ins[i]:
+                for s in range(max(0, k - dl - int(late[q])), k - dl + 1):
+                    m = arr[:, s, q] == k
+                    if m.any():
+                        slots.append((a, s, m, pay[s][a]))
+            y_i = ys[i][:, k, :, None]
+            states[i], payload = alg.agent_step_runs(i, k, states[i], y_i, slots)
+            zi = (d.cost.L_block(i, k) @ states[i][alg.output])[:, :, 0]
+            z[:, k, col : col + zi.shape[1]] = zi
+            col += zi.shape[1]
+            now.append(payload)
+        pay[k] = now
+        pay.pop(k - keep - 1, None)
     return z
 
 
