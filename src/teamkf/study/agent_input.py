@@ -72,25 +72,14 @@ def _read_rows(p: Path, suffix: str, system: Any, horizon: int | None, i: int) -
     step, agent, vals = F.validate_rows(df, p, system, horizon, None, csv)
     if not (agent == i).any():
         raise F.file_error(p, "column 'agent'", f"no row of agent {i} (found agents {sorted(set(agent.tolist()))}); give this agent's log")
-    n, dys = system.n_agents, system.dy
+    dys = system.dy
     own_only = bool((agent == i).all())
     T = int(step[agent == i].max()) + 1 if own_only else int(step.max()) + 1
     dv = F.offset_values(df, cols, p, system, agent, vals, csv)
 
-    def per_agent(v: np.ndarray) -> list[np.ndarray]:
-        out = []
-        for j in range(n):
-            a = np.full((T, dys[j]), np.nan)
-            rows = agent == j
-            a[step[rows]] = v[rows][:, : dys[j]]
-            out.append(a)
-        return out
-
-    ys = per_agent(vals)
-    ub = F._read_u_columns(df, cols.per_step, step, T, p, csv) if cols.per_step else None
-    u = None if ub is None or not cols.u else ub[:, : len(cols.u)]
-    b = None if ub is None or not cols.b else ub[:, len(cols.u) :]
-    ds = None if dv is None else per_agent(dv)
+    ys = F.per_agent_rows(vals, step, agent, T, dys)
+    u, b = F.step_inputs(df, cols, step, T, p, csv)
+    ds = None if dv is None else F.per_agent_rows(dv, step, agent, T, dys)
     if ds is not None:  # the others' offsets never reach agent i; their absent rows are not missing values here
         ds = [dj if j == i else np.zeros_like(dj) for j, dj in enumerate(ds)]
     ys = [yj if j == i else np.zeros_like(yj) for j, yj in enumerate(ys)]

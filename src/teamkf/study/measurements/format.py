@@ -525,24 +525,33 @@ def read_measurements(path: str | Path, system: LinearGaussianSystem, horizon: i
     if len(df) == 0:
         raise file_error(p, "", "no data rows; expected one row per agent and step")
     step, agent, vals = validate_rows(df, p, system, horizon, n_steps, csv)
-    n, dys = system.n_agents, system.dy
+    dys = system.dy
     T = n_steps if n_steps is not None else int(step.max()) + 1
     dv = offset_values(df, cols, p, system, agent, vals, csv)
 
-    def per_agent(v: np.ndarray) -> list[FloatArray]:
-        out = []
-        for i in range(n):
-            a = np.full((T, dys[i]), np.nan)
-            rows = agent == i
-            a[step[rows]] = v[rows][:, : dys[i]]
-            out.append(a)
-        return out
+    ys = per_agent_rows(vals, step, agent, T, dys)
+    u, b = step_inputs(df, cols, step, T, p, csv)
+    d = None if dv is None else per_agent_rows(dv, step, agent, T, dys)
+    return MeasurementLog.from_arrays(ys, system, horizon, source=str(p), u=u, b=b, d=d)
 
-    ys = per_agent(vals)
+
+def per_agent_rows(v: np.ndarray, step: np.ndarray, agent: np.ndarray, T: int, dys: Any) -> list[FloatArray]:
+    """Long-form rows ``v`` (one per agent and step) as one (T, d_y^i) array per agent, NaN where a row is absent."""
+    out = []
+    for i, d in enumerate(dys):
+        a = np.full((T, int(d)), np.nan)
+        rows = agent == i
+        a[step[rows]] = v[rows][:, : int(d)]
+        out.append(a)
+    return out
+
+
+def step_inputs(df: Any, cols: Any, step: np.ndarray, T: int, p: Path, csv: bool) -> tuple[FloatArray | None, FloatArray | None]:
+    """The known inputs u(t) and process offsets b(t) of a log's per-step columns, or None each."""
     ub = _read_u_columns(df, cols.per_step, step, T, p, csv) if cols.per_step else None
     u = None if ub is None or not cols.u else ub[:, : len(cols.u)]
     b = None if ub is None or not cols.b else ub[:, len(cols.u) :]
-    return MeasurementLog.from_arrays(ys, system, horizon, source=str(p), u=u, b=b, d=None if dv is None else per_agent(dv))
+    return u, b
 
 
 def _read_u_columns(df: Any, ucols: list[str], step: np.ndarray, T: int, p: Path, csv: bool) -> FloatArray:
