@@ -643,6 +643,14 @@ def register_keyed(design: Any) -> None:
     _KEYED[:] = [design]
 
 
+_RESEND: list[Any] = []  # the re-sending design (``resend=r``), registered by :mod:`teamkf.estimators._lossy_resend`
+
+
+def register_resend(design: Any) -> None:
+    """Called by :mod:`teamkf.estimators._lossy_resend` (as :func:`register_keyed`)."""
+    _RESEND[:] = [design]
+
+
 def design_mtmse_lossy(
     system: LinearGaussianSystem,
     cost: TeamCost,
@@ -658,6 +666,7 @@ def design_mtmse_lossy(
     known_bound: int = 0,
     known_window: int | None = None,
     keyed: int = 0,
+    resend: int = 1,
     threads: int | None = 1,
     progress: bool | None = None,
 ) -> LossyTeamDesign:
@@ -704,6 +713,9 @@ def design_mtmse_lossy(
         1: gains keyed on the agent's current arrivals (the on-time indicators of the items due at step k;
         :mod:`teamkf.estimators._lossy_keyed`): a larger class containing today's, exact cost, small teams only
         (no ``memory``). 0: gains independent of the arrival pattern.
+    resend : int >= 1
+        r: every packet carries the sender's last r items, so a lost item can arrive in a later packet
+        (:mod:`teamkf.estimators._lossy_resend`: exact cost; no ``memory``, no ``keyed``). 1: one item per packet.
 
     Returns
     -------
@@ -739,11 +751,14 @@ def design_mtmse_lossy(
     _lossy_size.check(system, arr, T, mem, cost.dz, prefix=mem is None and not cost.is_time_varying)  # sized before anything is allocated
     kw = V.integer(keyed, "keyed", minimum=0, maximum=1, what="the window w (0: gains independent of the pattern, 1: keyed on the current arrivals)")
     candidates = _auto_items(system, arr, T, mem) if coords == "auto" else (coords,)
-    if kw:  # gains keyed on the current arrivals: a module of its own, which imports this one and registers itself here
-        if not _KEYED:
+    rs = V.integer(resend, "resend", minimum=1, maximum=16, what="the items per packet r (1: one item per packet)")
+    if kw or rs > 1:  # keyed gains, re-sent items: modules of their own, which import this one and register here
+        if not (_KEYED and _RESEND):
             from .registry import families
 
             families()  # loads the built-in modules and their extensions (_builtin.EXTENSIONS)
+        if rs > 1:
+            return _RESEND[0](system, cost, graph, T, p, J, arr, candidates, rs, fill, bound, threads, keyed=kw, memory=mem)
         return _KEYED[0](system, cost, graph, T, p, J, arr, candidates, mem, fill, bound, threads)
     with blas_threads(threads):
         mom0 = local_filter_moments(system, T)
@@ -863,6 +878,12 @@ FAMILY = _register_builtin(
                 default=0,
                 check=lambda v, k: V.integer(v, k, minimum=0, maximum=1),
                 doc="1: gains keyed on the current arrivals (the items due at each step; small teams, no memory); 0: pattern-independent",
+            ),
+            Option(
+                name="resend",
+                default=1,
+                check=lambda v, k: V.integer(v, k, minimum=1, maximum=16),
+                doc="r: each packet carries the sender's last r items (a lost item can arrive later; exact cost); 1: one item",
             ),
             Option(
                 name="items",
