@@ -141,8 +141,11 @@ def _sample(edges: list[tuple[int, int, int]], p: np.ndarray, J: np.ndarray, T: 
     return np.where(lost, -1, base + extra)  # type: ignore[no-any-return]
 
 
-def held_sets(delay: np.ndarray, edges: list[tuple[int, int, int]], n: int, T: int, relay: str) -> np.ndarray:
-    """held[k, j, s, i]: agent i holds y_j(s) at step k under the pattern ``delay`` (s <= k)."""
+def held_sets(delay: np.ndarray, edges: list[tuple[int, int, int]], n: int, T: int, relay: str, resend: int = 1) -> np.ndarray:
+    """held[k, j, s, i]: agent i holds y_j(s) at step k under the pattern ``delay`` (s <= k).
+
+    ``resend = r`` (relay "flood"): the packet of (j, τ) carries y_j(τ - r + 1 : τ) and is flooded once, so
+    y_j(s) is held from the first arrival of a packet τ ∈ [s, s + r - 1]."""
     steps = np.arange(T)
     if relay == "all":
         h = np.full((T, n, n), -1, dtype=int)  # h[t, j, i]: i holds y_j(0 : h) after step t's arrivals
@@ -167,6 +170,9 @@ def held_sets(delay: np.ndarray, edges: list[tuple[int, int, int]], n: int, T: i
                 continue
             now = learn[:, :, a] == t  # forwarded once, at the step it was learned
             learn[:, :, b] = np.where(now, np.minimum(learn[:, :, b], t + dl), learn[:, :, b])
+    first = learn.copy()  # first[j, τ, u]: when u first holds the packet of (j, τ)
+    for t in range(1, min(resend, T)):  # the packet of (j, s + t) also carries y_j(s)
+        learn[:, : T - t] = np.minimum(learn[:, : T - t], first[:, t:])
     return learn[None, :, :, :] <= steps[:, None, None, None]  # type: ignore[no-any-return]
 
 
@@ -295,6 +301,7 @@ def known_pattern_stats(
     n_patterns: int | None = None,
     rng: Any = None,
     exact_first: bool = False,
+    resend: int = 1,
 ) -> KnownPatternBound:
     """The known-pattern optimum (validated arguments; :func:`teamkf.estimators.team_lossy.known_pattern_bound`).
 
@@ -307,14 +314,14 @@ def known_pattern_stats(
     if pats is not None:
         stages = np.zeros(T)
         for delay, prob in pats:
-            held = held_sets(delay, edges, n, T, relay)
+            held = held_sets(delay, edges, n, T, relay, resend)
             stages += prob * np.array([_stage_optimum(win, cost, held[k], k, window) for k in range(T)])
         return KnownPatternBound(float(stages.sum()), stages, 0.0, len(pats), True, relay, window)
     R = 200 if n_patterns is None else n_patterns
     gen = np.random.default_rng(rng)
     per = np.zeros((R, T))
     for r in range(R):
-        held = held_sets(_sample(edges, p, J, T, gen), edges, n, T, relay)
+        held = held_sets(_sample(edges, p, J, T, gen), edges, n, T, relay, resend)
         per[r] = [_stage_optimum(win, cost, held[k], k, window) for k in range(T)]
     tot = per.sum(axis=1)
     sem = float(tot.std(ddof=1) / np.sqrt(R)) if R > 1 else float("inf")
@@ -333,6 +340,7 @@ def known_pattern_bound(
     window: int | None = None,
     n_patterns: int | None = None,
     rng: Any = None,
+    resend: int = 1,
 ) -> KnownPatternBound:
     """The known-pattern optimum: the expected team cost of a team told every link event (a lower bound).
 
@@ -352,6 +360,9 @@ def known_pattern_bound(
         Monte Carlo over this many sampled patterns; None: every pattern when there are at most
         :data:`EXACT_LIMIT`, else 200 sampled ones.
     rng : seed or Generator for the sampled patterns
+    resend : int
+        With relay "flood": each packet carries the sender's last ``resend`` measurements (``mtmse_lossy``'s
+        ``resend = r``), each packet flooded once.
 
     Returns
     -------
@@ -388,4 +399,5 @@ def known_pattern_bound(
             else:
                 V.integer(v, label, minimum=0)
     graph.require_strongly_connected()
-    return known_pattern_stats(system, cost, graph, T, p_drop, jitter, relay=relay, window=window, n_patterns=n_patterns, rng=rng)
+    resend = V.integer(resend, "resend", minimum=1)
+    return known_pattern_stats(system, cost, graph, T, p_drop, jitter, relay=relay, window=window, n_patterns=n_patterns, rng=rng, resend=resend)

@@ -1,0 +1,106 @@
+"""``mtmse_lossy`` with ``resend = r`` (each packet carries the sender's last r items): limits, the factorization,
+Monte Carlo, the runtime agents, the known-pattern bound of the protocol, refusals."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from teamkf import CommGraph, LinearGaussianSystem, TeamCost
+from teamkf.estimators import _lossy_resend as LR
+from teamkf.estimators._arrivals import ArrivalModel
+from teamkf.estimators.registry import get_family
+from teamkf.estimators.team import design_mtmse
+from teamkf.estimators.team_lossy import design_mtmse_lossy, known_pattern_bound
+from teamkf.exceptions import ArgumentError
+from teamkf.simulation.sampling import sample_paths
+
+T = 8
+
+
+def unlike_line(n: int = 3) -> tuple[LinearGaussianSystem, TeamCost]:
+    """A line of agents that all estimate x₁ of an unstable process; agent 0 measures it precisely."""
+    A = np.array([[1.1, 0.2], [0.0, 0.9]])
+    C = [np.array([[1.0, 0.0]]) for _ in range(n)]
+    sysm = LinearGaussianSystem(A=A, Q=0.5, Sigma_x=1.0, C=C, R=[0.01] + [4.0] * (n - 1))
+    S = 2 * np.eye(n) - np.ones((n, n)) / n
+    return sysm, TeamCost(S=S, L=np.tile([[1.0, 0.0]], (n, 1)), n_agents=n)
+
+
+@pytest.fixture(scope="module")
+def team():
+    sysm, cost = unlike_line()
+    g = CommGraph.line(3)
+    return sysm, cost, g, {r: design_mtmse_lossy(sysm, cost, g, T, p_drop=0.5, items="innovations", resend=r) for r in (1, 2, 3)}
+
+
+def test_limits_and_what_resending_buys(team):
+    sysm, cost, g, ds = team
+    for p in (0.0, 1.0):  # the ends: MTMSE, and the own-history optimum (= resend 1's)
+        d = design_mtmse_lossy(sysm, cost, g, T, p_drop=p, items="innovations", resend=3)
+        ref = design_mtmse(sysm, cost, g, T) if p == 0 else design_mtmse_lossy(sysm, cost, g, T, p_drop=1.0, items="innovations")
+        assert d.total_cost == pytest.approx(ref.total_cost, rel=1e-9)
+    for r, d in ds.items():
+        assert d.lower_bound <= d.total_cost <= d.info["local_kf_cost"]
+        assert d.details().get("resend", 1) == r
+    # a missed innovation of the good sensor is recovered from a later packet: re-sending pays on an unstable process
+    assert ds[3].total_cost < ds[2].total_cost < 0.97 * ds[1].total_cost
+
+
+def test_resend_one_and_the_schur_steps_are_the_plain_design(team):
+    sysm, cost, g, ds = team
+    arr = ArrivalModel.build(g, 0.5, 0)
+    d1 = LR.design_resend(sysm, cost, g, T, 0.5, 0, arr, ("innovations",), 1, True, False, 1)
+    np.testing.assert_allclose(d1.stage_costs, ds[1].stage_costs, rtol=1e-10)  # r = 1 is today's class
+    dense = LR.design_resend(sysm, cost, g, T, 0.5, 0, arr, ("innovations",), 3, True, False, 1, schur=False)
+    np.testing.assert_allclose(dense.stage_costs, ds[3].stage_costs, rtol=1e-10)  # one factor + Schur = a solve per step
+    for k in range(T):
+        for i in range(3):
+            np.testing.assert_allclose(dense.gains[k][i], ds[3].gains[k][i], rtol=1e-7, atol=1e-9)
+
+
+def test_monte_carlo_agrees_with_exact_expected_cost(team):
+    sysm, cost, _, ds = team
+    d = ds[3]
+    paths = sample_paths(sysm, T, 4000, rng=11)
+    e = d.errors(paths, p_drop=0.5, rng=12)
+    c = np.einsum("rki,ij,rkj->r", e, cost.S_at(0), e)
+    assert abs(c.mean() - d.total_cost) < 4 * c.std(ddof=1) / np.sqrt(c.size)
+
+
+def test_graph_agents_reproduce_errors_and_run_over_drops(team):
+    from teamkf.simulation.links import LinkModel
+    from teamkf.simulation.monte_carlo import monte_carlo
+
+    sysm, cost, g, ds = team
+    d = ds[2]
+    paths = sample_paths(sysm, T, 5, rng=3)
+    z = d.filter(paths.y)
+    L = cost.L_at(0)
+    e_run = np.stack([paths.x[:, k] @ L.T - z[:, k] for k in range(T)], axis=1)
+    np.testing.assert_allclose(e_run, d.errors(paths), rtol=1e-8, atol=1e-8)
+    r = monte_carlo({"resend": d}, T, 400, rng=4, path="runtime", graph=g, links=LinkModel(p_drop=0.5))["resend"]
+    assert abs(r.total_mean - d.total_cost) < 4 * r.total_sem, (r.total_mean, r.total_sem, d.total_cost)
+
+
+def test_known_pattern_bound_of_the_protocol():
+    sysm, cost = unlike_line(2)
+    g = CommGraph.complete(2, delay=1)
+    b = {r: known_pattern_bound(sysm, cost, g, 4, 0.5, resend=r) for r in (1, 2, 3)}
+    assert all(x.exact for x in b.values())
+    assert b[3].value < b[2].value < b[1].value  # the packets carry more
+    d = design_mtmse_lossy(sysm, cost, g, 4, p_drop=0.5, items="measurements", resend=2)
+    assert b[2].value <= d.total_cost
+
+
+def test_refusals_and_registry(team):
+    sysm, cost, g, _ = team
+    for bad in (0, -1, "two", 1.5, 17):
+        with pytest.raises(ArgumentError, match="resend"):
+            design_mtmse_lossy(sysm, cost, g, 4, p_drop=0.3, resend=bad)
+    for kw in ({"keyed": 1}, {"memory": 2}):
+        with pytest.raises(ArgumentError, match="resend"):
+            design_mtmse_lossy(sysm, cost, g, 4, p_drop=0.3, resend=2, **kw)
+    d = get_family("mtmse_lossy").build(sysm, cost, graph=g, structure=g, horizon=4, options={"p_drop": 0.3, "resend": 2})
+    assert d.resend == 2 and int(d.arrays()["resend"]) == 2
+    assert LR.availability_prob(d.arrivals, 2, 0, 2) == pytest.approx(1 - (1 - 0.7**2) ** 2)  # two 2-hop packets
