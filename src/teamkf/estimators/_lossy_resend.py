@@ -44,7 +44,6 @@ of the live Γ(k) per step.)
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from itertools import product
 from typing import Any, Sequence
 
 import numpy as np
@@ -60,32 +59,45 @@ __all__ = ["MAX_RESEND", "design_resend", "availability_prob"]
 MAX_RESEND = 16
 #: inclusion–exclusion over at most this many paths (2^paths terms); above it the events are enumerated
 _MAX_PATHS = 14
-#: ... over at most this many distinct events (2^events assignments)
-_MAX_EVENTS = 22
+#: the events are enumerated when there are at most this many (2^events assignments)
+_MAX_EVENTS = 16
 
 Event = tuple[int, int]
 
 
+_BITS: dict[int, np.ndarray] = {}
+
+
 def _union(paths: list[frozenset[Event]], q: np.ndarray) -> float:
-    """P(some path has all its events succeed), independent events of probability q[edge] (exact)."""
-    if len(paths) <= _MAX_PATHS:
-        return _union_prob(paths, q)
+    """P(some path has all its events succeed), independent events of probability q[edge] (exact).
+
+    Every assignment of the distinct events is enumerated (vectorized) when there are at most
+    :data:`_MAX_EVENTS` of them, else inclusion–exclusion over at most :data:`_MAX_PATHS` paths.
+    """
+    if not paths:
+        return 0.0
+    if any(len(p) == 0 for p in paths):
+        return 1.0
     events = sorted({ev for p in paths for ev in p})
-    if len(events) > _MAX_EVENTS:
+    m = len(events)
+    if m > _MAX_EVENTS:
+        if len(paths) <= _MAX_PATHS:
+            return _union_prob(paths, q)
         raise ArgumentError(
-            f"resend: the availability of an item is an OR of {len(paths)} paths over {len(events)} link events, more than the "
+            f"resend: the availability of an item is an OR of {len(paths)} paths over {m} link events, more than the "
             f"exact computation takes ({_MAX_PATHS} paths or {_MAX_EVENTS} events); use a smaller resend or a graph with fewer geodesics",
             argument="resend",
         )
+    bits = _BITS.get(m)
+    if bits is None:
+        bits = _BITS[m] = ((np.arange(1 << m)[:, None] >> np.arange(m)[None, :]) & 1).astype(bool)
     pos = {ev: t for t, ev in enumerate(events)}
-    masks = [sum(1 << pos[ev] for ev in p) for p in paths]
     qs = np.array([q[e] for (e, _) in events])
-    total = 0.0
-    for bits in product((0, 1), repeat=len(events)):
-        m = sum(b << t for t, b in enumerate(bits))
-        if any(pm & m == pm for pm in masks):
-            total += float(np.prod(np.where(np.array(bits) == 1, qs, 1.0 - qs)))
-    return total
+    w = np.prod(np.where(bits, qs, 1.0 - qs), axis=1)
+    ok = np.zeros(1 << m, dtype=bool)
+    for p in paths:
+        ok |= bits[:, [pos[ev] for ev in p]].all(axis=1)
+    return float(w[ok].sum())
 
 
 def _shifted(arr: ArrivalModel, j: int, i: int, s: int, c: int) -> list[frozenset[Event]]:
@@ -245,8 +257,8 @@ def solve_resend(
             G_SS[r0 * dz : (r0 + ia.size) * dz] = (
                 X[np.ix_(np.repeat(np.arange(ia.size), dz), rr[: nS_all * dz])] * S0[np.ix_(zidx[ua], zidx[: nS_all * dz])]
             )
-        G_SS = 0.5 * (G_SS + G_SS.T)
-        chol = np.asfortranarray(sla.cholesky(G_SS, lower=True, check_finite=False, overwrite_a=True)) if nS_all else None
+        # symmetric up to round-off: its transpose is the same matrix in Fortran order, factored in place (no copy)
+        chol = np.asfortranarray(sla.cholesky(G_SS.T, lower=True, check_finite=False, overwrite_a=True)) if nS_all else None
         del G_SS
     stages, locs = np.zeros(T), np.zeros(T)
     gains: list[list[Any]] = []
