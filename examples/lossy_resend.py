@@ -42,7 +42,9 @@ def platoon() -> None:
 def uav() -> None:
     T = int(os.environ.get("TEAMKF_T", "100"))
     sc = load_packaged("uav-10")
-    b = known_pattern_bound(sc.system, sc.cost, sc.graph, T, P, relay="all", window=6, n_patterns=int(os.environ.get("TEAMKF_PATTERNS", "100")), rng=0)
+    b = known_pattern_bound(
+        sc.system, sc.cost, sc.graph, T, P, relay="all", window=6, n_patterns=int(os.environ.get("TEAMKF_PATTERNS", "100")), rng=0
+    )
     print(f"known-pattern optimum, relays of everything held (W = 6): {b.value:.0f} ± {1.96 * b.sem:.0f}", flush=True)
     row("resend r", "exact cost", "local filters", "below the local filters", "CPU s")
     for r in (1, 2, 4):

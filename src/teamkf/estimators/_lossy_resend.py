@@ -80,6 +80,8 @@ def _union(paths: list[frozenset[Event]], q: np.ndarray) -> float:
         return 1.0
     events = sorted({ev for p in paths for ev in p})
     m = len(events)
+    if sum(len(p) for p in paths) == m:  # paths with disjoint events: independent
+        return 1.0 - float(np.prod([1.0 - float(np.prod([q[e] for (e, _) in p])) for p in paths]))
     if m > _MAX_EVENTS:
         if len(paths) <= _MAX_PATHS:
             return _union_prob(paths, q)
