@@ -104,3 +104,16 @@ def test_refusals_and_registry(team):
     d = get_family("mtmse_lossy").build(sysm, cost, graph=g, structure=g, horizon=4, options={"p_drop": 0.3, "resend": 2})
     assert d.resend == 2 and int(d.arrays()["resend"]) == 2
     assert LR.availability_prob(d.arrivals, 2, 0, 2) == pytest.approx(1 - (1 - 0.7**2) ** 2)  # two 2-hop packets
+
+
+def test_on_time_known_pattern_bound_lies_between():
+    sysm, cost = unlike_line(3)
+    g = CommGraph.complete(3, delay=1)  # a relayed copy (2 hops) is late: the design does not use it
+    T3 = 3
+    fl = known_pattern_bound(sysm, cost, g, T3, 0.5, relay="flood")
+    for r in (1, 2):
+        on = known_pattern_bound(sysm, cost, g, T3, 0.5, relay="ontime", resend=r)
+        d = design_mtmse_lossy(sysm, cost, g, T3, p_drop=0.5, items="measurements", resend=r)
+        assert on.exact and on.value <= d.total_cost * (1 + 1e-12)
+        if r == 1:
+            assert fl.value < on.value  # late copies through the third agent are worth something

@@ -170,6 +170,14 @@ def held_sets(delay: np.ndarray, edges: list[tuple[int, int, int]], n: int, T: i
                 continue
             now = learn[:, :, a] == t  # forwarded once, at the step it was learned
             learn[:, :, b] = np.where(now, np.minimum(learn[:, :, b], t + dl), learn[:, :, b])
+    if relay == "ontime":  # only packets on time (at τ + ℓ_ju, ℓ the geodesic delay) are held: the drop-aware design's use
+        ell = np.full((n, n), big, dtype=int)
+        np.fill_diagonal(ell, 0)
+        for _ in range(n):
+            for a, b, d in edges:
+                ell[:, b] = np.minimum(ell[:, b], ell[:, a] + d)
+        due = steps[None, :, None] + ell[:, None, :]
+        learn = np.where(learn == due, learn, big)
     first = learn.copy()  # first[j, τ, u]: when u first holds the packet of (j, τ)
     for t in range(1, min(resend, T)):  # the packet of (j, s + t) also carries y_j(s)
         learn[:, : T - t] = np.minimum(learn[:, : T - t], first[:, t:])
@@ -351,9 +359,10 @@ def known_pattern_bound(
         T.
     p_drop, jitter : number or {(source, target): value}
         The link model (a packet is lost with probability p, else late by 0..J steps, uniformly).
-    relay : "flood" or "all"
+    relay : "flood", "ontime" or "all"
         What packets carry: every raw measurement once, when first learned (the drop-aware design's relays
-        with ``items="measurements"``), or everything the sender holds (a bound for every protocol).
+        with ``items="measurements"``; "ontime": only what arrives on time is held, as the drop-aware design
+        uses it), or everything the sender holds (a bound for every protocol).
     window : int or None
         Give every agent the data older than k - window (a looser bound that bounds the work); None: exact.
     n_patterns : int or None
@@ -385,7 +394,7 @@ def known_pattern_bound(
     T = V.positive_int(horizon, "horizon")
     system.require_horizon(T)
     cost.require_horizon(T)
-    relay = V.choice(relay, "relay", ("flood", "all"))
+    relay = V.choice(relay, "relay", ("flood", "all", "ontime"))
     window = None if window is None else V.integer(window, "window", minimum=0)
     n_patterns = None if n_patterns is None else V.positive_int(n_patterns, "n_patterns")
     for name, x in (("p_drop", p_drop), ("jitter", jitter)):

@@ -78,6 +78,8 @@ def _union(paths: list[frozenset[Event]], q: np.ndarray) -> float:
         return 0.0
     if any(len(p) == 0 for p in paths):
         return 1.0
+    uniq = list(dict.fromkeys(paths))
+    paths = [p for p in uniq if not any(o < p for o in uniq)]  # absorption: a path containing another adds nothing
     events = sorted({ev for p in paths for ev in p})
     m = len(events)
     if sum(len(p) for p in paths) == m:  # paths with disjoint events: independent
