@@ -4,6 +4,8 @@
     PYTHONPATH=src python3 benchmarks/bench_cikf.py --size 20 --dense-steps 4 --json
     PYTHONPATH=src python3 benchmarks/bench_cikf.py --size 100 --steps 2 --runs 0 --dense-steps 0   # scale
     PYTHONPATH=src python3 benchmarks/bench_cikf.py --runs 0 --dense-steps 0 --compare-steps 0 --phases  # where the time goes
+    PYTHONPATH=src OPENBLAS_NUM_THREADS=1 python3 benchmarks/bench_cikf.py --threads 1 --dense-steps 0 --compare-steps 0 \
+        --runs 0 --joint-dense-steps 4      # the joint design against the dense joint-covariance reference, one thread
 
 Cases (one process, in this order)
 ----------------------------------
@@ -17,6 +19,14 @@ design-dense    an independent, straightforward dense implementation of the same
                 dense matrix once per step and applied with plain numpy matmuls (BLAS with its default
                 threads), for ``--dense-steps`` steps: seconds per step, its agreement with the structured
                 design, and the ratio to the structured design's seconds per step.
+design-joint-dense  (``--joint-dense-steps S``, off by default) the plain whole-matrix reference
+                ``_dense_joint_design`` below — J = cov([e; ε]) of all agents as ONE dense N(r + M) square
+                matrix, each step J_f = U J U' and J = Φ J_f Φ' with U and Φ formed as dense matrices — and
+                ``design_cikf(method="joint", threads=1)``, back to back for S steps with one BLAS thread:
+                wall and CPU time, their ratio, the MSE agreement, and the joint design's GFLOP/s (flops
+                counted from its products, ``_joint_flops``) as a fraction of the DGEMM peak measured in the
+                same run (a 3000-square matmul, best of 3, on 1 and on 2 BLAS threads). With ``--threads 1``
+                the main design (T steps) is also rated against the peak.
 mc              1000 runs: sampling the paths, then Algorithm 1's error recursion vectorized over runs
                 (``design.errors``), the same filter on the measurements (``design.simulate``), and the
                 message-passing runtime (``run_graph`` with one agent object per node).
@@ -232,10 +242,12 @@ def _joint_vs_dense(sysm, graph, steps: int, full_design_s: float | None, full_T
     out["joint_lib_GFLOP"] = fl / 1e9
     out["joint_lib_GFLOPs_cpu"] = fl / lib_cpu / 1e9
     out["joint_lib_peak_fraction_cpu"] = out["joint_lib_GFLOPs_cpu"] / out["dgemm_peak_1thread_GFLOPs_cpu"]
-    if full_design_s is not None:  # the main design case, when it ran on one worker thread
+    out["joint_dense_per_step_cpu_s"] = ref_cpu / steps
+    if full_design_s is not None:  # the main design case (T steps) on one worker thread: its CPU time
         fl = _joint_flops(sysm, graph, full_T)
         out["design_1thread_GFLOPs_cpu"] = fl / full_design_s / 1e9
         out["design_1thread_peak_fraction_cpu"] = out["design_1thread_GFLOPs_cpu"] / out["dgemm_peak_1thread_GFLOPs_cpu"]
+        out["joint_dense_ratio_cpu_full_design"] = out["joint_dense_per_step_cpu_s"] / (full_design_s / full_T)
     return out
 
 
@@ -392,7 +404,7 @@ def main() -> None:
         ref = d.mse("predictor")[: args.dense_steps]
         res["design_dense_max_rel_diff"] = float(np.max(np.abs(dense - ref) / np.abs(ref)))
     if args.joint_dense_steps:
-        full = res["design_cpu_s"] if args.threads == 1 and args.method == "joint" else None
+        full = res["design_cpu_s"] if args.threads == 1 and args.method == "joint" else None  # CPU time = 1 core's time
         res.update(_joint_vs_dense(sysm, graph, args.joint_dense_steps, full, args.steps))
     if not args.runs:
         res["load_after"] = os.getloadavg()
@@ -457,6 +469,12 @@ def main() -> None:
             f"(MSE max relative difference {res['joint_dense_max_rel_diff_mse']:.1e}); DGEMM peak {res['dgemm_peak_1thread_GFLOPs']:.1f} "
             f"GFLOP/s on 1 thread ({res['dgemm_peak_1thread_GFLOPs_cpu']:.1f} per CPU second), {res['dgemm_peak_2threads_GFLOPs']:.1f} on 2; the joint design {res['joint_lib_GFLOPs_cpu']:.1f} GFLOP/s "
             f"of CPU time = {res['joint_lib_peak_fraction_cpu']:.0%} of the 1-thread peak"
+            + (
+                f"; the {args.steps}-step design: {res['design_1thread_GFLOPs_cpu']:.1f} GFLOP/s = {res['design_1thread_peak_fraction_cpu']:.0%}, "
+                f"x{res['joint_dense_ratio_cpu_full_design']:.1f} per step against the reference (CPU)"
+                if "design_1thread_GFLOPs_cpu" in res
+                else ""
+            )
         )
     print(
         f"  Monte Carlo: sample {res['mc_sample_s']:.2f} s, errors {res['mc_errors_s']:.2f} s ({res['mc_errors_cpu_s']:.2f} s CPU), simulate {res['mc_simulate_s']:.2f} s, "
