@@ -736,7 +736,10 @@ def design_mtmse_lossy(
     mem = None if memory is None else V.positive_int(memory, "memory")
     coords = V.choice(items, "items", ("auto", "measurements", "innovations"))
     arr = ArrivalModel.build(graph, p, J)
-    _lossy_size.check(system, arr, T, mem, cost.dz, prefix=mem is None and not cost.is_time_varying)  # sized before anything is allocated
+    def kinds(m: int | None) -> int:  # item kinds designed with memory m (``items="auto"`` may design both)
+        return len(_auto_items(system, arr, T, m)) if coords == "auto" else 1
+
+    _lossy_size.check(system, arr, T, mem, cost.dz, prefix=mem is None and not cost.is_time_varying, kinds=kinds)  # before any allocation
     kw = V.integer(keyed, "keyed", minimum=0, maximum=1, what="the window w (0: gains independent of the pattern, 1: keyed on the current arrivals)")
     candidates = _auto_items(system, arr, T, mem) if coords == "auto" else (coords,)
     if kw:  # gains keyed on the current arrivals: a module of its own, which imports this one and registers itself here
