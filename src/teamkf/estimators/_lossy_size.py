@@ -38,9 +38,7 @@ def _sum_u(a: float, b: float, p: int) -> float:
     return s(b) - s(a - 1)
 
 
-def estimate(
-    dy: Any, ell: Any, prob: Any, T: int, memory: int | None, dx: int, dz: int, prefix: bool, kinds: int = 1
-) -> tuple[float, float, float]:
+def estimate(dy: Any, ell: Any, prob: Any, T: int, memory: int | None, dx: int, dz: int, prefix: bool, kinds: int = 1) -> tuple[float, float, float]:
     """(peak bytes, floating-point operations, Python loop iterations) of the design over ``T`` steps.
 
     Parameters
@@ -108,7 +106,9 @@ def estimate(
 MEMORY_SLACK = 4
 
 
-def _fits(system: Any, arr: Any, T: int, memory: int | None, dz: int, prefix: bool, kinds: int, avail: int | None, limit: float) -> tuple[bool, float, float]:
+def _fits(
+    system: Any, arr: Any, T: int, memory: int | None, dz: int, prefix: bool, kinds: int, avail: int | None, limit: float
+) -> tuple[bool, float, float]:
     """(fits, peak bytes, optimistic seconds) of the design, against ``avail`` bytes and ``limit`` seconds."""
     peak, flops, loops = estimate(system.dy, arr.ell, arr.prob, T, memory, system.dx, dz, prefix, kinds)
     t = flops / _budget.FLOPS + loops / _budget.LOOPS
@@ -139,9 +139,7 @@ def suggest(system: Any, arr: Any, T: int, memory: int | None, dz: int, kinds: A
             hi = mid
     if lo < 1:
         return "use a smaller team or fewer measurement rows"
-    return (
-        f"use a horizon of at most {lo:,} steps with memory = {m} (the moments of every step grow like T^2 whatever the memory)"
-    )
+    return f"use a horizon of at most {lo:,} steps with memory = {m} (the moments of every step grow like T^2 whatever the memory)"
 
 
 def check(system: Any, arr: Any, T: int, memory: int | None, dz: int, prefix: bool, kinds: Any = lambda m: 1) -> None:

@@ -736,6 +736,7 @@ def design_mtmse_lossy(
     mem = None if memory is None else V.positive_int(memory, "memory")
     coords = V.choice(items, "items", ("auto", "measurements", "innovations"))
     arr = ArrivalModel.build(graph, p, J)
+
     def kinds(m: int | None) -> int:  # item kinds designed with memory m (``items="auto"`` may design both)
         return len(_auto_items(system, arr, T, m)) if coords == "auto" else 1
 
