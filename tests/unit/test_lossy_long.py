@@ -3,6 +3,10 @@ Carlo, and the full design when m >= T), and a design that does not fit is refus
 
 from __future__ import annotations
 
+import importlib.util
+import os
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -111,3 +115,67 @@ def test_cli_refuses_a_horizon_no_memory_fits_naming_the_longest(tmp_path: Path,
     assert main(["--max-hours", "0.0003", "design", str(_scenario(tmp_path, 3000, 16))]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "of computing" in err and "use a horizon of at most" in err, err
+
+
+# ---------------------------------------------------------------------------
+# deploy: each agent process gets its slice and never designs the team
+# ---------------------------------------------------------------------------
+def test_slices_rebuild_the_agents_bit_for_bit_under_drops(tmp_path: Path) -> None:
+    from teamkf.estimators._slices import SliceContext, agent_from_slice
+    from teamkf.simulation.links import LinkModel, link_streams, pass_messages_lossy
+    from teamkf.study.slices import read_slice, slice_sections, write_slices
+
+    sc = load_scenario(_scenario(tmp_path, 14, 4))
+    d = sc.design("mtmse_lossy")
+    f = tmp_path / "gains.npz"
+    write_slices(f, slice_sections(sc, d))
+    ctx = SliceContext(sc.system, sc.cost, sc.graph, sc.information, sc.horizon)
+    agents = []
+    for i in range(6):
+        kind, arrays, meta = read_slice(str(f), sc, "mtmse_lossy", i)
+        assert kind == "lossy" and arrays["F/13"].shape[1] == 14  # its fills act on its own 14 items
+        agents.append(agent_from_slice(kind, ctx, i, arrays, meta)[1])
+    with pytest.raises(IndexError, match="holds nothing of agent 1"):
+        agents[2].design.gains[3][1]
+    ys = [y for y in sample_paths(sc.system, 14, 3, rng=1).y]
+    links = LinkModel(p_drop=0.4)
+    ref = pass_messages_lossy(d.graph_agents(), sc.graph, ys, links, link_streams(5, 3), design=d)
+    z = pass_messages_lossy(agents, sc.graph, ys, links, link_streams(5, 3), design=agents[0].design)
+    assert z.tobytes() == ref.tobytes()
+    with pytest.raises(Exception, match="does not support agent_slice"):  # keyed gains ship none (the agents design)
+        sc.updated({"mtmse_lossy.keyed": 1, "mtmse_lossy.memory": None, "horizon": 4}).design("mtmse_lossy").agent_slice(0)
+
+
+HOOK = """
+import sys
+if "agent" in sys.argv:  # an agent process: building the team design is an error
+    import teamkf.study.scenario as S
+
+    def _refuse(self, *a, **k):
+        print("teamkf: error: this agent process built the team design", file=sys.stderr)
+        raise SystemExit(3)
+
+    S.Scenario.design = _refuse
+"""
+
+
+@pytest.mark.skipif(importlib.util.find_spec("zenoh") is None, reason="needs eclipse-zenoh (pip install 'teamkf[deploy]')")
+def test_deploy_over_drops_ships_slices_and_filter_replays_it(tmp_path: Path) -> None:
+    """teamkf deploy of ring-6-lossy (T = 8, memory = 4) with drops; agents that cannot design; filter --drops gives the same file."""
+    sp = _scenario(tmp_path, 8, 4)
+    sc = load_scenario(sp)
+    log = tmp_path / "log.csv"
+    M.write_measurements(str(log), [y[0] for y in sample_paths(sc.system, 8, 1, rng=2).y])
+    hook = tmp_path / "hook"
+    hook.mkdir()
+    (hook / "sitecustomize.py").write_text(HOOK, encoding="utf-8")
+    src = str(Path(__file__).resolve().parents[2] / "src")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(hook), src, os.environ.get("PYTHONPATH", "")])}
+    out, rec, rep = tmp_path / "est.csv", tmp_path / "drops.json", tmp_path / "replay.csv"
+    args = ["deploy", str(sp), "--measurements", str(log), "--out", str(out), "--estimator", "mtmse_lossy"]
+    args += ["--p-drop", "0.3", "--seed", "3", "--record", str(rec), "--deadline", "10"]
+    proc = subprocess.run([sys.executable, "-m", "teamkf", *args], capture_output=True, text=True, env=env, timeout=400)
+    assert proc.returncode == 0, proc.stderr
+    assert "designs the team" not in proc.stderr  # the agents got their slices
+    assert main(["--quiet", "filter", str(sp), "--measurements", str(log), "--drops", str(rec), "--out", str(rep)]) == 0
+    assert out.read_bytes() == rep.read_bytes()

@@ -555,6 +555,12 @@ class LossyTeamDesign(Design):
     def delivery_graph(self) -> CommGraph | None:
         return self.graph
 
+    def agent_slice(self, i: int) -> tuple[str, dict[str, np.ndarray], dict[str, Any]]:
+        """Agent i's own gains, fills, items and local Kalman gains (:mod:`teamkf.estimators._lossy_slice`)."""
+        from ._lossy_slice import agent_slice
+
+        return agent_slice(self, i)
+
     # --- what the CLI writes ---------------------------------------------------------------
     def details(self) -> dict[str, Any]:
         return {
