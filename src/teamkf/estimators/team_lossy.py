@@ -61,7 +61,8 @@ is stable (detectable agents); with innovation items no quantity of the size of 
 
 Complexity: R = Σ_i Σ_j d_y^j (T - ℓ_ji) slot rows; O(R³/3) once (one factorization), or with
 ``memory = m`` O(T (m Σ_i Σ_j d_y^j)³) (a factorization per step; items older than m steps are not
-used, the own ones stay in x̂_i(k|k) and the fills).
+used, the own ones stay in x̂_i(k|k) and the fills). Sized before anything is allocated
+(:mod:`teamkf.estimators._lossy_size`): a design beyond the memory or work limit is refused naming a memory that fits.
 
 Lower bound
 -----------
