@@ -64,6 +64,11 @@ def estimate(dy: Any, ell: Any, prob: Any, T: int, memory: int | None, dx: int, 
         Item kinds designed (``items="auto"`` designs both raw measurements and innovations where cheap): their kept fills
         and their work add up.
     """
+    if memory is not None:  # the windowed form (:mod:`._lossy_window`): per-step arrays of a fixed size, kept results linear in T
+        from ._lossy_window import estimate as windowed
+
+        peak, flops, loops = windowed(dy, ell, prob, T, memory, dx, dz)
+        return peak * kinds, flops * kinds, loops * kinds
     dy_a = np.asarray(dy, dtype=float)
     n = dy_a.size
     dyt = float(dy_a.sum())

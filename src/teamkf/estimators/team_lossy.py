@@ -538,6 +538,7 @@ class LossyTeamDesign(Design):
                 z = ef[:, i * dx : (i + 1) * dx] @ L[i * dz : (i + 1) * dz].T
                 if rows.size:
                     own = _own_cols(sysm, i, k)
+                    own = own[own.size - self.fills[k][i].shape[1] :]  # the fills act on the last w own items
                     m = mask[:, rows, i]
                     vals = nu if self.coordinates == "innovations" else yv
                     f = vals[:, rows] * m + (1.0 - m) * (vals[:, own] @ self.fills[k][i].T)  # the fill of a missed item
@@ -626,7 +627,8 @@ class LossyTeamAgent:
         z = xhat @ d.cost.L_block(i, k).T
         its = d.items[k][i]
         if its:
-            nu_own = np.hstack([items[(i, s)] for s in range(k + 1)])
+            w = d.fills[k][i].shape[1] // sysm.dy[i] if sysm.dy[i] else k + 1  # the fills act on the last w own items
+            nu_own = np.hstack([items[(i, s)] for s in range(k + 1 - w, k + 1)])
             fill = nu_own @ d.fills[k][i].T  # the predictions of every item from the own innovations
             parts, col = [], 0
             for j, s in its:
@@ -757,11 +759,15 @@ def design_mtmse_lossy(
             families()  # loads the built-in modules and their extensions (_builtin.EXTENSIONS)
         return _KEYED[0](system, cost, graph, T, p, J, arr, candidates, mem, fill, bound, threads)
     with blas_threads(threads):
-        mom0 = local_filter_moments(system, T)
-        tried = {c: _solve_all(system, cost, arr, _item_moments(system, mom0, T, c), T, mem, fill, progress) for c in candidates}
+        if mem is not None:  # windowed fills, a lifted moment recursion and a steady form: memory independent of T
+            from . import _lossy_window
+
+            tried = {c: _lossy_window.solve(system, cost, arr, T, mem, fill, c, progress) for c in candidates}
+        else:
+            mom0 = local_filter_moments(system, T)
+            tried = {c: (*_solve_all(system, cost, arr, _item_moments(system, mom0, T, c), T, mem, fill, progress), mom0.K, {}) for c in candidates}
     coords = min(candidates, key=lambda c: float(np.sum(tried[c][3])))  # the lower exact expected cost (ties: the first)
-    held, gains, fills, stage, local = tried[coords]
-    mom = mom0
+    held, gains, fills, stage, local, K_loc, extra = tried[coords]
     if bound:
         from .registry import get_family  # the registered MTMSE family (families do not import each other)
 
@@ -783,6 +789,7 @@ def design_mtmse_lossy(
             "items": coords,
             "items_costs": {c: float(np.sum(tried[c][3])) for c in candidates},
             "local_kf_cost": float(local.sum()),
+            **extra,
         },
         graph=graph,
         p_drop=p,
@@ -793,7 +800,7 @@ def design_mtmse_lossy(
         items=tuple(tuple(tuple(it) for it in step) for step in held),
         gains=tuple(tuple(step) for step in gains),
         fills=tuple(tuple(step) for step in fills),
-        K_local=tuple(tuple(K) for K in mom.K),
+        K_local=tuple(tuple(K) for K in K_loc),
         lower_bound_stages=lb,
         local_stages=local,
     )
