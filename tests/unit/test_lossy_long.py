@@ -91,7 +91,7 @@ def test_cli_refuses_the_full_design_naming_the_memory_that_fits(tmp_path: Path,
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("teamkf: error: horizon: "), err
     assert "over T = 300 steps needs about 3.9 GiB" in err
-    assert "set the mtmse_lossy option memory = 16 (the items of the last 16 steps: about 5" in err  # ~544 MiB
+    assert "set the mtmse_lossy option memory = 16 (the items of the last 16 steps: about 88.6 MiB" in err  # windowed form
     # filter sizes the same design before it reads a step further
     log = tmp_path / "log.csv"
     M.write_measurements(str(log), [np.zeros((300, 1)) for _ in range(6)])
@@ -101,16 +101,25 @@ def test_cli_refuses_the_full_design_naming_the_memory_that_fits(tmp_path: Path,
     assert not (tmp_path / "e.csv").exists()
 
 
-def test_cli_refuses_a_horizon_no_memory_fits_naming_the_longest(tmp_path: Path, monkeypatch: Any, capsys: Any) -> None:
-    """T = 3000: the moments grow like T^2 whatever the memory: refused at once, naming the longest horizon that fits."""
+def test_cli_long_horizon_memory_fits_or_is_refused_naming_the_longest(tmp_path: Path, monkeypatch: Any, capsys: Any) -> None:
+    """T = 3000: without a memory refused naming memory = 16 (the windowed form: its arrays do not grow with T); with it the
+    design fits 2 GiB; a horizon no memory fits is refused at once naming the longest horizon that does."""
     monkeypatch.setattr(_budget, "available_memory", lambda: 2 * GIB)
     monkeypatch.setattr(team_lossy, "local_filter_moments", lambda *a, **k: pytest.fail("allocated before the size check"))
-    for memory in (None, 16):
-        assert main(["design", str(_scenario(tmp_path, 3000, memory))]) == 2
-        err = capsys.readouterr().err
-        assert err.count("\n") == 1 and err.startswith("teamkf: error: horizon: "), err
-        assert "over T = 3,000 steps" in err and "use a horizon of at most 6" in err and "steps with memory = 7" in err, err
-    # the time limit alone refuses too, with the same suggestion
+    assert main(["design", str(_scenario(tmp_path, 3000, None))]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("teamkf: error: horizon: "), err
+    assert "over T = 3,000 steps needs about 2.5 TiB" in err and "set the mtmse_lossy option memory = 16" in err, err
+    sc = load_scenario(_scenario(tmp_path, 3000, 16))
+    arr = ArrivalModel.build(sc.graph, 0.2, 0)
+    _lossy_size.check(sc.system, arr, 3000, 16, sc.cost.dz, False)  # fits (measured: 0.27 GiB peak, 10 s of CPU)
+    assert _lossy_size.estimate(sc.system.dy, arr.ell, arr.prob, 3000, 16, sc.system.dx, sc.cost.dz, False)[0] < 0.7 * GIB
+    assert main(["design", str(_scenario(tmp_path, 100_000, 16))]) == 2
+    err = capsys.readouterr().err
+    assert (
+        err.count("\n") == 1 and "over T = 100,000 steps (memory = 16)" in err and "use a horizon of at most 31,666 steps with memory = 7" in err
+    ), err
+    # the time limit alone refuses too, with the same kind of suggestion
     monkeypatch.setattr(_budget, "available_memory", lambda: 10**6 * GIB)
     assert main(["--max-hours", "0.0003", "design", str(_scenario(tmp_path, 3000, 16))]) == 2
     err = capsys.readouterr().err
@@ -133,7 +142,7 @@ def test_slices_rebuild_the_agents_bit_for_bit_under_drops(tmp_path: Path) -> No
     agents = []
     for i in range(6):
         kind, arrays, meta = read_slice(str(f), sc, "mtmse_lossy", i)
-        assert kind == "lossy" and arrays["F/13"].shape[1] == 14  # its fills act on its own 14 items
+        assert kind == "lossy" and arrays["F/13"].shape[1] == 7  # its fills act on its own last 2 m - 1 = 7 items
         agents.append(agent_from_slice(kind, ctx, i, arrays, meta)[1])
     with pytest.raises(IndexError, match="holds nothing of agent 1"):
         agents[2].design.gains[3][1]

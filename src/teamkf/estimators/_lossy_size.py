@@ -140,7 +140,7 @@ def suggest(system: Any, arr: Any, T: int, memory: int | None, dz: int, kinds: A
                 f"{_budget.format_seconds(t)} or more; its exact cost is reported, see docs/lossy-design.md), or use a shorter horizon"
             )
     m = lmax + 1 if memory is None else min(memory, lmax + 1)
-    lo, hi = 0, T  # the longest horizon that fits with memory m (its moments over every step grow like T^2 whatever the memory)
+    lo, hi = 0, T  # the longest horizon that fits with memory m (what it keeps grows like T: counted without the steady form's reuse)
     while hi - lo > 1:
         mid = (lo + hi) // 2
         if _fits(system, arr, mid, m, dz, False, kinds(m), avail, limit)[0]:
@@ -149,7 +149,7 @@ def suggest(system: Any, arr: Any, T: int, memory: int | None, dz: int, kinds: A
             hi = mid
     if lo < 1:
         return "use a smaller team or fewer measurement rows"
-    return f"use a horizon of at most {lo:,} steps with memory = {m} (the moments of every step grow like T^2 whatever the memory)"
+    return f"use a horizon of at most {lo:,} steps with memory = {m} (with a memory the kept gains, fills and items grow like T)"
 
 
 def check(system: Any, arr: Any, T: int, memory: int | None, dz: int, prefix: bool, kinds: Any = lambda m: 1) -> None:

@@ -160,6 +160,12 @@ def solve(
         Lb = block_diag(*[L[i * dz : (i + 1) * dz] for i in range(n)])
         c0 = float(np.trace(S @ Lb @ P[np.ix_(ex, ex)] @ Lb.T))
         locs[k] = c0
+        if frozen is not None:  # steady: the frozen gains' exact cost, a linear functional of cov z(k); items shifted
+            stages[k] = float(np.sum(frozen["Mop"] * P))
+            gains.append(frozen["G"])
+            fills.append(frozen["F"])
+            items.append(ShiftedItems(frozen["items"], k - frozen["k"]))
+            continue
         w = min(k + 1, 2 * m - 1)  # the fills act on the agent's own items u_i(k - w + 1 : k)
         slot_i, slot_j, slot_s = [], [], []
         per_agent: list[list[tuple[int, int]]] = []
@@ -171,12 +177,7 @@ def solve(
                 slot_j.append(j)
                 slot_s.append(s)
         ag, sr, st = np.array(slot_i, dtype=int), np.array(slot_j, dtype=int), np.array(slot_s, dtype=int)
-        items.append(per_agent)
-        if frozen is not None and "Mop" in frozen:  # steady: the frozen gains' exact cost, a linear functional of cov z(k)
-            stages[k] = float(np.sum(frozen["Mop"] * P))
-            gains.append(frozen["G"])
-            fills.append(frozen["F"])
-            continue
+        items.append(tuple(tuple(x) for x in per_agent))
         # fills of the items due now (best linear predictor from the own window), kept while the item is live
         if fill and frozen is None:
             for i in range(n):
@@ -252,18 +253,48 @@ def solve(
             prev = cur
             if calm >= STEADY_STEPS and k < T - 1:
                 Mop = _operator(g, q, M11, F_list, Lb, S, ex, cols, own, b, zidx, rr, n * dz, dim)
-                frozen = {"G": G_list, "F": F_list, "Mop": Mop}
+                frozen = {"G": G_list, "F": F_list, "Mop": Mop, "items": items[-1], "k": k}
                 info["steady_from"] = k + 1
                 # the same cost two ways at this step: the solved c₀ - ⟨G, η⟩ and the operator's ⟨𝓜, P_z(k)⟩
                 info["steady_check"] = (float(stages[k]), float(np.sum(Mop * P)))
         gains.append(G_list)
         fills.append(F_list)
-    return items, gains, fills, stages, locs, Ks, info
+    return tuple(items), gains, fills, stages, locs, Ks, info
+
+
+class ShiftedItems:
+    """The items of every agent at a step of the steady form: those of the frozen step, ``shift`` steps later (no copies kept)."""
+
+    __slots__ = ("base", "shift")
+
+    def __init__(self, base: tuple[tuple[tuple[int, int], ...], ...], shift: int):
+        self.base, self.shift = base, int(shift)
+
+    def __getitem__(self, i: int) -> tuple[tuple[int, int], ...]:
+        return tuple((j, s + self.shift) for j, s in self.base[i])
+
+    def __len__(self) -> int:
+        return len(self.base)
+
+    def __iter__(self) -> Any:
+        return (self[i] for i in range(len(self.base)))
 
 
 def _operator(
-    g: FloatArray, q: FloatArray, M11: FloatArray, F_list: list[FloatArray], Lb: FloatArray, S: FloatArray, ex: np.ndarray, cols: np.ndarray,
-    own: list[np.ndarray], b: list[np.ndarray], zidx: np.ndarray, rr: np.ndarray, nz: int, dim: int,
+    g: FloatArray,
+    q: FloatArray,
+    M11: FloatArray,
+    F_list: list[FloatArray],
+    Lb: FloatArray,
+    S: FloatArray,
+    ex: np.ndarray,
+    cols: np.ndarray,
+    own: list[np.ndarray],
+    b: list[np.ndarray],
+    zidx: np.ndarray,
+    rr: np.ndarray,
+    nz: int,
+    dim: int,
 ) -> FloatArray:
     """𝓜 with J_k = ⟨𝓜, cov z(k)⟩ for fixed gains g and fills: err = Φ₀ z - G D Ψ z (module docstring)."""
     R = cols.size
@@ -308,6 +339,8 @@ def estimate(dy: Any, ell: Any, prob: Any, T: int, memory: int, dx: int, dz: int
     Rz = Rk * dz
     per_step = 8 * (3 * dim * dim + 6 * Rk * Rk + 2 * Rz * Rz + 2 * Rk * dim + Sk * Sk)
     kept = T * (8 * (F + Rz) + 120 * Sk + 400 * n)  # fills, gains and the item tuples of every step (no steady reuse assumed)
-    flops = T * (Rz**3 / 3 + 12 * Rk * Rk + 2 * Rk * dim * (2 * m - 1) * dyt / max(n, 1) + 4 * dim * (n + 1) * dx * dx + 2 * Rk * Rk * dim / max(n, 1))
+    flops = T * (
+        Rz**3 / 3 + 12 * Rk * Rk + 2 * Rk * dim * (2 * m - 1) * dyt / max(n, 1) + 4 * dim * (n + 1) * dx * dx + 2 * Rk * Rk * dim / max(n, 1)
+    )
     loops = T * (Sk * 20 + 2000)
     return per_step + kept, flops, loops

@@ -797,7 +797,7 @@ def design_mtmse_lossy(
         memory=mem,
         coordinates=coords,
         arrivals=arr,
-        items=tuple(tuple(tuple(it) for it in step) for step in held),
+        items=held if isinstance(held, tuple) else tuple(tuple(tuple(it) for it in step) for step in held),  # windowed: built lazily
         gains=tuple(tuple(step) for step in gains),
         fills=tuple(tuple(step) for step in fills),
         K_local=tuple(tuple(K) for K in K_loc),

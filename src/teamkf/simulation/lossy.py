@@ -656,7 +656,8 @@ def _run_lossy_team(agents: Sequence[Any], ys: Sequence[FloatArray], t: np.ndarr
             z = xh[i] @ d.cost.L_block(i, k).T
             its = d.items[k][i]
             if its:
-                fill = np.concatenate([mine[i][s] for s in range(k + 1)], axis=-1) @ d.fills[k][i].T
+                w = d.fills[k][i].shape[1] // sysm.dy[i] if sysm.dy[i] else k + 1  # the fills act on the last w own items
+                fill = np.concatenate([mine[i][s] for s in range(k + 1 - w, k + 1)], axis=-1) @ d.fills[k][i].T
                 parts, col = [], 0
                 for j, s in its:
                     dj = int(sysm.dy[j])
