@@ -12,12 +12,17 @@ measurement sizes alone (no loop over :math:`T`), with the shapes the design act
 * the per-step fills kept by the design: :math:`\sum_k \sum_i r_i(k)\,(k + 1) d_y^i` numbers,
   :math:`r_i(k)` the rows live at agent i at step k (cubic in :math:`T` without a memory).
 
+With ``memory = m`` the windowed form (:mod:`teamkf.estimators._lossy_window`) is counted instead: arrays of a fixed
+size per step (the lifted covariance, Γ of the live rows) plus the gains, fills and items kept for every step, counted
+without the steady form's reuse (an upper bound: once it is steady nothing of the size of a step is kept).
+
 Measured peaks (platoon-6, line graph, delay 2, p = 0.2, one core): T = 40: 88 MiB, 80: 304 MiB,
-120: 652 MiB, 160: 1174 MiB (memory = 5: T = 40: 8.6, 80: 30 MiB); :func:`estimate` gives 59, 261, 607, 1095 (8, 29) MiB: it
-counts the arrays, not the interpreter, so it stays a little below (never a premature refusal). T = 300: 3.9 GiB
+120: 652 MiB, 160: 1174 MiB; :func:`estimate` gives 59, 261, 607, 1095 MiB: it counts the arrays, not the interpreter, so it
+stays a little below (never a premature refusal). memory = 5 (windowed): T = 80: 2.6 MiB, 400: 7.8 MiB above the process
+before the design, estimated 5.9 and 17.6 MiB. T = 300: 3.9 GiB
 estimated, 4.1 GiB measured (51 s of CPU); T = 3000: 2.5 TiB estimated, refused at once. ring-6-lossy (a two-way ring,
-delay-2 links, p = 0.2), T = 300: full 3.9 GiB estimated, 4.2 GiB measured (34 s of CPU); memory = 16: 0.53 GiB estimated,
-0.61 GiB measured (14 s), 0.36 % above the full design's exact cost.
+delay-2 links, p = 0.2), T = 300: full 3.9 GiB estimated, 4.2 GiB measured (34 s of CPU); memory = 16 (windowed): 89 MiB
+estimated, 134 MiB peak RSS (5 s); T = 3000, memory = 16: 653 MiB estimated, 269 MiB peak RSS (10 s).
 
 A refused design is told what fits (:func:`suggest`): the largest ``memory`` up to 2 ℓ_max + :data:`MEMORY_SLACK` that
 fits the memory and the work limit, with its estimate, else the longest horizon that fits.
