@@ -188,3 +188,28 @@ def test_deploy_over_drops_ships_slices_and_filter_replays_it(tmp_path: Path) ->
     assert "designs the team" not in proc.stderr  # the agents got their slices
     assert main(["--quiet", "filter", str(sp), "--measurements", str(log), "--drops", str(rec), "--out", str(rep)]) == 0
     assert out.read_bytes() == rep.read_bytes()
+
+
+# ---------------------------------------------------------------------------
+# the steady form: gains frozen once they converge, later costs exact
+# ---------------------------------------------------------------------------
+def test_steady_form_is_causal_exact_and_its_own_monte_carlo(ring3: Any) -> None:
+    """memory = 3 over T = 150 (innovation items): the gains freeze once converged (the same arrays reused), the design of a longer horizon
+    has the same first stages (nothing depends on T), the frozen cost is the solved one at the freeze step, and the
+    exact total is its own Monte Carlo (2000 runs with drops) within 4 standard errors."""
+    sysm, cost, g = ring3
+    d = design_mtmse_lossy(sysm, cost, g, 150, p_drop=0.3, memory=3, items="innovations")
+    k0 = d.info["steady_from"]
+    assert k0 is not None and 6 <= k0 < 100, k0
+    assert all(d.gains[k][1] is d.gains[k0][1] for k in range(k0, 150)) and d.fills[149][2] is d.fills[k0][2]
+    assert d.items[149][0] == tuple((j, s + 149 - k0) for j, s in d.items[k0][0])  # the frozen items, shifted
+    solved, operator = d.info["steady_check"]
+    assert operator == pytest.approx(solved, rel=1e-10)
+    long = design_mtmse_lossy(sysm, cost, g, 300, p_drop=0.3, memory=3, items="innovations")
+    np.testing.assert_allclose(long.stage_costs[:150], d.stage_costs, rtol=1e-12)
+    assert long.stage_costs[299] == pytest.approx(long.stage_costs[200], rel=1e-7)  # stationary
+    paths = sample_paths(sysm, 150, 2000, rng=8)
+    e = d.errors(paths, p_drop=0.3, rng=9)
+    c = np.einsum("rki,ij,rkj->r", e, cost.S_at(0), e)
+    se = c.std(ddof=1) / np.sqrt(c.size)
+    assert abs(c.mean() - d.total_cost) < 4 * se, (c.mean(), se, d.total_cost)
