@@ -60,8 +60,8 @@ is stable (detectable agents); with innovation items no quantity of the size of 
 (unstable processes are fine), raw measurements are y = B ν.
 
 Complexity: R = Σ_i Σ_j d_y^j (T - ℓ_ji) slot rows; O(R³/3) once (one factorization), or with
-``memory = m`` O(T (m Σ_i Σ_j d_y^j)³) (a factorization per step; items older than m steps are not
-used, the own ones stay in x̂_i(k|k) and the fills). Sized before anything is allocated
+``memory = m`` the windowed form of :mod:`teamkf.estimators._lossy_window` (a factorization per step of the live
+items, fills from a window of own items, moments from a lifted recursion of fixed size, gains reused once steady). Sized before anything is allocated
 (:mod:`teamkf.estimators._lossy_size`): a design beyond the memory or work limit is refused naming a memory that fits.
 
 Lower bound
@@ -685,7 +685,8 @@ def design_mtmse_lossy(
     jitter : int >= 0 or {(source, target): J}
         A packet late by 1..J steps counts as lost (its item is not used): on-time probability (1 - p)/(J + 1).
     memory : int or None
-        Use only the innovations of the last ``memory`` steps (bounds the work; None: all, the exact class).
+        Use only the items of the last ``memory`` steps, missed ones filled from the agent's own items of a window, with
+        a steady form for long horizons (:mod:`teamkf.estimators._lossy_window`; exact cost); None: all, the full class.
     items : "auto", "measurements" or "innovations"
         What the agents flood and the gains act on: the raw measurements y_j(s), or the innovations
         ν_j(s) of the sender's own Kalman filter. Both give MTMSE at p = 0 and the own-history optimum
