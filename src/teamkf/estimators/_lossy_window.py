@@ -74,7 +74,7 @@ def _m11(arr: Any, agent: np.ndarray, src: np.ndarray, step: np.ndarray) -> Floa
 
 def solve(
     system: Any, cost: Any, arr: Any, T: int, memory: int, fill: bool, coords: str, progress: bool | None
-) -> tuple[list[Any], list[Any], list[Any], np.ndarray, np.ndarray, list[list[FloatArray]], dict[str, Any]]:
+) -> tuple[tuple[Any, ...], list[Any], list[Any], np.ndarray, np.ndarray, list[list[FloatArray]], dict[str, Any]]:
     """Items, gains, fills (on the agent's last w own items), stage costs, local costs, local gains and info."""
     from .._resources import progress as _progress
 
@@ -247,8 +247,8 @@ def solve(
         if steady_ok and k >= 2 * m - 1 and R:
             cur = (g, np.concatenate([F.ravel() for F in F_list]))
             if prev is not None and prev[0].shape == cur[0].shape and prev[1].shape == cur[1].shape:
-                dg = np.linalg.norm(cur[0] - prev[0]) / max(np.linalg.norm(cur[0]), 1e-300)
-                df = np.linalg.norm(cur[1] - prev[1]) / max(np.linalg.norm(cur[1]), 1e-300)
+                dg = float(np.linalg.norm(cur[0] - prev[0])) / max(float(np.linalg.norm(cur[0])), 1e-300)
+                df = float(np.linalg.norm(cur[1] - prev[1])) / max(float(np.linalg.norm(cur[1])), 1e-300)
                 calm = calm + 1 if max(dg, df) <= STEADY_TOL else 0
             prev = cur
             if calm >= STEADY_STEPS and k < T - 1:

@@ -763,7 +763,7 @@ def design_mtmse_lossy(
         if mem is not None:  # windowed fills, a lifted moment recursion and a steady form: memory independent of T
             from . import _lossy_window
 
-            tried = {c: _lossy_window.solve(system, cost, arr, T, mem, fill, c, progress) for c in candidates}
+            tried: dict[str, Any] = {c: _lossy_window.solve(system, cost, arr, T, mem, fill, c, progress) for c in candidates}
         else:
             mom0 = local_filter_moments(system, T)
             tried = {c: (*_solve_all(system, cost, arr, _item_moments(system, mom0, T, c), T, mem, fill, progress), mom0.K, {}) for c in candidates}
