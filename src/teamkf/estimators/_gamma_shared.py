@@ -35,7 +35,6 @@ from typing import Any
 import numpy as np
 
 from .._blas import single_thread_blas
-from .._lazy import scipy_sparse as sp
 from .._lazy import scipy_sparse_linalg as spla
 from .._validation import FloatArray
 from ..exceptions import ArgumentError, ConvergenceError, NotPositiveDefiniteError
@@ -105,6 +104,22 @@ def block_mask(idx: list[np.ndarray], w: int, n_src: int, m0: int) -> np.ndarray
     return mask
 
 
+def _diagonals(S: FloatArray) -> list[tuple[int, FloatArray]] | None:
+    """The nonzero diagonals (d, s) of S, s[r] = S[r, r + d] (main diagonal first), or None when there are many."""
+    R = S.shape[0]
+    rows, cols = np.nonzero(S)
+    offsets = sorted(set((cols - rows).tolist()), key=lambda d: (d != 0, abs(d), d))
+    if len(offsets) > max(3, R // 8) or (offsets and offsets[0] != 0):
+        return None
+    out = []
+    for d in offsets:
+        s = np.zeros(R)
+        r = np.arange(max(0, -d), R - max(0, d))
+        s[r] = S[r, r + d]
+        out.append((d, s))
+    return out
+
+
 def _sym_inv(M: FloatArray, what: str) -> FloatArray:
     try:
         Lc = np.linalg.cholesky(0.5 * (M + np.swapaxes(M, -1, -2)))
@@ -154,9 +169,15 @@ class SharedSensorInnovations:
         self.shape = (self.w, self.n, self.dz, self.n_src, self.m0)
         mk = np.ascontiguousarray(mask.transpose(1, 0, 2), dtype=float)  # (w, n_a, n_s)
         self._mk = mk[:, :, None, :, None]  # broadcasts against (w, n_a, dz, n_s, m0)
-        density = np.count_nonzero(self.S) / max(self.S.size, 1)
-        self._S_op = sp.csr_matrix(self.S) if density < 0.25 else np.asarray(self.S, dtype=float)
-        self._Rdiag = [np.diag(R).copy() if not np.any(R - np.diag(np.diag(R))) else None for R in win.R]
+        self._diags = _diagonals(np.asarray(self.S, dtype=float))
+        self.Cs = np.stack([np.asarray(C, dtype=float) for C in win.C])  # (w, m0, dx)
+        self.CsT = np.ascontiguousarray(np.swapaxes(self.Cs, 1, 2))
+        self.As = np.stack(win.A) if self.w > 1 else np.zeros((0, self.dx, self.dx))
+        self.AsT = np.ascontiguousarray(np.swapaxes(self.As, 1, 2))
+        self.Qs = np.stack(win.Q) if self.w > 1 else np.zeros((0, self.dx, self.dx))
+        self.Rs = np.stack([np.asarray(R, dtype=float) for R in win.R])  # (w, m0, m0)
+        diag = all(not np.any(R - np.diag(np.diag(R))) for R in self.Rs)
+        self._Rd = np.stack([np.diag(R) for R in self.Rs])[:, None, None, None, :] if diag else None  # (w, 1, 1, 1, m0)
         with single_thread_blas():
             self._filter()
 
@@ -194,92 +215,104 @@ class SharedSensorInnovations:
                 A = win.A[u]
                 P = A @ P @ A.T + win.Q[u]
                 P = 0.5 * (P + np.swapaxes(P, 1, 2))
+        self.R_inv_s = np.stack(self.R_inv)
+        self._count = np.ascontiguousarray(counts.T, dtype=float)  # (w, n_a)
         self.GT = np.ascontiguousarray(np.swapaxes(self.G, 2, 3))
         self.KpT = np.ascontiguousarray(np.swapaxes(self.Kp, 2, 3))
 
     # --- the filters as maps between noise coordinates and innovations ----------
+    # Each pass is one loop over the window of small batched products (d_x-sized rows per agent); the
+    # products over the padded (w, n_a, dz, n_s, m0) arrays are made once, outside the loop.
     def _forward(self, psi: _Noise) -> FloatArray:
         """Innovations of every agent (padded, shape ``self.shape``) for the noise rows psi."""
         e0, wn, vn = psi
-        win = self.window
-        E = np.empty(self.shape)
+        vr = vn * self._mk
+        vsum = vr.sum(axis=3)  # (w, n_a, dz, m0): the blocks each agent holds, summed
+        xiC = np.empty(vsum.shape)
         xi = e0  # eps(u) - x^_i(u|u-1), rows (n_a, dz, dx)
         for u in range(self.w):
-            mk = self._mk[u]
-            vr = vn[u] * mk
-            np.multiply((xi @ win.C[u].T)[:, :, None, :], mk, out=E[u])
-            E[u] += vr
-            xi = xi @ self.GT[u] - vr.sum(axis=2) @ self.KpT[u]
+            np.matmul(xi, self.CsT[u], out=xiC[u])
+            xi = xi @ self.GT[u] - vsum[u] @ self.KpT[u]
             if u < self.w - 1:
-                xi = xi @ win.A[u].T + wn[u]
-        return E
+                xi = xi @ self.AsT[u] + wn[u]
+        vr += xiC[:, :, :, None, :] * self._mk
+        return vr
 
     def _adjoint(self, phi: FloatArray | None, terminal: FloatArray) -> _Noise:
         """Noise sensitivities of phi e_i + terminal (eps(w-1) - x^_i(w-1|w-1)), rows (n_a, dz)."""
-        win, w = self.window, self.w
+        w = self.w
         wn = np.empty((max(w - 1, 0), self.n, self.dz, self.dx))
-        vn = np.empty(self.shape)
+        lk = np.empty((w, self.n, self.dz, self.m0))
+        gC = None if phi is None else np.matmul(phi.sum(axis=3), self.Cs[:, None])  # (w, n_a, dz, dx)
         lam = terminal
         for u in range(w - 1, -1, -1):
             if u < w - 1:
                 wn[u] = lam
-                lp = lam @ win.A[u]
+                lp = lam @ self.As[u]
             else:
                 lp = terminal
-            lk = (lp @ self.Kp[u])[:, :, None, :] * self._mk[u]
-            if phi is not None:
-                g = phi[u]
-                np.subtract(g, lk, out=vn[u])
-                lam = g.sum(axis=2) @ win.C[u] + lp @ self.G[u]
-            else:
-                np.negative(lk, out=vn[u])
-                lam = lp @ self.G[u]
+            np.matmul(lp, self.Kp[u], out=lk[u])
+            lam = lp @ self.G[u]
+            if gC is not None:
+                lam += gC[u]
+        vn = lk[:, :, :, None, :] * self._mk
+        if phi is not None:
+            np.subtract(phi, vn, out=vn)
+        else:
+            np.negative(vn, out=vn)
         return lam, wn, vn
 
     def _data_adjoint(self, phi: FloatArray, terminal: FloatArray) -> FloatArray:
         """Coefficients on every agent's local data (padded) of phi e_i + terminal x^_i(w-1|w-1)."""
-        win = self.window
-        out = np.empty(self.shape)
+        w = self.w
+        gC = np.matmul(phi.sum(axis=3), self.Cs[:, None])  # (w, n_a, dz, dx)
+        kk = np.empty((w, self.n, self.dz, self.m0))
         mu = terminal
-        for u in range(self.w - 1, -1, -1):
-            mp = terminal if u == self.w - 1 else mu @ win.A[u]
-            np.multiply((mp @ self.Kp[u])[:, :, None, :], self._mk[u], out=out[u])
-            out[u] += phi[u]
-            mu = mp - out[u].sum(axis=2) @ win.C[u]
+        for u in range(w - 1, -1, -1):
+            mp = terminal if u == w - 1 else mu @ self.As[u]
+            np.matmul(mp, self.Kp[u], out=kk[u])
+            mu = mp - gC[u] - (kk[u] * self._count[u][:, None, None]) @ self.Cs[u]  # the m held blocks each add mp K_p
+        out = kk[:, :, :, None, :] * self._mk
+        out += phi
         return out
 
-    def _rows(self, X: FloatArray) -> FloatArray:
-        return X.reshape(self.n * self.dz, -1)
-
     def _mix(self, X: FloatArray) -> FloatArray:
-        """S applied to the rows (agent, a) of X (n_a, dz, ...)."""
-        return np.asarray(self._S_op @ self._rows(X)).reshape(X.shape)
+        """S applied to the rows (agent, a) of X (T, n_a, dz, ...): by its nonzero diagonals when S is banded."""
+        T, R = X.shape[0], self.n * self.dz
+        Xr = X.reshape(T, R, -1)
+        if self._diags is None:
+            return np.matmul(np.asarray(self.S, dtype=float), Xr).reshape(X.shape)
+        out = np.empty_like(Xr)
+        for t, (d, s) in enumerate(self._diags):
+            lo, hi = max(0, -d), R - max(0, d)
+            if t == 0:  # the main diagonal (S_ii > 0) first
+                np.multiply(Xr, s[:, None], out=out)
+            else:
+                out[:, lo:hi] += Xr[:, lo + d : hi + d] * s[lo:hi, None]
+        return out.reshape(X.shape)
 
-    def _times_R(self, u: int, V: FloatArray) -> FloatArray:
-        Rd = self._Rdiag[u]
-        return V * Rd if Rd is not None else V @ self.window.R[u]
+    def _times_R(self, V: FloatArray) -> FloatArray:
+        """V (w, n_a, dz, n_s, m0) times R(u) on every block."""
+        if self._Rd is not None:
+            V *= self._Rd
+            return V
+        return np.matmul(V, self.Rs[:, None, None])
 
     def _weight(self, psi: _Noise, mix: bool = True) -> _Noise:
         """S psi Lambda, Lambda = blockdiag(P0, Q, R): the noise covariance."""
         e0, wn, vn = psi
-        win = self.window
-        f = self._mix if mix else (lambda X: X)
-        out_w = np.empty_like(wn)
-        for u in range(self.w - 1):
-            out_w[u] = f(wn[u]) @ win.Q[u]
-        out_v = np.empty_like(vn)
-        for u in range(self.w):
-            out_v[u] = self._times_R(u, f(vn[u]))
-        return f(e0) @ win.P0, out_w, out_v
+        if mix:
+            e0, wn, vn = self._mix(e0[None])[0], self._mix(wn), self._mix(vn)
+        else:
+            vn = vn.copy()
+        return e0 @ self.window.P0, np.matmul(wn, self.Qs[:, None]), self._times_R(vn)
 
     def _noise_cost(self, X: _Noise) -> float:
         """sum Tr(S X Lambda X') over the noise blocks: non-negative terms, no cancellation."""
         XL = self._weight(X, mix=False)
-        J = float(np.sum(self._mix(XL[0]) * X[0]))
-        for a, b in zip(X[1], XL[1]):
-            J += float(np.sum(self._mix(b) * a))
-        for a, b in zip(X[2], XL[2]):
-            J += float(np.sum(self._mix(b) * a))
+        J = float(np.sum(self._mix(XL[0][None])[0] * X[0]))
+        J += float(np.sum(self._mix(XL[1]) * X[1]))
+        J += float(np.sum(self._mix(XL[2]) * X[2]))
         return J
 
     def apply_flat(self, x: FloatArray) -> FloatArray:
@@ -290,12 +323,16 @@ class SharedSensorInnovations:
     def _precondition(self, v: FloatArray) -> FloatArray:
         """Block Jacobi S_ii^-1 X blockdiag_u(N_i(u)^-1) = Gamma^_ii^-1."""
         X = v.reshape(self.shape)
-        out = np.empty(self.shape)
-        for u in range(self.w):
-            Rd = self._Rdiag[u]
-            T = X[u] * (1.0 / Rd) if Rd is not None else X[u] @ self.R_inv[u]
-            T += ((X[u].sum(axis=2) @ self.Y[u])[:, :, None, :]) * self._mk[u]
-            out[u] = (self._S_inv @ T.reshape(self.n, self.dz, -1)).reshape(T.shape)
+        corr = np.matmul(X.sum(axis=3), self.Y)  # (w, n_a, dz, m0): (sum_q X_q) Y
+        if self._Rd is not None:
+            out = X / self._Rd
+        else:
+            out = np.matmul(X, self.R_inv_s[:, None, None])
+        out += corr[:, :, :, None, :] * self._mk
+        if self.dz == 1:
+            out *= self._S_inv[:, 0, 0][None, :, None, None, None]
+        else:
+            out = np.einsum("iab,uibpr->uiapr", self._S_inv, out)
         return out.ravel()
 
     # --- solving -------------------------------------------------------------
