@@ -35,7 +35,6 @@ from typing import Any
 import numpy as np
 
 from .._blas import single_thread_blas
-from .._lazy import scipy_sparse_linalg as spla
 from .._validation import FloatArray
 from ..exceptions import ArgumentError, ConvergenceError, NotPositiveDefiniteError
 
@@ -335,6 +334,118 @@ class SharedSensorInnovations:
             out = np.einsum("iab,uibpr->uiapr", self._S_inv, out)
         return out.ravel()
 
+    # --- the operator and the preconditioner for CG: in place, few passes ---------
+    def _setup_cg(self) -> None:
+        """Buffers and folded coefficients of :meth:`_apply_into` (banded S, diagonal R) and :meth:`_precondition_into`."""
+        dz, n = self.dz, self.n
+        self._S_inv = np.stack([np.linalg.inv(self.S[i * dz : (i + 1) * dz, i * dz : (i + 1) * dz]) for i in range(n)])
+        self._fast = self._diags is not None and self._Rd is not None
+        self._buf = [np.empty(self.shape) for _ in range(2)]
+        if self._fast:
+            Rd = self._Rd[:, 0, 0]  # (w, 1, m0)
+            same = bool(np.all(Rd == Rd[:1]))
+            Rd = Rd[:1] if same else Rd
+            # S_ij R(u) on the rows (agent, a): coefficient of the diagonal d, broadcast against (w, n_a dz, n_s, m0)
+            self._coef = [(d, sd[None, :, None, None] * Rd[:, None]) for d, sd in self._diags]
+            if dz == 1:  # S_ii^-1 R(u)^-1, and S_ii^-1 for the rank-one correction
+                sinv = self._S_inv[:, 0, 0]
+                self._pc1 = sinv[None, :, None, None, None] / self._Rd
+                self._pc2 = sinv[None, :, None, None]
+
+    def _mix_R_into(self, X: FloatArray, out: FloatArray, tmp: FloatArray) -> None:
+        """out = S X R (R on every block), by the diagonals of S with R folded in."""
+        T, R = X.shape[0], self.n * self.dz
+        Xr, Or, Tr = X.reshape(T, R, self.n_src, -1), out.reshape(T, R, self.n_src, -1), tmp.reshape(T, R, self.n_src, -1)
+        for t, (d, c) in enumerate(self._coef):
+            lo, hi = max(0, -d), R - max(0, d)
+            if t == 0:
+                np.multiply(Xr, c, out=Or)
+            else:
+                np.multiply(Xr[:, lo + d : hi + d], c[:, lo:hi], out=Tr[:, lo:hi])
+                Or[:, lo:hi] += Tr[:, lo:hi]
+
+    def _apply_into(self, x: FloatArray, out: FloatArray) -> None:
+        """out = Gamma^ x (as :meth:`apply_flat`) with two work arrays and about twelve passes over them."""
+        if not self._fast:
+            out[:] = self.apply_flat(x)
+            return
+        w, mk = self.w, self._mk
+        F = x.reshape(self.shape)
+        V, W = self._buf
+        # adjoint: noise sensitivities of F e (no terminal term)
+        gC = np.matmul(F.sum(axis=3), self.Cs[:, None])  # (w, n_a, dz, dx)
+        lk = np.empty((w, self.n, self.dz, self.m0))
+        wn = np.empty((max(w - 1, 0), self.n, self.dz, self.dx))
+        lam = np.zeros((self.n, self.dz, self.dx))
+        for u in range(w - 1, -1, -1):
+            if u < w - 1:
+                wn[u] = lam
+                lp = lam @ self.As[u]
+            else:
+                lp = lam
+            np.matmul(lp, self.Kp[u], out=lk[u])
+            lam = lp @ self.G[u] + gC[u]
+        np.multiply(lk[:, :, :, None, :], mk, out=V)
+        np.subtract(F, V, out=V)
+        # weight: S (.) Lambda
+        e0 = self._mix(lam[None])[0] @ self.window.P0
+        wn = np.matmul(self._mix(wn), self.Qs[:, None])
+        self._mix_R_into(V, W, out.reshape(self.shape))
+        # forward: the agents' innovations
+        np.multiply(W, mk, out=W)
+        vsum = W.sum(axis=3)
+        xiC = np.empty(vsum.shape)
+        xi = e0
+        for u in range(w):
+            np.matmul(xi, self.CsT[u], out=xiC[u])
+            xi = xi @ self.GT[u] - vsum[u] @ self.KpT[u]
+            if u < w - 1:
+                xi = xi @ self.AsT[u] + wn[u]
+        E = out.reshape(self.shape)
+        np.multiply(xiC[:, :, :, None, :], mk, out=E)
+        E += W
+
+    def _precondition_into(self, v: FloatArray, out: FloatArray) -> None:
+        """out = block Jacobi S_ii^-1 X blockdiag_u(N_i(u)^-1) applied to v."""
+        if not (self._fast and self.dz == 1):
+            out[:] = self._precondition(v)
+            return
+        X, O = v.reshape(self.shape), out.reshape(self.shape)
+        corr = np.matmul(X.sum(axis=3), self.Y)  # (w, n_a, 1, m0)
+        corr *= self._pc2
+        np.multiply(X, self._pc1, out=O)
+        T = self._buf[0]
+        np.multiply(corr[:, :, :, None, :], self._mk, out=T)
+        O += T
+
+    def _pcg(self, b: FloatArray, rtol: float, maxiter: int) -> tuple[FloatArray, int]:
+        """Preconditioned CG as scipy.sparse.linalg.cg (same iterates, same stopping rule), in place: (x, 0 or maxiter)."""
+        from .._lazy import scipy_linalg as sla
+
+        axpy, dot, nrm2 = sla.get_blas_funcs(("axpy", "dot", "nrm2"), (b,))
+        atol = rtol * float(nrm2(b))
+        x, r = np.zeros_like(b), b.copy()
+        z, p, q = np.empty_like(b), np.empty_like(b), np.empty_like(b)
+        rho_prev = 1.0
+        for it in range(maxiter):
+            if float(nrm2(r)) < atol:
+                self.iterations = it
+                return x, 0
+            self._precondition_into(r, z)
+            rho = float(dot(r, z))
+            if it == 0:
+                p[:] = z
+            else:
+                p *= rho / rho_prev
+                p += z
+            self._apply_into(p, q)
+            alpha = rho / float(dot(p, q))
+            axpy(p, x, a=alpha)
+            axpy(q, r, a=-alpha)
+            rho_prev = rho
+        self.iterations = maxiter
+        return x, maxiter
+
     # --- solving -------------------------------------------------------------
     def solve(self, *, rtol: float = 1e-12, max_iter: int | None = None) -> tuple[list[FloatArray], float]:
         """Gains F_i on the local data (idx order, (d_z, d_i) each) and their team cost (on one BLAS thread)."""
@@ -348,18 +459,10 @@ class SharedSensorInnovations:
         b = self._forward(self._weight(Xi)).ravel()
         x = np.zeros_like(b)
         if b.size and np.any(b):
-            self._S_inv = np.stack([np.linalg.inv(self.S[i * dz : (i + 1) * dz, i * dz : (i + 1) * dz]) for i in range(n)])
-            N = b.size
-            count = [0]
-
-            def cb(_: FloatArray) -> None:
-                count[0] += 1
-
-            A = spla.LinearOperator((N, N), matvec=self.apply_flat, dtype=float)
-            M = spla.LinearOperator((N, N), matvec=self._precondition, dtype=float)
+            self._setup_cg()
             maxiter = max_iter if max_iter is not None else max(1000, 10 * int(np.sqrt(self.size)))
-            x, info = spla.cg(A, b, rtol=rtol, atol=0.0, maxiter=maxiter, M=M, callback=cb)
-            self.iterations = count[0]
+            x, info = self._pcg(b, rtol, maxiter)
+            count = [self.iterations]
             if info != 0:
                 res = float(np.linalg.norm(self.apply_flat(x) - b)) / max(float(np.linalg.norm(b)), 1e-300)
                 raise ConvergenceError(
