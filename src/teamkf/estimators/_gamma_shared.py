@@ -339,17 +339,18 @@ class SharedSensorInnovations:
         """Buffers and folded coefficients of :meth:`_apply_into` (banded S, diagonal R) and :meth:`_precondition_into`."""
         dz, n = self.dz, self.n
         self._S_inv = np.stack([np.linalg.inv(self.S[i * dz : (i + 1) * dz, i * dz : (i + 1) * dz]) for i in range(n)])
-        self._fast = self._diags is not None and self._Rd is not None
+        diags, Rd_full = self._diags, self._Rd
+        self._fast = diags is not None and Rd_full is not None
         self._buf = [np.empty(self.shape) for _ in range(2)]
-        if self._fast:
-            Rd = self._Rd[:, 0, 0]  # (w, 1, m0)
+        if diags is not None and Rd_full is not None:
+            Rd = Rd_full[:, 0, 0]  # (w, 1, m0)
             same = bool(np.all(Rd == Rd[:1]))
             Rd = Rd[:1] if same else Rd
             # S_ij R(u) on the rows (agent, a): coefficient of the diagonal d, broadcast against (w, n_a dz, n_s, m0)
-            self._coef = [(d, sd[None, :, None, None] * Rd[:, None]) for d, sd in self._diags]
+            self._coef = [(d, sd[None, :, None, None] * Rd[:, None]) for d, sd in diags]
             if dz == 1:  # S_ii^-1 R(u)^-1, and S_ii^-1 for the rank-one correction
                 sinv = self._S_inv[:, 0, 0]
-                self._pc1 = sinv[None, :, None, None, None] / self._Rd
+                self._pc1 = sinv[None, :, None, None, None] / Rd_full
                 self._pc2 = sinv[None, :, None, None]
 
     def _mix_R_into(self, X: FloatArray, out: FloatArray, tmp: FloatArray) -> None:
