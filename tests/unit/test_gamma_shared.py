@@ -130,3 +130,11 @@ def test_information_form_steady_state_correlated_blocks():
     blocks = steady_state_kalman_blocks(A, C, np.eye(dx), R)
     for a, b in zip(dense, blocks):
         assert np.linalg.norm(a - b) <= 1e-12 * np.linalg.norm(a)
+
+
+def test_shared_sensor_cg_reports_non_convergence():
+    from teamkf.exceptions import ConvergenceError
+
+    _, new = both(LinearGaussianSystem.platoon(5), TeamCost.platoon(5, 100.0), CommGraph.line(5))
+    with pytest.raises(ConvergenceError, match="innovation coordinates"):
+        new.solve(max_iter=1, rtol=1e-15)
