@@ -643,6 +643,27 @@ def register_keyed(design: Any) -> None:
     _KEYED[:] = [design]
 
 
+#: the class containing the missed-packet rule (``fill="held"``), registered by :mod:`teamkf.estimators._lossy_rulefill`
+_HELD: list[Any] = []
+
+
+def register_held(design: Any) -> None:
+    """Called by :mod:`teamkf.estimators._lossy_rulefill` (it extends this module, which therefore never imports it)."""
+    _HELD[:] = [design]
+
+
+def _check_fill(v: Any, key: str) -> Any:
+    if isinstance(v, (bool, np.bool_)):
+        return bool(v)
+    if isinstance(v, str) and v.lower() in ("held", "own", "zero"):
+        return {"held": "held", "own": True, "zero": False}[v.lower()]
+    raise ArgumentError(
+        f"{key}: expected true (missed items filled from the own items), false (by zero) or \"held\" (the class containing "
+        f"the missed-packet rule), found {v!r}",
+        argument=key,
+    )
+
+
 def design_mtmse_lossy(
     system: LinearGaussianSystem,
     cost: TeamCost,
@@ -653,7 +674,8 @@ def design_mtmse_lossy(
     jitter: Any = 0,
     memory: int | None = None,
     items: str = "auto",
-    fill: bool = True,
+    fill: bool | str = True,
+    patterns: int | None = None,
     bound: bool = True,
     known_bound: int = 0,
     known_window: int | None = None,
@@ -687,8 +709,15 @@ def design_mtmse_lossy(
         :data:`AUTO_GROWTH` and the estimated work at most :data:`AUTO_WORK` flops; otherwise measurements
         when every A(k) is stable (spectral radius < 1), else innovations (bounded second moments on
         unstable processes).
-    fill : bool
+    fill : bool or "held"
         Replace a missed item by its predictor from the agent's own innovations (else by zero, its mean).
+        "held": the class that contains the nominal design under the missed-packet rule, today's class and the
+        local filters (:mod:`teamkf.estimators._lossy_rulefill`; gains on their estimates and on the agent's
+        conditional mean given what it holds; exact over every link pattern for small teams and horizons, else
+        fitted and costed on sampled patterns, ``info["sem"]``). Never worse than any of the three.
+    patterns : int or None
+        With ``fill="held"``: sample this many link patterns for the fit and as many fresh ones for the cost
+        (None: every pattern when there are at most ``EXACT_LIMIT``, else 400).
     threads : int or None
         BLAS threads for the design (1: robust on a shared machine; None: the library's default).
     bound : bool
@@ -739,6 +768,16 @@ def design_mtmse_lossy(
     _lossy_size.check(system, arr, T, mem, cost.dz, prefix=mem is None and not cost.is_time_varying)  # sized before anything is allocated
     kw = V.integer(keyed, "keyed", minimum=0, maximum=1, what="the window w (0: gains independent of the pattern, 1: keyed on the current arrivals)")
     candidates = _auto_items(system, arr, T, mem) if coords == "auto" else (coords,)
+    fill = _check_fill(fill, "fill")
+    if fill == "held":  # the class containing the missed-packet rule: a module of its own (as keyed below)
+        if kw or mem is not None:
+            raise ArgumentError(f"fill: 'held' has no keyed or memory variant, found keyed = {kw}, memory = {mem}; drop them", argument="fill")
+        if not _HELD:
+            from .registry import families
+
+            families()
+        npat = None if patterns is None else V.integer(patterns, "patterns", minimum=2)
+        return _HELD[0](system, cost, graph, T, p, J, arr, patterns=npat)  # type: ignore[no-any-return]
     if kw:  # gains keyed on the current arrivals: a module of its own, which imports this one and registers itself here
         if not _KEYED:
             from .registry import families
@@ -863,6 +902,18 @@ FAMILY = _register_builtin(
                 default=0,
                 check=lambda v, k: V.integer(v, k, minimum=0, maximum=1),
                 doc="1: gains keyed on the current arrivals (the items due at each step; small teams, no memory); 0: pattern-independent",
+            ),
+            Option(
+                name="fill",
+                default=True,
+                check=_check_fill,
+                doc='missed items: true (filled from the own items), false (zero), "held" (the class containing the missed-packet rule)',
+            ),
+            Option(
+                name="patterns",
+                default=None,
+                check=_check_memory,
+                doc='fill = "held": link patterns sampled for the fit and for the cost (none: all when few, else 400)',
             ),
             Option(
                 name="items",
