@@ -58,6 +58,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .. import _validation as V
 from .._lazy import scipy_linalg as sla
 from .._validation import FloatArray
 from ..exceptions import ArgumentError
@@ -267,10 +268,7 @@ class RuleFillDesign(Design):
             for c in range(codes.shape[0]):
                 rows = np.flatnonzero(inv == c)
                 held = tuple(
-                    int(v)
-                    for (j, s), b in zip(slots, codes[c].tolist())
-                    if b
-                    for v in (s * dyt + int(off[j]) + np.arange(sysm.dy[j])).tolist()
+                    int(v) for (j, s), b in zip(slots, codes[c].tolist()) if b for v in (s * dyt + int(off[j]) + np.arange(sysm.dy[j])).tolist()
                 )
                 H, g = self._cm_gain(i, k, held)
                 out[rows, i, dx + 2 * dz :] = Y[np.ix_(rows, H)] @ g.T  # [E[x(k) | H]; E[y(k-W+1 : k) | H]]
@@ -294,7 +292,9 @@ class RuleFillDesign(Design):
             "conditional mean given what is held]",
             "kept": self.kept,
             "window": self.window,
-            **{key: self.info[key] for key in ("exact", "patterns", "sem", "interval", "member_costs", "paired", "local_kf_cost") if key in self.info},
+            **{
+                key: self.info[key] for key in ("exact", "patterns", "sem", "interval", "member_costs", "paired", "local_kf_cost") if key in self.info
+            },
         }
 
     def arrays(self) -> dict[str, np.ndarray]:
@@ -475,13 +475,28 @@ def _patterns(arr: ArrivalModel, T: int, n: int, *, count: int, rng: np.random.G
 
 
 def design_rulefill(
-    system: Any, cost: Any, graph: Any, T: int, p: Any, J: Any, arr: ArrivalModel, *, patterns: int | None = None, window: int | None = None, rng: Any = 0
+    system: Any,
+    cost: Any,
+    graph: Any,
+    T: int,
+    p: Any,
+    J: Any,
+    arr: ArrivalModel,
+    *,
+    patterns: int | None = None,
+    keyed: int = 0,
+    memory: int | None = None,
+    window: int | None = None,
+    rng: Any = 0,
 ) -> RuleFillDesign:
     """``design_mtmse_lossy(..., fill="held")`` (module docstring): exact over every pattern when there are at most
     :data:`EXACT_LIMIT`, else fitted on ``patterns`` sampled patterns and costed on as many fresh ones."""
     from .registry import get_family
     from .team_lossy import design_mtmse_lossy
 
+    if keyed or memory is not None:
+        raise ArgumentError(f"fill: 'held' has no keyed or memory variant, found keyed = {keyed}, memory = {memory}; drop them", argument="fill")
+    patterns = None if patterns is None else V.integer(patterns, "patterns", minimum=2)
     if (isinstance(J, dict) and any(J.values())) or (not isinstance(J, dict) and J):
         raise ArgumentError(f"fill: 'held' supports links without jitter, found jitter = {J}; use fill = true or jitter = 0", argument="fill")
     n = system.n_agents
@@ -519,8 +534,6 @@ def design_rulefill(
         count = int(t.shape[0])
     else:
         count = DEFAULT_PATTERNS if patterns is None else int(patterns)
-        if count < 2:
-            raise ArgumentError(f"patterns: expected at least 2 sampled link patterns, found {count}", argument="patterns")
         t_fit, w_fit = _patterns(arr, T, n, count=count, rng=gen)
         Gc = _fit(d0, _pattern_maps(d0, t_fit), w_fit)
         cand = {"class": Gc, **members}
@@ -529,7 +542,11 @@ def design_rulefill(
         tot = costs.sum(axis=2)  # (C, P)
         stage = {c: costs[a].mean(axis=0) for a, c in enumerate(cand)}
         sem = {c: float(tot[a].std(ddof=1) / np.sqrt(count)) for a, c in enumerate(cand)}
-        paired = {c: {"diff": float((tot[0] - tot[a]).mean()), "sem": float((tot[0] - tot[a]).std(ddof=1) / np.sqrt(count))} for a, c in enumerate(cand) if a}
+        paired = {
+            c: {"diff": float((tot[0] - tot[a]).mean()), "sem": float((tot[0] - tot[a]).std(ddof=1) / np.sqrt(count))}
+            for a, c in enumerate(cand)
+            if a
+        }
     totals = {c: float(np.sum(stage[c])) for c in cand}
     kept = min(_CANDIDATES, key=lambda c: totals[c])  # never worse than the rule, today's class or the local filters
     value = totals[kept]

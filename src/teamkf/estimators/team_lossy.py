@@ -643,25 +643,8 @@ def register_keyed(design: Any) -> None:
     _KEYED[:] = [design]
 
 
-#: the class containing the missed-packet rule (``fill="held"``), registered by :mod:`teamkf.estimators._lossy_rulefill`
-_HELD: list[Any] = []
-
-
-def register_held(design: Any) -> None:
-    """Called by :mod:`teamkf.estimators._lossy_rulefill` (it extends this module, which therefore never imports it)."""
-    _HELD[:] = [design]
-
-
-def _check_fill(v: Any, key: str) -> Any:
-    if isinstance(v, (bool, np.bool_)):
-        return bool(v)
-    if isinstance(v, str) and v.lower() in ("held", "own", "zero"):
-        return {"held": "held", "own": True, "zero": False}[v.lower()]
-    raise ArgumentError(
-        f"{key}: expected true (missed items filled from the own items), false (by zero) or \"held\" (the class containing "
-        f"the missed-packet rule), found {v!r}",
-        argument=key,
-    )
+_HELD: list[Any] = []  #: ``fill="held"`` (the class containing the rule), registered by :mod:`teamkf.estimators._lossy_rulefill`
+register_held = _HELD.append
 
 
 def design_mtmse_lossy(
@@ -710,14 +693,10 @@ def design_mtmse_lossy(
         when every A(k) is stable (spectral radius < 1), else innovations (bounded second moments on
         unstable processes).
     fill : bool or "held"
-        Replace a missed item by its predictor from the agent's own innovations (else by zero, its mean).
-        "held": the class that contains the nominal design under the missed-packet rule, today's class and the
-        local filters (:mod:`teamkf.estimators._lossy_rulefill`; gains on their estimates and on the agent's
-        conditional mean given what it holds; exact over every link pattern for small teams and horizons, else
-        fitted and costed on sampled patterns, ``info["sem"]``). Never worse than any of the three.
-    patterns : int or None
-        With ``fill="held"``: sample this many link patterns for the fit and as many fresh ones for the cost
-        (None: every pattern when there are at most ``EXACT_LIMIT``, else 400).
+        Replace a missed item by its predictor from the agent's own innovations (else by zero, its mean). "held": the
+        class containing the nominal design under the missed-packet rule, today's class and the local filters
+        (:mod:`teamkf.estimators._lossy_rulefill`; never worse than any of them; ``patterns``: link patterns sampled
+        for the fit and as many fresh ones for the cost, None: all of them when few, else 400).
     threads : int or None
         BLAS threads for the design (1: robust on a shared machine; None: the library's default).
     bound : bool
@@ -768,21 +747,14 @@ def design_mtmse_lossy(
     _lossy_size.check(system, arr, T, mem, cost.dz, prefix=mem is None and not cost.is_time_varying)  # sized before anything is allocated
     kw = V.integer(keyed, "keyed", minimum=0, maximum=1, what="the window w (0: gains independent of the pattern, 1: keyed on the current arrivals)")
     candidates = _auto_items(system, arr, T, mem) if coords == "auto" else (coords,)
-    fill = _check_fill(fill, "fill")
-    if fill == "held":  # the class containing the missed-packet rule: a module of its own (as keyed below)
-        if kw or mem is not None:
-            raise ArgumentError(f"fill: 'held' has no keyed or memory variant, found keyed = {kw}, memory = {mem}; drop them", argument="fill")
-        if not _HELD:
-            from .registry import families
+    fill = _lossy_size.check_fill(fill, "fill")
+    if (fill == "held" and not _HELD) or (kw and not _KEYED):  # modules of their own that register here when loaded
+        from .registry import families
 
-            families()
-        npat = None if patterns is None else V.integer(patterns, "patterns", minimum=2)
-        return _HELD[0](system, cost, graph, T, p, J, arr, patterns=npat)  # type: ignore[no-any-return]
-    if kw:  # gains keyed on the current arrivals: a module of its own, which imports this one and registers itself here
-        if not _KEYED:
-            from .registry import families
-
-            families()  # loads the built-in modules and their extensions (_builtin.EXTENSIONS)
+        families()  # loads the built-in modules and their extensions (_builtin.EXTENSIONS)
+    if fill == "held":  # the class containing the missed-packet rule
+        return _HELD[-1](system, cost, graph, T, p, J, arr, patterns=patterns, keyed=kw, memory=mem)  # type: ignore[no-any-return]
+    if kw:  # gains keyed on the current arrivals
         return _KEYED[0](system, cost, graph, T, p, J, arr, candidates, mem, fill, bound, threads)
     with blas_threads(threads):
         mom0 = local_filter_moments(system, T)
@@ -906,14 +878,14 @@ FAMILY = _register_builtin(
             Option(
                 name="fill",
                 default=True,
-                check=_check_fill,
-                doc='missed items: true (filled from the own items), false (zero), "held" (the class containing the missed-packet rule)',
+                check=_lossy_size.check_fill,
+                doc='missed items: from the own items (true), zero (false), "held": the class containing the rule',
             ),
             Option(
                 name="patterns",
                 default=None,
                 check=_check_memory,
-                doc='fill = "held": link patterns sampled for the fit and for the cost (none: all when few, else 400)',
+                doc='fill = "held": link patterns sampled for the fit and the cost (none: all when few, else 400)',
             ),
             Option(
                 name="items",
