@@ -322,7 +322,7 @@ class RuleFillAgent:
 
     def step(self, state: dict[str, Any], k: int, own: Any, inbox: Sequence[Any]) -> tuple[dict[str, Any], FloatArray, list[Any]]:
         d, i, sysm = self.design, self.index, self.system
-        self.relay.inner.tolerant = True
+        self.relay.inner.tolerant = True  # type: ignore[attr-defined]
         relay_state, z_rule, new = self.relay.step(state["relay"], k, own, inbox)
         Y, t = state["Y"].copy(), state["t"].copy()
         dyt, off = sysm.dy_total, sysm.offsets

@@ -758,7 +758,7 @@ def design_mtmse_lossy(
         return _KEYED[0](system, cost, graph, T, p, J, arr, candidates, mem, fill, bound, threads)
     with blas_threads(threads):
         mom0 = local_filter_moments(system, T)
-        tried = {c: _solve_all(system, cost, arr, _item_moments(system, mom0, T, c), T, mem, fill, progress) for c in candidates}
+        tried = {c: _solve_all(system, cost, arr, _item_moments(system, mom0, T, c), T, mem, bool(fill), progress) for c in candidates}
     coords = min(candidates, key=lambda c: float(np.sum(tried[c][3])))  # the lower exact expected cost (ties: the first)
     held, gains, fills, stage, local = tried[coords]
     mom = mom0
