@@ -390,40 +390,54 @@ def _pattern_maps(d: RuleFillDesign, t: np.ndarray) -> list[FloatArray]:
     return out
 
 
-def pattern_costs(d: RuleFillDesign, Phi: list[FloatArray], Gs: Sequence[FloatArray]) -> np.ndarray:
-    """(len(Gs), P, T): the exact stage cost of each gain set (T, n, d_z, n_f) given each pattern."""
+#: link patterns whose feature maps are held at once (memory: chunk × T × n × n_f × T d_y floats)
+CHUNK = 64
+
+
+def _chunks(d: RuleFillDesign, t: np.ndarray) -> Any:
+    """(first pattern, Φ of :func:`_pattern_maps`) over chunks of :data:`CHUNK` patterns."""
+    for a in range(0, t.shape[0], CHUNK):
+        yield a, _pattern_maps(d, t[a : a + CHUNK])
+
+
+def pattern_costs(d: RuleFillDesign, t: np.ndarray, Gs: Sequence[FloatArray]) -> np.ndarray:
+    """(len(Gs), P, T): the exact stage cost of each gain set (T, n, d_z, n_f) given each pattern (arrivals ``t``)."""
     Syy, Sxy, Px = d._cache["Syy"], d._cache["Sxy"], d._cache["Px"]
-    T = len(Phi)
-    P = Phi[0].shape[0]
+    T, P = int(d.horizon or 0), t.shape[0]
     out = np.zeros((len(Gs), P, T))
     n, dz = d.system.n_agents, d.cost.dz
-    for k in range(T):
-        S, L = d.cost.S_at(k), d.cost.L_at(k)
-        c0 = float(np.trace(S @ L @ Px[k] @ L.T))
-        SL = S @ L
-        for g, G in enumerate(Gs):
-            Z = np.einsum("iaf,pifc->piac", G[k], Phi[k], optimize=True).reshape(P, n * dz, -1)  # ẑ = Z y
-            cross = np.einsum("ax,pax->p", SL, Z @ Sxy[k].T)
-            quad = np.einsum("pac,pac->p", S[None] @ Z @ Syy, Z)  # Tr S Z Σ_yy Zᵀ
-            out[g, :, k] = c0 - 2.0 * cross + quad
+    for a, Phi in _chunks(d, t):
+        p = Phi[0].shape[0]
+        for k in range(T):
+            S, L = d.cost.S_at(k), d.cost.L_at(k)
+            c0 = float(np.trace(S @ L @ Px[k] @ L.T))
+            SL = S @ L
+            for g, G in enumerate(Gs):
+                Z = np.einsum("iaf,pifc->piac", G[k], Phi[k], optimize=True).reshape(p, n * dz, -1)  # ẑ = Z y
+                cross = np.einsum("ax,pax->p", SL, Z @ Sxy[k].T)
+                quad = np.einsum("pac,pac->p", S[None] @ Z @ Syy, Z)  # Tr S Z Σ_yy Zᵀ
+                out[g, a : a + p, k] = c0 - 2.0 * cross + quad
     return out
 
 
-def _fit(d: RuleFillDesign, Phi: list[FloatArray], w: FloatArray) -> FloatArray:
+def _fit(d: RuleFillDesign, t: np.ndarray, w: FloatArray) -> FloatArray:
     """The gains minimizing Σ_ω w(ω) J_k(G; ω) at every step (Γ g = η; least squares where Γ is singular)."""
     Syy, Sxy = d._cache["Syy"], d._cache["Sxy"]
-    T = len(Phi)
-    n, dz = d.system.n_agents, d.cost.dz
-    nf = Phi[0].shape[2]
+    T = int(d.horizon or 0)
+    n, dz, nf = d.system.n_agents, d.cost.dz, d.n_features
+    Mffs = np.zeros((T, n * nf, n * nf))
+    Mfxs = np.zeros((T, n * nf, d.system.dx))
+    for a, Phi in _chunks(d, t):
+        for k in range(T):
+            P, Ny = Phi[k].shape[0], Phi[k].shape[3]
+            F = Phi[k].reshape(P, n * nf, Ny)
+            Fw = (F * w[a : a + P, None, None]).transpose(1, 0, 2).reshape(n * nf, P * Ny)
+            Mffs[k] += (Fw.reshape(n * nf * P, Ny) @ Syy).reshape(n * nf, P * Ny) @ F.transpose(1, 0, 2).reshape(n * nf, P * Ny).T
+            Mfxs[k] += (Fw.reshape(n * nf * P, Ny) @ Sxy[k].T).reshape(n * nf, P, -1).sum(axis=1)
     G = np.zeros((T, n, dz, nf))
     for k in range(T):
         S, L = d.cost.S_at(k), d.cost.L_at(k)
-        P, Ny = Phi[k].shape[0], Phi[k].shape[3]
-        F = Phi[k].reshape(P, n * nf, Ny)
-        Fw = (F * w[:, None, None]).transpose(1, 0, 2).reshape(n * nf, P * Ny)
-        Mff = (Fw.reshape(n * nf * P, Ny) @ Syy).reshape(n * nf, P * Ny) @ F.transpose(1, 0, 2).reshape(n * nf, P * Ny).T
-        Mff = Mff.reshape(n, nf, n, nf)
-        Mfx = (Fw.reshape(n * nf * P, Ny) @ Sxy[k].T).reshape(n * nf, P, -1).sum(axis=1).reshape(n, nf, -1)
+        Mff, Mfx = Mffs[k].reshape(n, nf, n, nf), Mfxs[k].reshape(n, nf, -1)
         Sx = S.reshape(n, dz, n, dz)
         Gam = np.einsum("iajb,ifjh->iafjbh", Sx, Mff).reshape(n * dz * nf, -1)
         SL = (S @ L).reshape(n, dz, -1)
@@ -524,10 +538,9 @@ def design_rulefill(
     members = _members(d0)
     if exact:
         t, w = _patterns(arr, T, n, count=0, rng=gen)
-        Phi = _pattern_maps(d0, t)
-        Gc = _fit(d0, Phi, w)
+        Gc = _fit(d0, t, w)
         cand = {"class": Gc, **members}
-        costs = pattern_costs(d0, Phi, list(cand.values()))  # (C, P, T)
+        costs = pattern_costs(d0, t, list(cand.values()))  # (C, P, T)
         stage = {c: np.einsum("p,pk->k", w, costs[a]) for a, c in enumerate(cand)}
         sem = {c: 0.0 for c in cand}
         paired: dict[str, Any] = {}
@@ -535,10 +548,10 @@ def design_rulefill(
     else:
         count = DEFAULT_PATTERNS if patterns is None else int(patterns)
         t_fit, w_fit = _patterns(arr, T, n, count=count, rng=gen)
-        Gc = _fit(d0, _pattern_maps(d0, t_fit), w_fit)
+        Gc = _fit(d0, t_fit, w_fit)
         cand = {"class": Gc, **members}
         t_new, _ = _patterns(arr, T, n, count=count, rng=gen)  # fresh: the reported cost is unbiased
-        costs = pattern_costs(d0, _pattern_maps(d0, t_new), list(cand.values()))
+        costs = pattern_costs(d0, t_new, list(cand.values()))
         tot = costs.sum(axis=2)  # (C, P)
         stage = {c: costs[a].mean(axis=0) for a, c in enumerate(cand)}
         sem = {c: float(tot[a].std(ddof=1) / np.sqrt(count)) for a, c in enumerate(cand)}
