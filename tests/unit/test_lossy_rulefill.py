@@ -168,3 +168,40 @@ def test_refusals():
         design_mtmse_lossy(sysm, cost, g, 3, p_drop=0.2, fill="sometimes")
     with pytest.raises(ArgumentError, match="patterns"):
         design_mtmse_lossy(sysm, cost, g, 3, p_drop=0.2, fill="held", patterns=1)
+
+
+def test_conditional_mean_feature_conditions_the_joint_gaussian(tiny):
+    """G picking L_i E[x(k) | H] (feature φ⁴): on every pattern the online agents output the conditional mean of the
+    joint Gaussian law of (x, y) given the measurements they hold (own ones, and the other's that arrived by k)."""
+    d = tiny
+    sysm, T = d.system, d.horizon
+    dx, dyt, Ny = sysm.dx, sysm.dy_total, T * sysm.dy_total
+    G = np.zeros_like(d.G)
+    for k in range(T):
+        for i in range(2):
+            G[k, i, :, dx + 2 * d.cost.dz : 2 * dx + 2 * d.cost.dz] = d.cost.L_block(i, k)  # φ⁴ = [E[x(k) | H]; ...]
+    dg = dataclasses.replace(d, G=G)
+    P, xs = _joint(sysm, T)
+    Syy = P[T * dx :, T * dx :]
+    events = [(s, e) for s in range(T - 1) for e in range(2)]
+    for code in range(1 << len(events)):
+        ok = {ev: bool((code >> b) & 1) for b, ev in enumerate(events)}
+        agents = [RuleFillAgent(dg, i) for i in range(2)]
+        states = [ag.init_state(Ny) for ag in agents]
+        sent: list = [[], []]
+        for k in range(T):
+            now = []
+            for i, ag in enumerate(agents):
+                own = np.eye(Ny)[:, k * dyt + int(sysm.offsets[i]) : k * dyt + int(sysm.offsets[i]) + sysm.dy[i]]
+                j = 1 - i
+                inbox = [(j, k - 1, sent[j])] if k > 0 and ok[(k - 1, j)] else []
+                states[i], z, new = ag.step(states[i], k, own, inbox)
+                now.append(new)
+                held = [s * dyt + int(sysm.offsets[i]) for s in range(k + 1)]  # d_y = 1 per agent
+                held += [s * dyt + int(sysm.offsets[j]) for s in range(k) if ok[(s, j)]]
+                H = np.sort(np.array(held))
+                Sxh = P[np.ix_(xs[k], T * dx + H)]
+                want = np.zeros((Ny, 1 * dx))
+                want[H] = np.linalg.solve(Syy[np.ix_(H, H)], Sxh.T)  # E[x(k) | y_H] = Σ_xH Σ_HH⁻¹ y_H
+                np.testing.assert_allclose(np.asarray(z), want @ d.cost.L_block(i, k).T, atol=1e-10)
+            sent = now

@@ -13,14 +13,15 @@ computes four **features** from what it holds, each online from the realized pat
   runs over drops;
 * φ³ = ẑ_i^today(k), today's drop-aware estimate (``mtmse_lossy``, ``items = "measurements"``,
   ``fill = True``: pattern-independent gains on the on-time items, missed ones filled from the own items);
-* φ⁴ = E[x(k) | y_i(0:k), the others' y_j(s) held at k for s > k - W], the agent's exact
-  conditional mean given its own history and what it holds of the last W steps (``window``).
+* φ⁴ = [E[x(k) | H]; E[y(k-W+1 : k) | H]], H = y_i(0:k) and the others' y_j(s), s > k - W, held at k: the
+  agent's exact conditional mean of the state and of every item of the last W steps (``window``, default
+  ℓ_max + 2), each missing item **filled from everything held** in the window;
 
 and outputs
 
 .. math::  \hat z_i(k) = G_i(k)\, [φ¹; φ²; φ³; φ⁴],
 
-with offline gains G_i(k) (d_z × (2 d_x + 2 d_z)). G_i = [L_i 0 0 0] is the local filters,
+with offline gains G_i(k) (d_z × (2 d_x + 2 d_z + W Σ_j d_y^j)). G_i = [L_i 0 0 0] is the local filters,
 [0 I 0 0] the nominal design under the missed-packet rule, [0 0 I 0] today's class: the optimum of the
 class is never worse than any of them, and the design keeps the best of the four by the same cost
 (below), so it is never worse by construction.
@@ -147,7 +148,7 @@ class RuleFillDesign(Design):
     window : W, the steps of the others' held measurements in the conditional-mean feature
     nominal : the nominal MTMSE design (its agents give the rule's feature)
     today : today's drop-aware design (``items = "measurements"``, pattern-independent gains)
-    G : (T, n, d_z, 2 d_x + 2 d_z) the gains of the kept member ([φ¹ φ² φ³ φ⁴] per agent)
+    G : (T, n, d_z, n_f) the gains of the kept member ([φ¹ φ² φ³ φ⁴] per agent, n_f = 2 d_x + 2 d_z + W Σ d_y)
     kept : which member was kept: "class" (the fitted optimum), "rule", "today" or "local"
     """
 
@@ -228,7 +229,7 @@ class RuleFillDesign(Design):
         return got  # type: ignore[no-any-return]
 
     def features(self, k: int, Y: FloatArray, t: np.ndarray, rule: FloatArray, *, rep: int = 1, only: int | None = None) -> FloatArray:
-        """φ(k) of every run: (R, n, 2 d_x + 2 d_z) from the stacked measurements Y (R, T d_y) (unheld entries unused),
+        """φ(k) of every run: (R, n, n_f) from the stacked measurements Y (R, T d_y) (unheld entries unused),
         the arrival steps t (R / rep, n, n, T: run r has the pattern of row r // rep) and the rule's estimates ``rule``
         (R, n, d_z); ``only``: agent ``only``'s features (the others' stay 0)."""
         sysm, cost, td = self.system, self.cost, self.today
