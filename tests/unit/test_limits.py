@@ -283,12 +283,13 @@ def test_lossy_horizon_refused_before_allocation(monkeypatch: Any) -> None:
     monkeypatch.setattr(_budget, "available_memory", lambda: 22 * GIB)
     monkeypatch.setattr(team_lossy, "local_filter_moments", lambda *a, **k: pytest.fail("allocated before the size check"))
     with pytest.raises(
-        ScenarioError, match=r"horizon: mtmse_lossy: the mtmse_lossy design over T = 3,000 steps needs about .* TiB .* memory = m"
+        ScenarioError,
+        match=r"horizon: mtmse_lossy: the mtmse_lossy design over T = 3,000 steps needs about .* TiB .* use a horizon of at most [\d,]+ steps with memory = \d+",
     ) as info:
         _lossy(3000).design("mtmse_lossy")
     assert isinstance(info.value.__cause__, ResourceError)  # the size check, not a MemoryError
     monkeypatch.setattr(_budget, "available_memory", lambda: 2 * GIB)
-    with pytest.raises(ScenarioError, match=r"over T = 300 steps needs about 3\.\d GiB"):
+    with pytest.raises(ScenarioError, match=r"over T = 300 steps needs about 3\.\d GiB.* set the mtmse_lossy option memory = \d+ \(the items"):
         _lossy(300).design("mtmse_lossy")
     with pytest.raises(ScenarioError, match=r"over T = 3,000 steps \(memory = 5\) needs about"):  # the fills still grow like T^2
         _lossy(3000, memory=5).design("mtmse_lossy")

@@ -61,7 +61,8 @@ is stable (detectable agents); with innovation items no quantity of the size of 
 
 Complexity: R = Σ_i Σ_j d_y^j (T - ℓ_ji) slot rows; O(R³/3) once (one factorization), or with
 ``memory = m`` O(T (m Σ_i Σ_j d_y^j)³) (a factorization per step; items older than m steps are not
-used, the own ones stay in x̂_i(k|k) and the fills).
+used, the own ones stay in x̂_i(k|k) and the fills). Sized before anything is allocated
+(:mod:`teamkf.estimators._lossy_size`): a design beyond the memory or work limit is refused naming a memory that fits.
 
 Lower bound
 -----------
@@ -555,6 +556,12 @@ class LossyTeamDesign(Design):
     def delivery_graph(self) -> CommGraph | None:
         return self.graph
 
+    def agent_slice(self, i: int) -> tuple[str, dict[str, np.ndarray], dict[str, Any]]:
+        """Agent i's own gains, fills, items and local Kalman gains (:mod:`teamkf.estimators._lossy_slice`)."""
+        from ._lossy_slice import agent_slice
+
+        return agent_slice(self, i)
+
     # --- what the CLI writes ---------------------------------------------------------------
     def details(self) -> dict[str, Any]:
         return {
@@ -744,7 +751,11 @@ def design_mtmse_lossy(
     mem = None if memory is None else V.positive_int(memory, "memory")
     coords = V.choice(items, "items", ("auto", "measurements", "innovations"))
     arr = ArrivalModel.build(graph, p, J)
-    _lossy_size.check(system, arr, T, mem, cost.dz, prefix=mem is None and not cost.is_time_varying)  # sized before anything is allocated
+
+    def kinds(m: int | None) -> int:  # item kinds designed with memory m (``items="auto"`` may design both)
+        return len(_auto_items(system, arr, T, m)) if coords == "auto" else 1
+
+    _lossy_size.check(system, arr, T, mem, cost.dz, prefix=mem is None and not cost.is_time_varying, kinds=kinds)  # before any allocation
     kw = V.integer(keyed, "keyed", minimum=0, maximum=1, what="the window w (0: gains independent of the pattern, 1: keyed on the current arrivals)")
     candidates = _auto_items(system, arr, T, mem) if coords == "auto" else (coords,)
     fill = _lossy_size.check_fill(fill, "fill")
