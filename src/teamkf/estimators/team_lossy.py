@@ -886,18 +886,7 @@ FAMILY = _register_builtin(
                 check=lambda v, k: V.integer(v, k, minimum=0, maximum=1),
                 doc="1: gains keyed on the current arrivals (the items due at each step; small teams, no memory); 0: pattern-independent",
             ),
-            Option(
-                name="fill",
-                default=True,
-                check=_lossy_size.check_fill,
-                doc='missed items: from the own items (true), zero (false), "held": the class containing the rule',
-            ),
-            Option(
-                name="patterns",
-                default=None,
-                check=_check_memory,
-                doc='fill = "held": link patterns sampled for the fit and the cost (none: all when few, else 400)',
-            ),
+            *_lossy_size.fill_options(),  # fill (and patterns, for fill = "held")
             Option(
                 name="items",
                 default="auto",
