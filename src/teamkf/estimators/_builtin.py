@@ -177,7 +177,7 @@ def check_declared(family: Any) -> None:
 
 
 #: modules that extend a family module (imported after it; each registers its part with the family module)
-EXTENSIONS: tuple[str, ...] = ("_lossy_keyed",)  # mtmse_lossy's keyed=1 (gains keyed on the current arrivals)
+EXTENSIONS: tuple[str, ...] = ("_lossy_keyed", "_lossy_rulefill")  # mtmse_lossy's keyed=1 (gains keyed on the current arrivals)
 
 
 def load() -> None:

@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from .. import _budget
+from ..exceptions import ArgumentError
 
 
 def _sum_u(a: float, b: float, p: int) -> float:
@@ -177,3 +178,31 @@ def check(system: Any, arr: Any, T: int, memory: int | None, dz: int, prefix: bo
     _budget.check_memory(peak, what, argument="horizon", fix=fix)
     t = _budget.check_work(flops, what, argument="horizon", fix=fix, loops=loops)
     _budget.announce(t, what)
+
+
+def check_fill(v: Any, key: str) -> Any:
+    """``mtmse_lossy``'s ``fill``: true (missed items filled from the own items), false (by zero) or "held"."""
+    if isinstance(v, (bool, np.bool_)) or v == "held":
+        return v if v == "held" else bool(v)
+    raise ArgumentError(f'{key}: expected true (filled from the own items), false (by zero) or "held" (the class containing the rule), found {v!r}')
+
+
+def fill_options() -> tuple[Any, ...]:
+    """``mtmse_lossy``'s registry options ``fill`` and ``patterns`` (``fill = "held"``: :mod:`teamkf.estimators._lossy_rulefill`)."""
+    from .. import _validation as V
+    from .registry import Option
+
+    return (
+        Option(
+            name="fill",
+            default=True,
+            check=check_fill,
+            doc='missed items: from the own items (true), zero (false), "held": the class containing the rule',
+        ),
+        Option(
+            name="patterns",
+            default=None,
+            check=lambda v, k: None if v is None else V.integer(v, k, minimum=2),
+            doc='fill = "held": link patterns sampled for the fit and the cost (none: all when few, else 400)',
+        ),
+    )

@@ -652,6 +652,10 @@ def register_keyed(design: Any) -> None:
     _KEYED[:] = [design]
 
 
+_HELD: list[Any] = []  #: ``fill="held"`` (the class containing the rule), registered by :mod:`teamkf.estimators._lossy_rulefill`
+register_held = _HELD.append
+
+
 def design_mtmse_lossy(
     system: LinearGaussianSystem,
     cost: TeamCost,
@@ -662,7 +666,8 @@ def design_mtmse_lossy(
     jitter: Any = 0,
     memory: int | None = None,
     items: str = "auto",
-    fill: bool = True,
+    fill: bool | str = True,
+    patterns: int | None = None,
     bound: bool = True,
     known_bound: int = 0,
     known_window: int | None = None,
@@ -697,8 +702,11 @@ def design_mtmse_lossy(
         :data:`AUTO_GROWTH` and the estimated work at most :data:`AUTO_WORK` flops; otherwise measurements
         when every A(k) is stable (spectral radius < 1), else innovations (bounded second moments on
         unstable processes).
-    fill : bool
-        Replace a missed item by its predictor from the agent's own innovations (else by zero, its mean).
+    fill : bool or "held"
+        Replace a missed item by its predictor from the agent's own innovations (else by zero, its mean). "held": the
+        class containing the nominal design under the missed-packet rule, today's class and the local filters
+        (:mod:`teamkf.estimators._lossy_rulefill`; never worse than any of them; ``patterns``: link patterns sampled
+        for the fit and as many fresh ones for the cost, None: all of them when few, else 400).
     threads : int or None
         BLAS threads for the design (1: robust on a shared machine; None: the library's default).
     bound : bool
@@ -753,20 +761,25 @@ def design_mtmse_lossy(
     _lossy_size.check(system, arr, T, mem, cost.dz, prefix=mem is None and not cost.is_time_varying, kinds=kinds)  # before any allocation
     kw = V.integer(keyed, "keyed", minimum=0, maximum=1, what="the window w (0: gains independent of the pattern, 1: keyed on the current arrivals)")
     candidates = _auto_items(system, arr, T, mem) if coords == "auto" else (coords,)
-    if kw:  # gains keyed on the current arrivals: a module of its own, which imports this one and registers itself here
-        if not _KEYED:
-            from .registry import families
+    fill = _lossy_size.check_fill(fill, "fill")
+    if (fill == "held" and not _HELD) or (kw and not _KEYED):  # modules of their own that register here when loaded
+        from .registry import families
 
-            families()  # loads the built-in modules and their extensions (_builtin.EXTENSIONS)
+        families()  # loads the built-in modules and their extensions (_builtin.EXTENSIONS)
+    if fill == "held":  # the class containing the missed-packet rule
+        return _HELD[-1](system, cost, graph, T, p, J, arr, patterns=patterns, keyed=kw, memory=mem)  # type: ignore[no-any-return]
+    if kw:  # gains keyed on the current arrivals
         return _KEYED[0](system, cost, graph, T, p, J, arr, candidates, mem, fill, bound, threads)
     with blas_threads(threads):
         if mem is not None:  # windowed fills, a lifted moment recursion and a steady form: memory independent of T
             from . import _lossy_window
 
-            tried: dict[str, Any] = {c: _lossy_window.solve(system, cost, arr, T, mem, fill, c, progress) for c in candidates}
+            tried: dict[str, Any] = {c: _lossy_window.solve(system, cost, arr, T, mem, bool(fill), c, progress) for c in candidates}
         else:
             mom0 = local_filter_moments(system, T)
-            tried = {c: (*_solve_all(system, cost, arr, _item_moments(system, mom0, T, c), T, mem, fill, progress), mom0.K, {}) for c in candidates}
+            tried = {
+                c: (*_solve_all(system, cost, arr, _item_moments(system, mom0, T, c), T, mem, bool(fill), progress), mom0.K, {}) for c in candidates
+            }
     coords = min(candidates, key=lambda c: float(np.sum(tried[c][3])))  # the lower exact expected cost (ties: the first)
     held, gains, fills, stage, local, K_loc, extra = tried[coords]
     if bound:
@@ -883,6 +896,7 @@ FAMILY = _register_builtin(
                 check=lambda v, k: V.integer(v, k, minimum=0, maximum=1),
                 doc="1: gains keyed on the current arrivals (the items due at each step; small teams, no memory); 0: pattern-independent",
             ),
+            *_lossy_size.fill_options(),  # fill (and patterns, for fill = "held")
             Option(
                 name="items",
                 default="auto",
