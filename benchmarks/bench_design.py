@@ -102,6 +102,7 @@ def case_platoon_scale(n: int, method: str) -> dict:
         "average_cost": d.average_cost,
         "gamma": d.info["gamma"],
         "window": (n - 1) * n * n,
+        "threads": {k: os.environ.get(k) for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")},
         "peak_mb": _peak_mb(),
     }
 
@@ -227,6 +228,7 @@ def main() -> None:
             f"{'average cost':>20} {'load':>11}",
             flush=True,
         )
+        fit = []
         for n in a.platoon_sizes:
             r = _run(["platoon-scale", str(n), "auto"], a.timeout)
             rows.append(r)
@@ -239,6 +241,16 @@ def main() -> None:
                 f"{r['peak_mb']:>8.0f} {r['average_cost']:>20.15g} {r['load_1min'][0]:>5.1f}-{r['load_1min'][1]:<5.1f}",
                 flush=True,
             )
+            fit.append((n, r["design_cpu_s"], r["design_s"]))
+        if len(fit) >= 3:  # least-squares slope of log(time) against log(n): time ~ n^b
+            import numpy as np
+
+            ln = np.log([f[0] for f in fit])
+            b_cpu = np.polyfit(ln, np.log([f[1] for f in fit]), 1)[0]
+            b_wall = np.polyfit(ln, np.log([f[2] for f in fit]), 1)[0]
+            half = [f for f in fit if f[0] >= np.median([f[0] for f in fit])]
+            b_top = np.polyfit(np.log([f[0] for f in half]), np.log([f[1] for f in half]), 1)[0] if len(half) >= 2 else float("nan")
+            print(f"# fitted growth: CPU ~ n^{b_cpu:.2f} (n = {fit[0][0]}..{fit[-1][0]}; n^{b_top:.2f} over the larger half), wall ~ n^{b_wall:.2f}")
     if "gamma" in todo:
         print(
             f"{'instance':>12} {'size':>6} {'dense[s]':>9} {'cg[s]':>8} {'iters':>6} {'auto':>6} {'rel diff':>9} "

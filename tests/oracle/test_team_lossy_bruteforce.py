@@ -112,7 +112,7 @@ def _brute(d, graph, p):
         for learned, prob in arrivals:
             F = []
             for i in range(n):
-                fill = d.fills[k][i] @ own[i]  # rows of every item of agent i
+                fill = d.fills[k][i] @ own[i][own[i].shape[0] - d.fills[k][i].shape[1] :]  # on the agent's last w own items
                 rows, col = [], 0
                 for j, s in d.items[k][i]:
                     dj = sysm.dy[j]

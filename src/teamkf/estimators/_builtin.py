@@ -177,8 +177,8 @@ def check_declared(family: Any) -> None:
 
 
 #: modules that extend a family module (imported after it; each registers its part with the family module)
-#: mtmse_lossy's keyed=1 (gains keyed on the current arrivals) and resend=r (re-sent items)
-EXTENSIONS: tuple[str, ...] = ("_lossy_keyed", "_lossy_resend")
+#: mtmse_lossy's keyed=1 (gains keyed on the current arrivals), fill="held" (the class of the rule), resend=r (re-sent items)
+EXTENSIONS: tuple[str, ...] = ("_lossy_keyed", "_lossy_rulefill", "_lossy_resend")
 
 
 def load() -> None:

@@ -326,6 +326,9 @@ def _design_class() -> Any:
         def graph_agents(self) -> list[Any]:
             return [KeyedLossyAgent(self, i) for i in range(self.n_agents)]
 
+        def agent_slice(self, i: int) -> tuple[str, dict[str, np.ndarray], dict[str, Any]]:
+            raise self._unsupported("agent_slice()", "its keyed gains ship no per-agent slice; its agent processes design the team themselves")
+
         def details(self) -> dict[str, Any]:
             out = super().details()
             out["class"] = f"gains per step and per pattern of the current arrivals (w = 1) on the on-time {self.coordinates}, missed ones filled"

@@ -541,10 +541,10 @@ def design_resend(
     from .._blas import blas_threads
     from .team_lossy import _item_moments, local_filter_moments
 
-    if keyed or memory is not None:
+    if keyed or memory is not None or not isinstance(fill, bool):
         raise ArgumentError(
-            f"resend: resend = {r} is designed without keyed gains and without memory, found keyed = {keyed}, memory = {memory}; "
-            "drop keyed/memory or use resend = 1",
+            f"resend: resend = {r} is designed without keyed gains, without memory and with fill = true or false, found keyed = {keyed}, "
+            f"memory = {memory}, fill = {fill!r}; drop keyed/memory/fill or use resend = 1",
             argument="resend",
         )
 

@@ -12,10 +12,20 @@ measurement sizes alone (no loop over :math:`T`), with the shapes the design act
 * the per-step fills kept by the design: :math:`\sum_k \sum_i r_i(k)\,(k + 1) d_y^i` numbers,
   :math:`r_i(k)` the rows live at agent i at step k (cubic in :math:`T` without a memory).
 
+With ``memory = m`` the windowed form (:mod:`teamkf.estimators._lossy_window`) is counted instead: arrays of a fixed
+size per step (the lifted covariance, Γ of the live rows) plus the gains, fills and items kept for every step, counted
+without the steady form's reuse (an upper bound: once it is steady nothing of the size of a step is kept).
+
 Measured peaks (platoon-6, line graph, delay 2, p = 0.2, one core): T = 40: 88 MiB, 80: 304 MiB,
-120: 652 MiB, 160: 1174 MiB (memory = 5: T = 40: 8.6, 80: 30 MiB); :func:`estimate` gives 59, 261, 607, 1095 (8, 29) MiB: it
-counts the arrays, not the interpreter, so it stays a little below (never a premature refusal). T = 300: 3.9 GiB
-estimated, 4.1 GiB measured (51 s of CPU); T = 3000: 2.5 TiB estimated, refused at once.
+120: 652 MiB, 160: 1174 MiB; :func:`estimate` gives 59, 261, 607, 1095 MiB: it counts the arrays, not the interpreter, so it
+stays a little below (never a premature refusal). memory = 5 (windowed): T = 80: 2.6 MiB, 400: 7.8 MiB above the process
+before the design, estimated 5.9 and 17.6 MiB. T = 300: 3.9 GiB
+estimated, 4.1 GiB measured (51 s of CPU); T = 3000: 2.5 TiB estimated, refused at once. ring-6-lossy (a two-way ring,
+delay-2 links, p = 0.2), T = 300: full 3.9 GiB estimated, 4.2 GiB measured (34 s of CPU); memory = 16 (windowed): 89 MiB
+estimated, 134 MiB peak RSS (5 s); T = 3000, memory = 16: 653 MiB estimated, 269 MiB peak RSS (10 s).
+
+A refused design is told what fits (:func:`suggest`): the largest ``memory`` up to 2 ℓ_max + :data:`MEMORY_SLACK` that
+fits the memory and the work limit, with its estimate, else the longest horizon that fits.
 """
 
 from __future__ import annotations
@@ -25,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from .. import _budget
+from ..exceptions import ArgumentError
 
 
 def _sum_u(a: float, b: float, p: int) -> float:
@@ -38,7 +49,7 @@ def _sum_u(a: float, b: float, p: int) -> float:
     return s(b) - s(a - 1)
 
 
-def estimate(dy: Any, ell: Any, prob: Any, T: int, memory: int | None, dx: int, dz: int, prefix: bool) -> tuple[float, float, float]:
+def estimate(dy: Any, ell: Any, prob: Any, T: int, memory: int | None, dx: int, dz: int, prefix: bool, kinds: int = 1) -> tuple[float, float, float]:
     """(peak bytes, floating-point operations, Python loop iterations) of the design over ``T`` steps.
 
     Parameters
@@ -55,7 +66,15 @@ def estimate(dy: Any, ell: Any, prob: Any, T: int, memory: int | None, dx: int, 
         State and estimate sizes.
     prefix : bool
         One factorization for every step (no memory and a constant cost weight S).
+    kinds : int
+        Item kinds designed (``items="auto"`` designs both raw measurements and innovations where cheap): their kept fills
+        and their work add up.
     """
+    if memory is not None:  # the windowed form (:mod:`._lossy_window`): per-step arrays of a fixed size, kept results linear in T
+        from ._lossy_window import estimate as windowed
+
+        peak, flops, loops = windowed(dy, ell, prob, T, memory, dx, dz)
+        return peak * kinds, flops * kinds, loops * kinds
     dy_a = np.asarray(dy, dtype=float)
     n = dy_a.size
     dyt = float(dy_a.sum())
@@ -92,26 +111,98 @@ def estimate(dy: Any, ell: Any, prob: Any, T: int, memory: int | None, dx: int, 
         late = 8 * R * N + 8 * F + max(8 * (3 * Rk * Rk + S / max(R, 1) * Rk * Rk), 3 * 8 * Rkz * Rkz) + 16 * Rk * N
         flops = Tf * (Rkz**3 / 3 + 10 * Rk * Rk + 2 * Rk * N * N / n)
     flops += 2 * n * dz * F + 4 * N**3  # V2 = W Hᵀ per step; the moments' products
-    loops = Tf * _budget.DESIGN_STEP_LOOPS + 10 * S  # per step, and per slot (its item tuple)
+    late += 8 * F * (kinds - 1)  # every kind's fills are kept until the cheaper one is chosen
+    flops *= kinds
+    loops = kinds * (Tf * _budget.DESIGN_STEP_LOOPS + 10 * S)  # per step, and per slot (its item tuple)
     return moments + max(early, late), flops, loops
 
 
-def check(system: Any, arr: Any, T: int, memory: int | None, dz: int, prefix: bool) -> None:
+#: the largest memory a refusal suggests is 2 ℓ_max + MEMORY_SLACK steps (ℓ_max the largest geodesic delay); ring-6-lossy
+#: (ℓ_max = 6, T = 60, p = 0.2): memory = 8, 12, 16 cost 2.1 %, 0.64 %, 0.18 % more than the full design
+MEMORY_SLACK = 4
+
+
+def _fits(
+    system: Any, arr: Any, T: int, memory: int | None, dz: int, prefix: bool, kinds: int, avail: int | None, limit: float
+) -> tuple[bool, float, float]:
+    """(fits, peak bytes, optimistic seconds) of the design, against ``avail`` bytes and ``limit`` seconds."""
+    peak, flops, loops = estimate(system.dy, arr.ell, arr.prob, T, memory, system.dx, dz, prefix, kinds)
+    t = flops / _budget.FLOPS + loops / _budget.LOOPS
+    return (avail is None or peak <= _budget.MEMORY_FRACTION * avail) and t <= limit, peak, t
+
+
+def suggest(system: Any, arr: Any, T: int, memory: int | None, dz: int, kinds: Any = lambda m: 1) -> str:
+    """What makes a refused design fit: a ``memory`` (the largest up to 2 ℓ_max + :data:`MEMORY_SLACK` below the given one), else
+    the longest horizon with the smallest useful memory (ℓ_max + 1: items older than the largest delay can arrive)."""
+    avail, limit = _budget.available_memory(), _budget.work_limit_s()
+    live = arr.prob > 0
+    lmax = int(np.max(np.where(live, arr.ell, 0)))
+    top = min(2 * lmax + MEMORY_SLACK, T, memory - 1 if memory is not None else T)
+    for m in range(top, lmax, -1):  # m <= ℓ_max: the items of the farthest agents are never live
+        ok, peak, t = _fits(system, arr, T, m, dz, False, kinds(m), avail, limit)
+        if ok:
+            return (
+                f"set the mtmse_lossy option memory = {m} (the items of the last {m} steps: about {_budget.format_bytes(peak)} and "
+                f"{_budget.format_seconds(t)} or more; its exact cost is reported, see docs/lossy-design.md), or use a shorter horizon"
+            )
+    m = lmax + 1 if memory is None else min(memory, lmax + 1)
+    lo, hi = 0, T  # the longest horizon that fits with memory m (what it keeps grows like T: counted without the steady form's reuse)
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if _fits(system, arr, mid, m, dz, False, kinds(m), avail, limit)[0]:
+            lo = mid
+        else:
+            hi = mid
+    if lo < 1:
+        return "use a smaller team or fewer measurement rows"
+    return f"use a horizon of at most {lo:,} steps with memory = {m} (with a memory the kept gains, fills and items grow like T)"
+
+
+def check(system: Any, arr: Any, T: int, memory: int | None, dz: int, prefix: bool, kinds: Any = lambda m: 1) -> None:
     """Refuse, before anything is allocated, a drop-aware design whose memory or time exceeds what the machine has.
+
+    ``kinds(m)``: how many item kinds the design computes with memory m (``items="auto"`` may design both).
+    The refusal names what fits (:func:`suggest`): a ``memory = m`` with its estimate, or the longest horizon.
 
     Raises
     ------
     teamkf.exceptions.ResourceError
         Naming ``horizon`` (or ``memory``), with the estimate and what to change.
     """
-    peak, flops, loops = estimate(system.dy, arr.ell, arr.prob, T, memory, system.dx, dz, prefix)
+    peak, flops, loops = estimate(system.dy, arr.ell, arr.prob, T, memory, system.dx, dz, prefix, kinds(memory))
     what = f"the mtmse_lossy design over T = {T:,} steps" + (f" (memory = {memory})" if memory is not None else "")
-    fix = (
-        "use a shorter horizon (its arrays grow like T^2 and its kept fills like T^3), or set the mtmse_lossy option memory = m "
-        "(only the items of the last m steps)"
-        if memory is None
-        else "use a shorter horizon or a smaller memory"
-    )
+    if not _fits(system, arr, T, memory, dz, prefix, kinds(memory), _budget.available_memory(), _budget.work_limit_s())[0]:
+        fix = suggest(system, arr, T, memory, dz, kinds)
+    else:
+        fix = ""
     _budget.check_memory(peak, what, argument="horizon", fix=fix)
     t = _budget.check_work(flops, what, argument="horizon", fix=fix, loops=loops)
     _budget.announce(t, what)
+
+
+def check_fill(v: Any, key: str) -> Any:
+    """``mtmse_lossy``'s ``fill``: true (missed items filled from the own items), false (by zero) or "held"."""
+    if isinstance(v, (bool, np.bool_)) or v == "held":
+        return v if v == "held" else bool(v)
+    raise ArgumentError(f'{key}: expected true (filled from the own items), false (by zero) or "held" (the class containing the rule), found {v!r}')
+
+
+def fill_options() -> tuple[Any, ...]:
+    """``mtmse_lossy``'s registry options ``fill`` and ``patterns`` (``fill = "held"``: :mod:`teamkf.estimators._lossy_rulefill`)."""
+    from .. import _validation as V
+    from .registry import Option
+
+    return (
+        Option(
+            name="fill",
+            default=True,
+            check=check_fill,
+            doc='missed items: from the own items (true), zero (false), "held": the class containing the rule',
+        ),
+        Option(
+            name="patterns",
+            default=None,
+            check=lambda v, k: None if v is None else V.integer(v, k, minimum=2),
+            doc='fill = "held": link patterns sampled for the fit and the cost (none: all when few, else 400)',
+        ),
+    )

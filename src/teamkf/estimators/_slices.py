@@ -18,7 +18,7 @@ The protocol (a family opts in):
   ``design.graph_agents()[i]`` would have returned, with the same arithmetic bit for bit.
 
 Implemented for the built-in families that deploy with their shared gains: ``kcf``
-(honest variant), ``mtmse`` and ``mmse``. Others (and plug-ins) raise, and the agent
+(honest variant), ``mtmse``, ``mmse`` and ``mtmse_lossy`` (without ``keyed``). Others (and plug-ins) raise, and the agent
 process designs the team itself (:mod:`teamkf.study.slices` says so on stderr).
 """
 
@@ -99,6 +99,7 @@ class AgentRows:
 KINDS: dict[str, tuple[str, str]] = {
     "linear-kcf": ("kcf", "kcf_agent_from_slice"),
     "team": ("team", "team_agent_from_slice"),
+    "lossy": ("_lossy_slice", "lossy_agent_from_slice"),
 }
 
 

@@ -50,7 +50,9 @@ window-sized matrix at all. The cost is summed over the independent noises
 backward pass. The designs use this form when :func:`choose_solver` picks
 CG and :func:`innovations_pays` (every agent filters the whole state: n w d_x^3
 to set up: too much for the UAV formation, d_x = d_y = n with a 2-step window;
-little for the platoon, d_x = n against d_y = n^2 measurements per step).
+little for the platoon, d_x = n against d_y = n^2 measurements per step). When every agent measures
+with the same C_i and R_i (the platoons) they run it on the shared sensor instead
+(:class:`~teamkf.estimators._gamma_shared.SharedSensorInnovations`: the same answer, no k x d_x matrix).
 """
 
 from __future__ import annotations

@@ -16,6 +16,7 @@ from .._lazy import scipy_linalg as sla  # SciPy / networkx load on first use
 from .._validation import FloatArray
 from ..exceptions import ShapeError
 from ..models import LinearGaussianSystem, TeamCost
+from ._gamma_shared import SharedSensorInnovations, block_mask, shared_sensor_window
 from .gamma import DENSE_MAX_BYTES, GammaProblem, InnovationsProblem, WindowModel
 
 __all__ = ["StaticTeamEstimate", "static_team_estimate", "gains_team_cost"]
@@ -222,8 +223,18 @@ def _solve_step(
 def _solve_step_innovations(
     system: LinearGaussianSystem, cost: TeamCost, k: int, anchor: int, P_anchor: FloatArray, idx: list[np.ndarray], dz: int
 ) -> tuple[list[FloatArray], float, dict[str, Any]]:
-    """MTMSE gains and cost of one step by CG in the agents' innovation coordinates (:class:`InnovationsProblem`)."""
+    """MTMSE gains and cost of one step by CG in the agents' innovation coordinates (:class:`InnovationsProblem`).
+
+    When every agent measures with the same C_i and R_i (the platoons: every vehicle measures all positions)
+    the filters are run on the shared sensor (:class:`~teamkf.estimators._gamma_shared.SharedSensorInnovations`):
+    the same answer, with no k x d_x matrix per step and no window-sized R.
+    """
     w = k - anchor + 1
+    window = shared_sensor_window(system, anchor, w, P_anchor)
+    if window is not None and block_mask(idx, w, window.n_src, window.C[0].shape[0]) is not None:
+        shared = SharedSensorInnovations(cost.S_at(k), cost.L_at(k), window, idx, dz)
+        F, J = shared.solve()
+        return F, J, {"method": "cg", "size": shared.size, "iterations": shared.iterations, "coordinates": "innovations", "sensors": "shared"}
     model = WindowModel(
         A=[system.A_at(anchor + u) for u in range(w - 1)],
         Q=[system.Q_at(anchor + u) for u in range(w - 1)],

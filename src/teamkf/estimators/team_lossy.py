@@ -60,8 +60,9 @@ is stable (detectable agents); with innovation items no quantity of the size of 
 (unstable processes are fine), raw measurements are y = B ν.
 
 Complexity: R = Σ_i Σ_j d_y^j (T - ℓ_ji) slot rows; O(R³/3) once (one factorization), or with
-``memory = m`` O(T (m Σ_i Σ_j d_y^j)³) (a factorization per step; items older than m steps are not
-used, the own ones stay in x̂_i(k|k) and the fills).
+``memory = m`` the windowed form of :mod:`teamkf.estimators._lossy_window` (a factorization per step of the live
+items, fills from a window of own items, moments from a lifted recursion of fixed size, gains reused once steady). Sized before anything is allocated
+(:mod:`teamkf.estimators._lossy_size`): a design beyond the memory or work limit is refused naming a memory that fits.
 
 Lower bound
 -----------
@@ -89,101 +90,12 @@ from ..network.graph import CommGraph
 from . import _lossy_size
 from ._arrivals import ArrivalModel, _jitter_value, _p_value
 from ._lossy_bound import known_pattern_bound, known_pattern_stats
+from ._lossy_moments import LocalMoments, innovations_to_measurements, local_filter_moments
 from .base import Design, check_paths
 from .checks import check_graph, check_model
 from .registry import Family, Option, _register_builtin, register_alias
 
 __all__ = ["LossyTeamDesign", "LossyTeamAgent", "design_mtmse_lossy", "local_filter_moments", "known_pattern_bound"]
-
-
-# ---------------------------------------------------------------------------
-# second moments of the local filters' errors and innovations
-# ---------------------------------------------------------------------------
-@dataclass(frozen=True, eq=False)
-class LocalMoments:
-    """Exact second moments of every agent's own Kalman filter, over the horizon.
-
-    K : list over steps of lists over agents of (d_x, d_y^j) gains
-    Sigma : (N, N) covariance of all innovations ν = (ν(0), ..., ν(T-1)), ν(s) = (ν_1(s), ..., ν_n(s))
-    Theta : list over steps k of (n d_x, N_k) arrays cov(e(k|k), ν(0:k)), N_k = (k+1) Σ d_y
-    Pe : list over steps of (n d_x, n d_x) covariances of e(k|k) = (e_1(k|k), ..., e_n(k|k))
-    """
-
-    K: list[list[FloatArray]]
-    Sigma: FloatArray
-    Theta: list[FloatArray]
-    Pe: list[FloatArray]
-
-
-def local_filter_moments(system: LinearGaussianSystem, T: int) -> LocalMoments:
-    r"""Joint covariances of the agents' local Kalman filters (see the module docstring).
-
-    ε(0) = 1 ⊗ x(0); e(k|k) = U ε(k) - K̄ v(k), U = diag(I - K_j C_j); ν(k) = C̄ ε(k) + v(k);
-    ε(k+1) = Ā e(k|k) + 1 ⊗ w(k). With Z(k) = cov(ε(k), ν(0:k-1)):
-    Θ(k) = [U Z(k), U P_ε C̄ᵀ - K̄ R], Z(k+1) = Ā Θ(k), cov(ν(k), ν(0:k-1)) = C̄ Z(k).
-    """
-    n, dx, dyt = system.n_agents, system.dx, system.dy_total
-    Sigma = np.zeros((T * dyt, T * dyt))
-    ones = np.ones((n, n))
-    P_eps = np.kron(ones, system.Sigma_x)
-    P_loc = [np.array(system.Sigma_x, dtype=float) for _ in range(n)]
-    Z = np.zeros((n * dx, 0))
-    Ks, Thetas, Pes = [], [], []
-    for k in range(T):
-        Cs = [system.C_at(j, k) for j in range(n)]
-        Rs = [system.R_at(j, k) for j in range(n)]
-        K = []
-        for j in range(n):
-            Sy = Cs[j] @ P_loc[j] @ Cs[j].T + Rs[j]
-            if Sy.size:
-                Kj = sla.cho_solve(sla.cho_factor(0.5 * (Sy + Sy.T), lower=True), Cs[j] @ P_loc[j]).T
-            else:
-                Kj = np.zeros((dx, 0))
-            K.append(Kj)
-        Ks.append(K)
-        U = block_diag(*[np.eye(dx) - K[j] @ Cs[j] for j in range(n)])
-        Kb = block_diag(*K) if dyt else np.zeros((n * dx, 0))
-        Cb = block_diag(*Cs) if dyt else np.zeros((0, n * dx))
-        R = system.R_stack(k)
-        blk = slice(k * dyt, (k + 1) * dyt)
-        Sigma[blk, : k * dyt] = Cb @ Z
-        Sigma[: k * dyt, blk] = Sigma[blk, : k * dyt].T
-        Sv = Cb @ P_eps @ Cb.T + R
-        Sigma[blk, blk] = 0.5 * (Sv + Sv.T)
-        Theta = np.hstack([U @ Z, U @ P_eps @ Cb.T - Kb @ R])
-        Thetas.append(Theta)
-        Pe = U @ P_eps @ U.T + Kb @ R @ Kb.T
-        Pe = 0.5 * (Pe + Pe.T)
-        Pes.append(Pe)
-        A = system.A_at(k)
-        Ab = np.kron(np.eye(n), A)
-        Z = Ab @ Theta
-        P_eps = Ab @ Pe @ Ab.T + np.kron(ones, system.Q_at(k))
-        P_eps = 0.5 * (P_eps + P_eps.T)
-        for j in range(n):
-            IKC = np.eye(dx) - K[j] @ Cs[j]
-            Pf = IKC @ P_loc[j] @ IKC.T + K[j] @ Rs[j] @ K[j].T
-            Pp = A @ Pf @ A.T + system.Q_at(k)
-            P_loc[j] = 0.5 * (Pp + Pp.T)
-    return LocalMoments(Ks, Sigma, Thetas, Pes)
-
-
-def innovations_to_measurements(system: LinearGaussianSystem, K: Sequence[Sequence[FloatArray]], T: int) -> FloatArray:
-    r"""B with y = B ν (stacked over steps): y_j(s) = ν_j(s) + C_j(s) x̂_j(s|s-1), x̂_j linear in ν_j(0:s-1).
-
-    x̂_j(s+1|s) = A(s) (x̂_j(s|s-1) + K_j(s) ν_j(s)); block lower triangular, agent by agent.
-    """
-    n, dx, dyt, off = system.n_agents, system.dx, system.dy_total, system.offsets
-    B = np.eye(T * dyt)
-    for j in range(n):
-        cols_j = [s * dyt + int(off[j]) + np.arange(system.dy[j]) for s in range(T)]
-        pred = np.zeros((dx, T * dyt))  # x̂_j(s|s-1) as a map of ν
-        for s in range(T):
-            B[cols_j[s]] += system.C_at(j, s) @ pred
-            upd = pred.copy()
-            upd[:, cols_j[s]] += K[s][j]
-            pred = system.A_at(s) @ upd
-    return B
 
 
 # ---------------------------------------------------------------------------
@@ -537,6 +449,7 @@ class LossyTeamDesign(Design):
                 z = ef[:, i * dx : (i + 1) * dx] @ L[i * dz : (i + 1) * dz].T
                 if rows.size:
                     own = _own_cols(sysm, i, k)
+                    own = own[own.size - self.fills[k][i].shape[1] :]  # the fills act on the last w own items
                     m = mask[:, rows, i]
                     vals = nu if self.coordinates == "innovations" else yv
                     f = vals[:, rows] * m + (1.0 - m) * (vals[:, own] @ self.fills[k][i].T)  # the fill of a missed item
@@ -554,6 +467,12 @@ class LossyTeamDesign(Design):
     @property
     def delivery_graph(self) -> CommGraph | None:
         return self.graph
+
+    def agent_slice(self, i: int) -> tuple[str, dict[str, np.ndarray], dict[str, Any]]:
+        """Agent i's own gains, fills, items and local Kalman gains (:mod:`teamkf.estimators._lossy_slice`)."""
+        from ._lossy_slice import agent_slice
+
+        return agent_slice(self, i)
 
     # --- what the CLI writes ---------------------------------------------------------------
     def details(self) -> dict[str, Any]:
@@ -619,7 +538,8 @@ class LossyTeamAgent:
         z = xhat @ d.cost.L_block(i, k).T
         its = d.items[k][i]
         if its:
-            nu_own = np.hstack([items[(i, s)] for s in range(k + 1)])
+            w = d.fills[k][i].shape[1] // sysm.dy[i] if sysm.dy[i] else k + 1  # the fills act on the last w own items
+            nu_own = np.hstack([items[(i, s)] for s in range(k + 1 - w, k + 1)])
             fill = nu_own @ d.fills[k][i].T  # the predictions of every item from the own innovations
             parts, col = [], 0
             for j, s in its:
@@ -651,6 +571,10 @@ def register_resend(design: Any) -> None:
     _RESEND[:] = [design]
 
 
+_HELD: list[Any] = []  #: ``fill="held"`` (the class containing the rule), registered by :mod:`teamkf.estimators._lossy_rulefill`
+register_held = _HELD.append
+
+
 def design_mtmse_lossy(
     system: LinearGaussianSystem,
     cost: TeamCost,
@@ -661,7 +585,8 @@ def design_mtmse_lossy(
     jitter: Any = 0,
     memory: int | None = None,
     items: str = "auto",
-    fill: bool = True,
+    fill: bool | str = True,
+    patterns: int | None = None,
     bound: bool = True,
     known_bound: int = 0,
     known_window: int | None = None,
@@ -685,7 +610,8 @@ def design_mtmse_lossy(
     jitter : int >= 0 or {(source, target): J}
         A packet late by 1..J steps counts as lost (its item is not used): on-time probability (1 - p)/(J + 1).
     memory : int or None
-        Use only the innovations of the last ``memory`` steps (bounds the work; None: all, the exact class).
+        Use only the items of the last ``memory`` steps, missed ones filled from the agent's own items of a window, with
+        a steady form for long horizons (:mod:`teamkf.estimators._lossy_window`; exact cost); None: all, the full class.
     items : "auto", "measurements" or "innovations"
         What the agents flood and the gains act on: the raw measurements y_j(s), or the innovations
         ν_j(s) of the sender's own Kalman filter. Both give MTMSE at p = 0 and the own-history optimum
@@ -696,8 +622,11 @@ def design_mtmse_lossy(
         :data:`AUTO_GROWTH` and the estimated work at most :data:`AUTO_WORK` flops; otherwise measurements
         when every A(k) is stable (spectral radius < 1), else innovations (bounded second moments on
         unstable processes).
-    fill : bool
-        Replace a missed item by its predictor from the agent's own innovations (else by zero, its mean).
+    fill : bool or "held"
+        Replace a missed item by its predictor from the agent's own innovations (else by zero, its mean). "held": the
+        class containing the nominal design under the missed-packet rule, today's class and the local filters
+        (:mod:`teamkf.estimators._lossy_rulefill`; never worse than any of them; ``patterns``: link patterns sampled
+        for the fit and as many fresh ones for the cost, None: all of them when few, else 400).
     threads : int or None
         BLAS threads for the design (1: robust on a shared machine; None: the library's default).
     bound : bool
@@ -748,24 +677,37 @@ def design_mtmse_lossy(
     mem = None if memory is None else V.positive_int(memory, "memory")
     coords = V.choice(items, "items", ("auto", "measurements", "innovations"))
     arr = ArrivalModel.build(graph, p, J)
-    _lossy_size.check(system, arr, T, mem, cost.dz, prefix=mem is None and not cost.is_time_varying)  # sized before anything is allocated
+
+    def kinds(m: int | None) -> int:  # item kinds designed with memory m (``items="auto"`` may design both)
+        return len(_auto_items(system, arr, T, m)) if coords == "auto" else 1
+
+    _lossy_size.check(system, arr, T, mem, cost.dz, prefix=mem is None and not cost.is_time_varying, kinds=kinds)  # before any allocation
     kw = V.integer(keyed, "keyed", minimum=0, maximum=1, what="the window w (0: gains independent of the pattern, 1: keyed on the current arrivals)")
     candidates = _auto_items(system, arr, T, mem) if coords == "auto" else (coords,)
+    fill = _lossy_size.check_fill(fill, "fill")
     rs = V.integer(resend, "resend", minimum=1, maximum=16, what="the items per packet r (1: one item per packet)")
-    if kw or rs > 1:  # keyed gains, re-sent items: modules of their own, which import this one and register here
-        if not (_KEYED and _RESEND):
-            from .registry import families
+    if (fill == "held" and not _HELD) or (kw and not _KEYED) or (rs > 1 and not _RESEND):  # modules of their own that register here
+        from .registry import families
 
-            families()  # loads the built-in modules and their extensions (_builtin.EXTENSIONS)
-        if rs > 1:
-            return _RESEND[0](system, cost, graph, T, p, J, arr, candidates, rs, fill, bound, threads, keyed=kw, memory=mem)
+        families()  # loads the built-in modules and their extensions (_builtin.EXTENSIONS)
+    if rs > 1:  # re-sent items
+        return _RESEND[0](system, cost, graph, T, p, J, arr, candidates, rs, fill, bound, threads, keyed=kw, memory=mem)  # type: ignore[no-any-return]
+    if fill == "held":  # the class containing the missed-packet rule
+        return _HELD[-1](system, cost, graph, T, p, J, arr, patterns=patterns, keyed=kw, memory=mem)  # type: ignore[no-any-return]
+    if kw:  # gains keyed on the current arrivals
         return _KEYED[0](system, cost, graph, T, p, J, arr, candidates, mem, fill, bound, threads)
     with blas_threads(threads):
-        mom0 = local_filter_moments(system, T)
-        tried = {c: _solve_all(system, cost, arr, _item_moments(system, mom0, T, c), T, mem, fill, progress) for c in candidates}
+        if mem is not None:  # windowed fills, a lifted moment recursion and a steady form: memory independent of T
+            from . import _lossy_window
+
+            tried: dict[str, Any] = {c: _lossy_window.solve(system, cost, arr, T, mem, bool(fill), c, progress) for c in candidates}
+        else:
+            mom0 = local_filter_moments(system, T)
+            tried = {
+                c: (*_solve_all(system, cost, arr, _item_moments(system, mom0, T, c), T, mem, bool(fill), progress), mom0.K, {}) for c in candidates
+            }
     coords = min(candidates, key=lambda c: float(np.sum(tried[c][3])))  # the lower exact expected cost (ties: the first)
-    held, gains, fills, stage, local = tried[coords]
-    mom = mom0
+    held, gains, fills, stage, local, K_loc, extra = tried[coords]
     if bound:
         from .registry import get_family  # the registered MTMSE family (families do not import each other)
 
@@ -787,6 +729,7 @@ def design_mtmse_lossy(
             "items": coords,
             "items_costs": {c: float(np.sum(tried[c][3])) for c in candidates},
             "local_kf_cost": float(local.sum()),
+            **extra,
         },
         graph=graph,
         p_drop=p,
@@ -794,10 +737,10 @@ def design_mtmse_lossy(
         memory=mem,
         coordinates=coords,
         arrivals=arr,
-        items=tuple(tuple(tuple(it) for it in step) for step in held),
+        items=held if isinstance(held, tuple) else tuple(tuple(tuple(it) for it in step) for step in held),  # windowed: built lazily
         gains=tuple(tuple(step) for step in gains),
         fills=tuple(tuple(step) for step in fills),
-        K_local=tuple(tuple(K) for K in mom.K),
+        K_local=tuple(tuple(K) for K in K_loc),
         lower_bound_stages=lb,
         local_stages=local,
     )
@@ -879,6 +822,7 @@ FAMILY = _register_builtin(
                 check=lambda v, k: V.integer(v, k, minimum=0, maximum=1),
                 doc="1: gains keyed on the current arrivals (the items due at each step; small teams, no memory); 0: pattern-independent",
             ),
+            *_lossy_size.fill_options(),  # fill (and patterns, for fill = "held")
             Option(
                 name="resend",
                 default=1,

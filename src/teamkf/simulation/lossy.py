@@ -588,7 +588,8 @@ def _run_lossy(
         _is_team_relay(ag) and ag.inner.index == i and ag.inner.design is agents[0].inner.design for i, ag in enumerate(agents)
     )
     flood = not any(omni) and _is_lossy_team(agents)
-    out, t = _events(streams, T, edges, links, omni, n, relays or flood)
+    held = not any(omni) and _is_rulefill(agents)
+    out, t = _events(streams, T, edges, links, omni, n, relays or flood or held)
     count_links(out, stats)
     if all(omni):  # the centralized bound: every y_j(k) at step k, whatever the links
         return pass_messages(agents, graph, ys, design=design)
@@ -598,6 +599,9 @@ def _run_lossy(
     if flood:
         assert t is not None
         return _run_lossy_team(agents, ys, t)
+    if held:
+        assert t is not None
+        return _run_rulefill(agents, graph, ys, t, stats)
     if _is_cikf(agents):
         return _run_cikf(agents, ys, out)
     if _stackable(agents, graph):
@@ -656,7 +660,8 @@ def _run_lossy_team(agents: Sequence[Any], ys: Sequence[FloatArray], t: np.ndarr
             z = xh[i] @ d.cost.L_block(i, k).T
             its = d.items[k][i]
             if its:
-                fill = np.concatenate([mine[i][s] for s in range(k + 1)], axis=-1) @ d.fills[k][i].T
+                w = d.fills[k][i].shape[1] // sysm.dy[i] if sysm.dy[i] else k + 1  # the fills act on the last w own items
+                fill = np.concatenate([mine[i][s] for s in range(k + 1 - w, k + 1)], axis=-1) @ d.fills[k][i].T
                 parts, col = [], 0
                 for j, s in its:
                     dj = int(sysm.dy[j])
@@ -667,6 +672,31 @@ def _run_lossy_team(agents: Sequence[Any], ys: Sequence[FloatArray], t: np.ndarr
                 z = z + np.concatenate(parts, axis=-1) @ d.gains[k][i].T
             zs[i].append(z[:, 0, :])
     return np.concatenate([np.stack(zi, axis=1) for zi in zs], axis=2)  # type: ignore[no-any-return]
+
+
+def _is_rulefill(agents: Sequence[Any]) -> bool:
+    from ..estimators._lossy_rulefill import RuleFillAgent
+
+    return bool(agents) and all(type(ag) is RuleFillAgent and ag.index == i and ag.design is agents[0].design for i, ag in enumerate(agents))
+
+
+def _run_rulefill(agents: Sequence[Any], graph: CommGraph, ys: Sequence[FloatArray], t: np.ndarray, stats: Any) -> FloatArray:
+    """``mtmse_lossy`` with ``fill = "held"`` (:mod:`teamkf.estimators._lossy_rulefill`) for every run at once: its agents
+    relay as the MTMSE relays, so the rule's feature is :class:`_TeamStep` on the same arrivals, the others its ``features``."""
+    d = agents[0].design
+    ell = np.asarray(graph.geodesic_delays()).T.tolist()
+    ts = _TeamStep(d.nominal, ys, t, ell)
+    R, T = ys[0].shape[:2]
+    Y = np.concatenate(ys, axis=2).reshape(R, -1)
+    n = len(agents)
+    z = np.empty((R, T, n * d.cost.dz))
+    for k in progress(range(T), desc="lossy runtime (all runs)", total=T, unit="step"):
+        rule = ts.step(k).reshape(R, n, -1)
+        z[:, k] = d.combine(k, d.features(k, Y, t, rule))
+    for i, m in enumerate(ts.misses().tolist()):
+        if m:
+            stats.missed[i] = stats.missed.get(i, 0) + int(m)
+    return z
 
 
 def _is_cikf(agents: Sequence[Any]) -> bool:

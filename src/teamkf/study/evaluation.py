@@ -293,6 +293,8 @@ def _evaluate_team(scenario: Any, estimators: Sequence[str] | None, runs: int, s
         r = mc.get(name)
         if d.has_analytic_cost:
             row.update({"method": "analytic", key: _num(d.cost_value), "ci95_low": None, "ci95_high": None})
+            if d.info.get("exact") is False and "interval" in d.info:  # an expected cost estimated over sampled link patterns
+                row.update({"ci95_low": float(d.info["interval"][0]), "ci95_high": float(d.info["interval"][1])})
             if r is not None:
                 lo, hi = r.ci95
                 row.update({"mc_cost": float(r.total_mean), "mc_ci95_low": float(lo), "mc_ci95_high": float(hi)})

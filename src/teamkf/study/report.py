@@ -270,7 +270,7 @@ def evaluation_json(ev: Any, version: str) -> dict[str, Any]:
     for row in ev.json_rows():
         name = row["estimator"]
         entry: dict[str, Any] = {"method": row["method"], ev.cost_key: row[ev.cost_key]}
-        if row["method"] == "monte-carlo":
+        if row["method"] == "monte-carlo" or row.get("ci95_low") is not None:  # an analytic cost estimated over link patterns too
             entry.update(ci95=[row["ci95_low"], row["ci95_high"]], ci95_low=row["ci95_low"], ci95_high=row["ci95_high"])
         if row["mc_cost"] is not None or row["mc_ci95_low"] is not None:
             entry.update(mc_cost=row["mc_cost"], mc_ci95=[row["mc_ci95_low"], row["mc_ci95_high"]])
