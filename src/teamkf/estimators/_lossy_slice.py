@@ -47,20 +47,8 @@ class LossySliceView(SliceDesign):
         return True
 
 
-def agent_slice(design: Any, i: int) -> tuple[str, dict[str, np.ndarray], dict[str, Any]]:
-    """Agent i's arrays: ``ell`` (ℓ_ji for every j), and per step k ``K/k``, ``items/k`` ((source, step) rows), ``G/k``, ``F/k``."""
-    T = int(design.horizon)
-    arrays: dict[str, np.ndarray] = {"ell": np.asarray(design.arrivals.ell, dtype=np.int64)[:, i].copy()}
-    for k in range(T):
-        arrays[f"K/{k}"] = np.asarray(design.K_local[k][i])
-        arrays[f"items/{k}"] = np.asarray(design.items[k][i], dtype=np.int64).reshape(-1, 2)
-        arrays[f"G/{k}"] = np.asarray(design.gains[k][i])
-        arrays[f"F/{k}"] = np.asarray(design.fills[k][i])
-    return "lossy", arrays, {"horizon": T, "coordinates": str(design.coordinates), "memory": design.memory}
-
-
 def lossy_agent_from_slice(ctx: Any, i: int, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> tuple[Any, Any]:
-    """``(view, agent)`` of agent i rebuilt from :func:`agent_slice`'s arrays and the scenario's model (no design)."""
+    """``(view, agent)`` of agent i rebuilt from the arrays of :meth:`~teamkf.estimators.team_lossy.LossyTeamDesign.agent_slice` and the scenario's model (no design)."""
     from .team_lossy import LossyTeamAgent
 
     T = int(meta["horizon"])
