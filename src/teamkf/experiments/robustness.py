@@ -122,30 +122,32 @@ def _point(key: tuple[str, int, float, int, int, int]) -> tuple[tuple[float, flo
 CHAINS = ((0.5, 0.2, 0.1), (0.05, 0.01, 0.0, 1.0))
 
 
-def _chains(keys: list[tuple[str, int, float, int, int, int]]) -> list[list[tuple[str, int, float, int, int, int]]]:
+Key = tuple[str, int, float, int, int, int]  # (scenario, J, p, T, runs, seed): one grid point
+
+
+def _chains(keys: list[Key]) -> list[list[Key]]:
     """The grid points grouped into chains (:data:`CHAINS` within each (scenario, J) row), the richest chains first.
 
     Every point is in exactly one chain; drop probabilities outside :data:`CHAINS` form a chain of their own.
     """
-    rows: dict[tuple[str, int], list[tuple[str, int, float, int, int, int]]] = {}
+    rows: dict[tuple[str, int], list[Key]] = {}
     for key in keys:
         rows.setdefault((key[0], key[1]), []).append(key)
-    out: list[list[tuple[str, int, float, int, int, int]]] = [[] for _ in range(len(CHAINS) + 1)]
-    by_rank: list[list[list[tuple[str, int, float, int, int, int]]]] = [[] for _ in range(len(CHAINS) + 1)]
+    groups: tuple[tuple[float, ...] | None, ...] = (*CHAINS, None)
+    by_rank: list[list[list[Key]]] = [[] for _ in groups]
     for row in rows.values():
-        for q, ps in enumerate((*CHAINS, None)):
-            chain = [k for k in row if (k[2] in ps if ps is not None else all(k[2] not in c for c in CHAINS))]
-            if ps is not None:
-                chain.sort(key=lambda k: ps.index(k[2]))
+        for q, ps in enumerate(groups):
+            if ps is None:
+                chain = [k for k in row if all(k[2] not in c for c in CHAINS)]
+            else:
+                chain = [k for p in ps for k in row if k[2] == p]  # in the order of CHAINS
             if chain:
                 by_rank[q].append(chain)
     # the first chain of every row, heaviest rows first (the platoon, large J: the longest windows), then the rest
-    for q, chains in enumerate(by_rank):
-        out[q] = sorted(chains, key=lambda c: (c[0][0] != "platoon-4", -c[0][1]))
-    return [c for grp in out for c in grp]
+    return [c for chains in by_rank for c in sorted(chains, key=lambda c: (c[0][0] != "platoon-4", -c[0][1]))]
 
 
-def _chain(keys: list[tuple[str, int, float, int, int, int]]) -> list[Any]:
+def _chain(keys: list[Key]) -> list[Any]:
     """:func:`_point` of each key, in order, in this process."""
     return [_point(k) for k in keys]
 
