@@ -137,6 +137,21 @@ def test_simulation_reproducible_and_batched():
 
 
 @pytest.mark.parametrize("memory", [0, 3])
+def test_simulation_noise_blocks_do_not_change_the_numbers(monkeypatch, memory):
+    """Each run's noise drawn for a block of steps at once (the block not dividing T) = one draw per step."""
+    import teamkf.control.certainty_equivalent as ce
+
+    m = PopulationModel(n_agents=7, a=2.5, f=2.0, memory=memory)
+    ref = simulate_population(m, 23, n_runs=3, rng=5, keep_states=True)
+    for doubles in (1, 2 * 7 * 3 * 5):  # one step per block; five steps per block (23 = 4 x 5 + 3)
+        monkeypatch.setattr(ce, "NOISE_BLOCK_DOUBLES", doubles)
+        got = simulate_population(m, 23, n_runs=3, rng=5, keep_states=True)
+        np.testing.assert_array_equal(got.states, ref.states)
+        np.testing.assert_array_equal(got.estimates, ref.estimates)
+        np.testing.assert_array_equal(got.lq_cost, ref.lq_cost)
+
+
+@pytest.mark.parametrize("memory", [0, 3])
 def test_simulator_equals_a_plain_loop_with_measurement_form_gains(memory):
     """The batched simulator (innovation form) against a plain loop with xhat_k = E x_k + K_k (Y - E Y)."""
     from teamkf.simulation.sampling import run_streams

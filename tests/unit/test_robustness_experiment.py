@@ -26,3 +26,37 @@ def test_robustness_quick(tmp_path):
         for r in robust
     )
     assert "cikf" in res.notes  # not designed on the UAV graph (delay 2), and said so
+
+
+def test_robustness_chains_cover_the_grid_richest_first():
+    from teamkf.experiments.robustness import CHAINS, P_FULL, SCENARIOS, _chains
+
+    keys = [(s, J, p, 50, 200, 5) for s in SCENARIOS for J in (0, 1, 2) for p in P_FULL]
+    chains = _chains(keys)
+    flat = [k for c in chains for k in c]
+    assert sorted(flat) == sorted(keys) and len(flat) == len(keys)  # every point once
+    for c in chains:
+        assert len({k[:2] for k in c}) == 1  # one (scenario, J) row per chain
+    assert [k[2] for k in chains[0]] == list(CHAINS[0]) and chains[0][0][:2] == ("platoon-4", 2)  # the heaviest first
+
+
+def test_robustness_point_does_not_depend_on_the_caches_a_chain_leaves():
+    """A point computed after another point of its row (caches warm, as in a chain) = the point alone (caches cold)."""
+    import teamkf.simulation.lossy as lossy
+    from teamkf.experiments import robustness as R
+    from teamkf.study.scenario import load_packaged
+
+    sc = load_packaged("platoon-4").updated({"horizon": 8})
+    designs, _ = R._designs(sc)
+    R._GRID[("platoon-4", 1)] = (sc, R._with_robust(sc, designs, 1))
+    try:
+        for c in (lossy._CACHES, lossy._PRE):
+            c.clear()
+        lossy._MAPS.clear()
+        alone = R._point(("platoon-4", 1, 0.2, 8, 6, 3))
+        chain = R._chain([("platoon-4", 1, 0.5, 8, 6, 3), ("platoon-4", 1, 0.2, 8, 6, 3)])
+    finally:
+        R._GRID.clear()
+    assert alone[0] == chain[1][0] and alone[2] == chain[1][2]
+    for name, r in alone[1].items():
+        np.testing.assert_array_equal(r.stage_mean, chain[1][1][name].stage_mean)

@@ -72,6 +72,8 @@ MAX_EXPLICIT_AGENTS = 10**7
 MAX_HISTORY_DOUBLES = 2**28
 #: doubles of filter history a simulation step should touch per chunk of runs (~ a last-level cache)
 CACHE_DOUBLES = 2**21
+#: doubles of noise drawn ahead per chunk (each run's (w_k, v_{k+1}) for a block of steps)
+NOISE_BLOCK_DOUBLES = 2**20
 
 P = TypeVar("P")
 R = TypeVar("R")
@@ -386,10 +388,18 @@ def simulate_population(
             # processed with arrays of its own shape, so its numbers do not depend on the batching
             hist = np.zeros((Rc, T, N))
             xc = np.zeros((Rc, N))
+            # each run's noises (w_k, v_{k+1}) for a block of steps in one draw from its stream: the same numbers
+            # as one (2, N) draw per step (a Generator fills an array in order)
+            block = max(1, min(T, NOISE_BLOCK_DOUBLES // max(1, 2 * N * Rc)))
+            zb = np.empty((Rc, block, 2, N))
             for k in range(T):
+                if k % block == 0:
+                    nb = min(block, T - k)
+                    for j, gn in enumerate(gens):
+                        zb[j, :nb] = gn.standard_normal((nb, 2, N))
+                z = zb[:, k % block]
                 u = -fb * xh
                 acc += np.mean(x * x + r_w * u * u, axis=1)
-                z = np.stack([gn.standard_normal((2, N)) for gn in gens])
                 x = a * x + b * u + model.sigma_w * z[:, 0]
                 mk = np.mean(x, axis=1)
                 y = c * x + h * mk[:, None] + model.sigma_v * z[:, 1]
@@ -397,8 +407,8 @@ def simulate_population(
                 if exact:
                     lo = int(lo_row[k])
                     if k > lo:
-                        row = mu[k, lo:k]
-                        pred = np.stack([row @ hist[j, lo:k] for j in range(Rc)])
+                        # one (band,) @ (band, N) product per run, as one stacked matmul (the same BLAS gemv per run)
+                        pred = np.matmul(mu[k, lo:k], hist[:, lo:k])
                         e = (yc - c * af * xc - h * pred) / s[k]
                     else:
                         e = (yc - c * af * xc) / s[k]
@@ -407,8 +417,7 @@ def simulate_population(
                 else:
                     hist[:, k] = yc
                     L = min(k + 1, n)
-                    kk = Kf[k, n - L :]
-                    xc = np.stack([kk @ hist[j, k + 1 - L : k + 1] for j in range(Rc)])
+                    xc = np.matmul(Kf[k, n - L :], hist[:, k + 1 - L : k + 1])
                 xh = Ex[k + 1] + xc
                 m2[r0:r1, k + 1] = np.mean(x * x, axis=1)
                 mean[r0:r1, k + 1] = mk
