@@ -566,3 +566,15 @@ def test_disconnected_components():
     # inspection still works on a broken graph
     assert g.in_neighbors(2) == (3,)
     assert g.to_dict()["n_agents"] == 4
+
+
+@pytest.mark.parametrize("dmin, dmax", [(1, 1), (2, 4), (1, 3), (3, 7)])
+def test_complete_graph_geodesics_equal_dijkstra(dmin: int, dmax: int) -> None:
+    """A complete graph takes the direct-edge shortcut only when no delay is above twice another; Dijkstra agrees either way."""
+    n = 70  # >= 64 edges: the vectorized edge check too
+    rng = np.random.default_rng(dmin * 10 + dmax)
+    edges = [(i, j, int(rng.integers(dmin, dmax + 1))) for i in range(n) for j in range(n) if i != j]
+    g = CommGraph(n, edges)
+    ref = sp.csgraph.shortest_path(g.adjacency().astype(float), method="D", directed=True)
+    np.testing.assert_array_equal(g.geodesic_delays(), ref.astype(np.int64))
+    assert (dmax > 2 * dmin) == bool((g.geodesic_delays() < g.adjacency().toarray()).any())  # a faster two-hop path exists
