@@ -471,13 +471,14 @@ class LossyTeamDesign(Design):
     def agent_slice(self, i: int) -> tuple[str, dict[str, np.ndarray], dict[str, Any]]:
         """Agent i's arrays (rebuilt by :mod:`teamkf.estimators._lossy_slice`): ``ell`` (ℓ_ji for every j), and per step
         k ``K/k`` (its local Kalman gain), ``items/k`` ((source, step) rows), ``G/k`` (gains), ``F/k`` (fills)."""
+        T = int(self.horizon or 0)  # a drop-aware design always has a horizon
         arrays: dict[str, np.ndarray] = {"ell": np.asarray(self.arrivals.ell, dtype=np.int64)[:, i].copy()}
-        for k in range(self.horizon):
+        for k in range(T):
             arrays[f"K/{k}"] = np.asarray(self.K_local[k][i])
             arrays[f"items/{k}"] = np.asarray(self.items[k][i], dtype=np.int64).reshape(-1, 2)
             arrays[f"G/{k}"] = np.asarray(self.gains[k][i])
             arrays[f"F/{k}"] = np.asarray(self.fills[k][i])
-        return "lossy", arrays, {"horizon": int(self.horizon), "coordinates": str(self.coordinates), "memory": self.memory}
+        return "lossy", arrays, {"horizon": T, "coordinates": str(self.coordinates), "memory": self.memory}
 
     # --- what the CLI writes ---------------------------------------------------------------
     def details(self) -> dict[str, Any]:
