@@ -18,7 +18,9 @@ import os
 import sys
 from pathlib import Path
 
-HERE = Path(__file__).resolve().parent
+# this folder (a gallery build runs a copy in docs/_examples, without __file__, from that folder)
+HERE = Path(__file__).resolve().parent if "__file__" in globals() else Path.cwd()
+SCENARIOS = next(d for d in (HERE / "scenarios", HERE.parents[1] / "examples" / "scenarios") if d.is_dir())
 sys.path.insert(0, str(HERE))
 
 from lossy_keyed import unlike_line  # noqa: E402
@@ -39,7 +41,7 @@ def teams() -> list[tuple[str, object, object, object, int]]:
     sysm, cost = unlike_line()
     out = [("unlike line (n = 3, T = 20)", sysm, cost, CommGraph.line(3), 20)]
     for name in ("lossy-ring-4-unlike", "lossy-complete-3-unlike"):
-        sc = load_scenario(HERE / "scenarios" / f"{name}.toml")
+        sc = load_scenario(SCENARIOS / f"{name}.toml")
         out.append((f"{name} (T = {sc.horizon})", sc.system, sc.cost, sc.graph, int(sc.horizon)))
     return out
 
