@@ -271,22 +271,10 @@ def _design_class() -> Any:
 
         def errors(self, paths: Any, *, p_drop: Any = None, jitter: Any = None, rng: Any = None, arrived: Any = None) -> Any:
             """Team errors with sampled link events (as :meth:`LossyTeamDesign.errors`), each run with its pattern's gains."""
-            from .base import check_paths
-
-            check_paths(paths, self.system)
+            x0, w, v, arrived = self._error_inputs(paths, p_drop, jitter, rng, arrived)
             sysm, cost = self.system, self.cost
-            x0 = np.asarray(paths.x, dtype=float)[:, 0]
-            w = np.asarray(paths.w, dtype=float)
-            v = np.concatenate([np.asarray(vi, dtype=float) for vi in paths.v], axis=2)
             n_runs, T = v.shape[:2]
             n, dx, dz, dyt = sysm.n_agents, sysm.dx, cost.dz, sysm.dy_total
-            if arrived is None:
-                if p_drop is None:
-                    arrived = np.ones((n_runs, T, n, n), dtype=bool)
-                else:
-                    arr = ArrivalModel.build(self.graph, p_drop, 0 if jitter is None else jitter)
-                    arrived = arr.sample(n_runs, T, np.random.default_rng(rng))
-            arrived = np.asarray(arrived, dtype=bool)
             off = sysm.offsets
             eps = np.tile(x0, (1, n))
             nu = np.zeros((n_runs, T * dyt))
@@ -382,47 +370,32 @@ def keyed_design(
     if not _CLASS:
         _CLASS.append(_design_class())
     items, due, gains, fills, stage, local = tried[coords]
-    if bound:
-        from .registry import get_family
-
-        nominal = get_family("mtmse").build(system, cost, graph=graph, structure=graph, horizon=T)
-        lb = np.minimum(np.asarray(nominal.stage_costs, dtype=float), stage)
-    else:
-        lb = np.full(T, np.nan)
     top = [[g[(1 << len(due[k][i])) - 1] for i, g in enumerate(gains[k])] for k in range(T)]
-    d = _CLASS[0](
-        estimator="mtmse_lossy",
-        horizon=T,
-        system=system,
-        cost=cost,
-        stage_costs=stage,
-        info={
-            "p_drop": p,
-            "jitter": J,
-            "memory": None,
-            "items": coords,
-            "keyed": 1,
-            "items_costs": {c: float(np.sum(tried[c][4])) for c in tried},
-            "local_kf_cost": float(local.sum()),
-        },
-        graph=graph,
-        p_drop=p,
-        jitter=J,
+    from .team_lossy import build_lossy_design
+
+    return build_lossy_design(
+        _CLASS[0],
+        system,
+        cost,
+        graph,
+        T,
+        p=p,
+        J=J,
         memory=None,
-        coordinates=coords,
-        arrivals=arr,
+        coords=coords,
+        arr=arr,
         items=tuple(tuple(tuple(it) for it in step) for step in items),
-        gains=tuple(tuple(step) for step in top),
-        fills=tuple(tuple(step) for step in fills),
-        K_local=tuple(tuple(K) for K in mom.K),
-        lower_bound_stages=lb,
-        local_stages=local,
+        gains=top,
+        fills=fills,
+        K_local=mom.K,
+        stage=stage,
+        local=local,
+        bound=bound,
+        items_costs={c: float(np.sum(tried[c][4])) for c in tried},
+        info_mid={"keyed": 1},
         due=tuple(tuple(tuple(step_i) for step_i in step) for step in due),
         keyed_gains=tuple(tuple(step) for step in gains),
     )
-    d.info["lower_bound"] = d.lower_bound
-    d.info["gap"] = d.gap
-    return d
 
 
 def design_keyed(

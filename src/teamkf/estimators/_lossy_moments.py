@@ -103,3 +103,11 @@ def innovations_to_measurements(system: LinearGaussianSystem, K: Sequence[Sequen
             upd[:, cols_j[s]] += K[s][j]
             pred = system.A_at(s) @ upd
     return B
+
+
+def _item_moments(system: LinearGaussianSystem, mom: LocalMoments, T: int, coords: str) -> LocalMoments:
+    """The moments of the items: the innovations as they are, or the raw y_j(s) = Σ_t B(s, t) ν_j(t)."""
+    if coords != "measurements":
+        return mom
+    B = innovations_to_measurements(system, mom.K, T)
+    return LocalMoments(mom.K, B @ mom.Sigma @ B.T, [Th @ B[: Th.shape[1], : Th.shape[1]].T for Th in mom.Theta], mom.Pe)

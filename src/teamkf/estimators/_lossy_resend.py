@@ -406,27 +406,10 @@ def _design_class() -> Any:
 
         def errors(self, paths: Any, *, p_drop: Any = None, jitter: Any = None, rng: Any = None, arrived: Any = None) -> Any:
             """Team errors with sampled packet events (as :meth:`LossyTeamDesign.errors`), items available by re-sends."""
-            from ..exceptions import ShapeError
-            from .base import check_paths
-
-            check_paths(paths, self.system)
+            x0, w, v, arrived = self._error_inputs(paths, p_drop, jitter, rng, arrived)
             sysm, cost = self.system, self.cost
-            x0 = np.asarray(paths.x, dtype=float)[:, 0]
-            w = np.asarray(paths.w, dtype=float)
-            v = np.concatenate([np.asarray(vi, dtype=float) for vi in paths.v], axis=2)
             n_runs, T = v.shape[:2]
-            if self.horizon is not None and T > self.horizon:
-                raise ShapeError(f"paths: expected at most horizon = {self.horizon} steps, found {T}")
             n, dx, dz, dyt = sysm.n_agents, sysm.dx, cost.dz, sysm.dy_total
-            if arrived is None:
-                if p_drop is None:
-                    arrived = np.ones((n_runs, T, n, n), dtype=bool)
-                else:
-                    arr = ArrivalModel.build(self.graph, p_drop, 0 if jitter is None else jitter)
-                    arrived = arr.sample(n_runs, T, np.random.default_rng(rng))
-            arrived = np.asarray(arrived, dtype=bool)
-            if arrived.shape != (n_runs, T, n, n):
-                raise ShapeError(f"arrived: expected shape {(n_runs, T, n, n)}, found {arrived.shape}")
             off = sysm.offsets
             eps = np.tile(x0, (1, n))
             nu = np.zeros((n_runs, T * dyt))
@@ -555,47 +538,32 @@ def design_resend(
             tried[c] = solve_resend(system, cost, arr, _item_moments(system, mom0, T, c), T, fill, r, schur=schur)
     coords = min(candidates, key=lambda c: float(np.sum(tried[c][3])))
     items, gains, fills, stage, local = tried[coords]
-    if bound:
-        from .registry import get_family
-
-        nominal = get_family("mtmse").build(system, cost, graph=graph, structure=graph, horizon=T)
-        lb = np.minimum(np.asarray(nominal.stage_costs, dtype=float), stage)
-    else:
-        lb = np.full(T, np.nan)
     if not _CLASS:
         _CLASS.append(_design_class())
-    d = _CLASS[0](
-        estimator="mtmse_lossy",
-        horizon=T,
-        system=system,
-        cost=cost,
-        stage_costs=stage,
-        info={
-            "p_drop": p,
-            "jitter": J,
-            "memory": None,
-            "items": coords,
-            "resend": r,
-            "items_costs": {c: float(np.sum(tried[c][3])) for c in candidates},
-            "local_kf_cost": float(local.sum()),
-        },
-        graph=graph,
-        p_drop=p,
-        jitter=J,
+    from .team_lossy import build_lossy_design
+
+    return build_lossy_design(
+        _CLASS[0],
+        system,
+        cost,
+        graph,
+        T,
+        p=p,
+        J=J,
         memory=None,
-        coordinates=coords,
-        arrivals=arr,
+        coords=coords,
+        arr=arr,
         items=tuple(tuple(tuple(it) for it in step) for step in items),
-        gains=tuple(tuple(step) for step in gains),
-        fills=tuple(tuple(step) for step in fills),
-        K_local=tuple(tuple(K) for K in mom0.K),
-        lower_bound_stages=lb,
-        local_stages=local,
+        gains=gains,
+        fills=fills,
+        K_local=mom0.K,
+        stage=stage,
+        local=local,
+        bound=bound,
+        items_costs={c: float(np.sum(tried[c][3])) for c in candidates},
+        info_mid={"resend": r},
         resend=r,
     )
-    d.info["lower_bound"] = d.lower_bound
-    d.info["gap"] = d.gap
-    return d
 
 
 from .team_lossy import register_resend  # noqa: E402  (this module extends team_lossy, which never imports it)

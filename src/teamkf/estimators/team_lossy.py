@@ -90,7 +90,7 @@ from ..network.graph import CommGraph
 from . import _lossy_size
 from ._arrivals import ArrivalModel, _jitter_value, _p_value
 from ._lossy_bound import known_pattern_bound, known_pattern_stats
-from ._lossy_moments import LocalMoments, innovations_to_measurements, local_filter_moments
+from ._lossy_moments import LocalMoments, _item_moments, local_filter_moments
 from .base import Design, check_paths
 from .checks import check_graph, check_model
 from .registry import Family, Option, _register_builtin, register_alias
@@ -398,24 +398,16 @@ class LossyTeamDesign(Design):
         return {"p_drop": self.p_drop, "jitter": self.jitter}
 
     # --- Monte Carlo ---------------------------------------------------------------------
-    def errors(self, paths: Any, *, p_drop: Any = None, jitter: Any = None, rng: Any = None, arrived: Any = None) -> FloatArray:
-        """Team errors e(k) = L x(k) - ẑ(k), (n_runs, T', n d_z), with sampled link events.
-
-        By default every item arrives (reliable links, as the lossless Monte Carlo assumes); give
-        ``p_drop`` (and ``jitter``) with ``rng`` to sample on-time events per edge and step
-        (:meth:`ArrivalModel.sample`), or ``arrived`` (n_runs, T', n, n) booleans d_i(j, s) directly.
-        Vectorized over runs: the local filters' errors are propagated from the primitive noises and
-        the estimate (1) is a batched product with the arrival-masked innovations.
-        """
+    def _error_inputs(self, paths: Any, p_drop: Any, jitter: Any, rng: Any, arrived: Any) -> tuple[FloatArray, FloatArray, FloatArray, Any]:
+        """x(0), w and v (n_runs, T', Σ d_y) of ``paths``, and the on-time events (given, sampled, or all True), checked."""
         check_paths(paths, self.system)
-        sysm, cost = self.system, self.cost
         x0 = np.asarray(paths.x, dtype=float)[:, 0]
         w = np.asarray(paths.w, dtype=float)
         v = np.concatenate([np.asarray(vi, dtype=float) for vi in paths.v], axis=2)
         n_runs, T = v.shape[:2]
         if self.horizon is not None and T > self.horizon:
             raise ShapeError(f"paths: expected at most horizon = {self.horizon} steps, found {T}")
-        n, dx, dz, dyt = sysm.n_agents, sysm.dx, cost.dz, sysm.dy_total
+        n = self.system.n_agents
         if arrived is None:
             if p_drop is None:
                 arrived = np.ones((n_runs, T, n, n), dtype=bool)
@@ -425,6 +417,21 @@ class LossyTeamDesign(Design):
         arrived = np.asarray(arrived, dtype=bool)
         if arrived.shape != (n_runs, T, n, n):
             raise ShapeError(f"arrived: expected shape {(n_runs, T, n, n)}, found {arrived.shape}")
+        return x0, w, v, arrived
+
+    def errors(self, paths: Any, *, p_drop: Any = None, jitter: Any = None, rng: Any = None, arrived: Any = None) -> FloatArray:
+        """Team errors e(k) = L x(k) - ẑ(k), (n_runs, T', n d_z), with sampled link events.
+
+        By default every item arrives (reliable links, as the lossless Monte Carlo assumes); give
+        ``p_drop`` (and ``jitter``) with ``rng`` to sample on-time events per edge and step
+        (:meth:`ArrivalModel.sample`), or ``arrived`` (n_runs, T', n, n) booleans d_i(j, s) directly.
+        Vectorized over runs: the local filters' errors are propagated from the primitive noises and
+        the estimate (1) is a batched product with the arrival-masked innovations.
+        """
+        x0, w, v, arrived = self._error_inputs(paths, p_drop, jitter, rng, arrived)
+        sysm, cost = self.system, self.cost
+        n_runs, T = v.shape[:2]
+        n, dx, dz, dyt = sysm.n_agents, sysm.dx, cost.dz, sysm.dy_total
         off = sysm.offsets
         eps = np.tile(x0, (1, n))  # ε(0) = 1 ⊗ x(0)
         nu = np.zeros((n_runs, T * dyt))
@@ -714,44 +721,27 @@ def design_mtmse_lossy(
             }
     coords = min(candidates, key=lambda c: float(np.sum(tried[c][3])))  # the lower exact expected cost (ties: the first)
     held, gains, fills, stage, local, K_loc, extra = tried[coords]
-    if bound:
-        from .registry import get_family  # the registered MTMSE family (families do not import each other)
-
-        nominal = get_family("mtmse").build(system, cost, graph=graph, structure=graph, horizon=T)
-        lb = np.asarray(nominal.stage_costs, dtype=float)
-        lb = np.minimum(lb, stage)  # equal at p = 0 up to round-off: never report a bound above the cost
-    else:
-        lb = np.full(T, np.nan)
-    d = LossyTeamDesign(
-        estimator="mtmse_lossy",
-        horizon=T,
-        system=system,
-        cost=cost,
-        stage_costs=stage,
-        info={
-            "p_drop": p,
-            "jitter": J,
-            "memory": mem,
-            "items": coords,
-            "items_costs": {c: float(np.sum(tried[c][3])) for c in candidates},
-            "local_kf_cost": float(local.sum()),
-            **extra,
-        },
-        graph=graph,
-        p_drop=p,
-        jitter=J,
+    d = build_lossy_design(
+        LossyTeamDesign,
+        system,
+        cost,
+        graph,
+        T,
+        p=p,
+        J=J,
         memory=mem,
-        coordinates=coords,
-        arrivals=arr,
+        coords=coords,
+        arr=arr,
         items=held if isinstance(held, tuple) else tuple(tuple(tuple(it) for it in step) for step in held),  # windowed: built lazily
-        gains=tuple(tuple(step) for step in gains),
-        fills=tuple(tuple(step) for step in fills),
-        K_local=tuple(tuple(K) for K in K_loc),
-        lower_bound_stages=lb,
-        local_stages=local,
+        gains=gains,
+        fills=fills,
+        K_local=K_loc,
+        stage=stage,
+        local=local,
+        bound=bound,
+        items_costs={c: float(np.sum(tried[c][3])) for c in candidates},
+        info_tail=extra,
     )
-    d.info["lower_bound"] = d.lower_bound
-    d.info["gap"] = d.gap
     nkb = V.integer(known_bound, "known_bound", minimum=0)
     if nkb:
         W = int(arr.ell.max()) + 4 if known_window is None else V.integer(known_window, "known_window", minimum=0)
@@ -768,12 +758,67 @@ AUTO_GROWTH = 1e8
 AUTO_WORK = 2e9
 
 
-def _item_moments(system: LinearGaussianSystem, mom: LocalMoments, T: int, coords: str) -> LocalMoments:
-    """The moments of the items: the innovations as they are, or the raw y_j(s) = Σ_t B(s, t) ν_j(t)."""
-    if coords != "measurements":
-        return mom
-    B = innovations_to_measurements(system, mom.K, T)
-    return LocalMoments(mom.K, B @ mom.Sigma @ B.T, [Th @ B[: Th.shape[1], : Th.shape[1]].T for Th in mom.Theta], mom.Pe)
+def build_lossy_design(
+    cls: Any,
+    system: LinearGaussianSystem,
+    cost: TeamCost,
+    graph: CommGraph,
+    T: int,
+    *,
+    p: Any,
+    J: Any,
+    memory: int | None,
+    coords: str,
+    arr: ArrivalModel,
+    items: Any,
+    gains: Any,
+    fills: Any,
+    K_local: Any,
+    stage: FloatArray,
+    local: FloatArray,
+    bound: bool,
+    items_costs: dict[str, float],
+    info_mid: dict[str, Any] | None = None,
+    info_tail: dict[str, Any] | None = None,
+    **fields: Any,
+) -> Any:
+    """The design object of every form of ``mtmse_lossy`` (``cls``: :class:`LossyTeamDesign` or a subclass, whose extra
+    ``fields`` are passed on), with its certified lower bound (the MTMSE stage costs of the full information, never
+    above the design's own) when ``bound``, and its ``info``: the link model, the memory, the item kind, ``info_mid``,
+    both item kinds' costs, the local filters' cost, ``info_tail``, the lower bound and the gap."""
+    if bound:
+        from .registry import get_family  # the registered MTMSE family (families do not import each other)
+
+        nominal = get_family("mtmse").build(system, cost, graph=graph, structure=graph, horizon=T)
+        lb = np.minimum(np.asarray(nominal.stage_costs, dtype=float), stage)  # equal at p = 0 up to round-off
+    else:
+        lb = np.full(T, np.nan)
+    info = {"p_drop": p, "jitter": J, "memory": memory, "items": coords, **(info_mid or {})}
+    info.update({"items_costs": items_costs, "local_kf_cost": float(np.sum(local)), **(info_tail or {})})
+    d = cls(
+        estimator="mtmse_lossy",
+        horizon=T,
+        system=system,
+        cost=cost,
+        stage_costs=stage,
+        info=info,
+        graph=graph,
+        p_drop=p,
+        jitter=J,
+        memory=memory,
+        coordinates=coords,
+        arrivals=arr,
+        items=items,
+        gains=tuple(tuple(step) for step in gains),
+        fills=tuple(tuple(step) for step in fills),
+        K_local=tuple(tuple(K) for K in K_local),
+        lower_bound_stages=lb,
+        local_stages=local,
+        **fields,
+    )
+    d.info["lower_bound"] = d.lower_bound
+    d.info["gap"] = d.gap
+    return d
 
 
 def _auto_items(system: LinearGaussianSystem, arr: ArrivalModel, T: int, memory: int | None) -> tuple[str, ...]:
