@@ -154,3 +154,28 @@ def cli_commands() -> dict:
         nested = subparsers(parser)
         out.update({f"{name} {sub}": q for sub, q in nested.items()} if nested else {name: parser})
     return out
+
+
+def assert_lossy_mc_matches_exact(design, system, cost, T: int, p_drop: float) -> None:
+    """A drop-aware design's exact expected cost equals the Monte Carlo of its own ``errors`` (4000 runs, 4 standard errors)."""
+    from teamkf.simulation.sampling import sample_paths
+
+    paths = sample_paths(system, T, 4000, rng=11)
+    e = design.errors(paths, p_drop=p_drop, rng=12)
+    c = np.einsum("rki,ij,rkj->r", e, cost.S_at(0), e)
+    assert abs(c.mean() - design.total_cost) < 4 * c.std(ddof=1) / np.sqrt(c.size)
+
+
+def assert_lossy_agents_match(design, system, cost, graph, T: int, p_drop: float) -> None:
+    """The design's graph agents give its ``errors`` on reliable links, and their runtime Monte Carlo over drops its cost."""
+    from teamkf.simulation.links import LinkModel
+    from teamkf.simulation.monte_carlo import monte_carlo
+    from teamkf.simulation.sampling import sample_paths
+
+    paths = sample_paths(system, T, 5, rng=3)
+    z = design.filter(paths.y)
+    L = cost.L_at(0)
+    e_run = np.stack([paths.x[:, k] @ L.T - z[:, k] for k in range(T)], axis=1)
+    np.testing.assert_allclose(e_run, design.errors(paths), rtol=1e-8, atol=1e-8)
+    r = monte_carlo({"d": design}, T, 400, rng=4, path="runtime", graph=graph, links=LinkModel(p_drop=p_drop))["d"]
+    assert abs(r.total_mean - design.total_cost) < 4 * r.total_sem, (r.total_mean, r.total_sem, design.total_cost)

@@ -13,7 +13,8 @@ from teamkf.estimators.registry import get_family
 from teamkf.estimators.team import design_mtmse
 from teamkf.estimators.team_lossy import design_mtmse_lossy, known_pattern_bound
 from teamkf.exceptions import ArgumentError
-from teamkf.simulation.sampling import sample_paths
+
+from ..helpers import assert_lossy_agents_match, assert_lossy_mc_matches_exact
 
 T = 8
 
@@ -61,26 +62,12 @@ def test_resend_one_and_the_schur_steps_are_the_plain_design(team):
 
 def test_monte_carlo_agrees_with_exact_expected_cost(team):
     sysm, cost, _, ds = team
-    d = ds[3]
-    paths = sample_paths(sysm, T, 4000, rng=11)
-    e = d.errors(paths, p_drop=0.5, rng=12)
-    c = np.einsum("rki,ij,rkj->r", e, cost.S_at(0), e)
-    assert abs(c.mean() - d.total_cost) < 4 * c.std(ddof=1) / np.sqrt(c.size)
+    assert_lossy_mc_matches_exact(ds[3], sysm, cost, T, 0.5)
 
 
 def test_graph_agents_reproduce_errors_and_run_over_drops(team):
-    from teamkf.simulation.links import LinkModel
-    from teamkf.simulation.monte_carlo import monte_carlo
-
     sysm, cost, g, ds = team
-    d = ds[2]
-    paths = sample_paths(sysm, T, 5, rng=3)
-    z = d.filter(paths.y)
-    L = cost.L_at(0)
-    e_run = np.stack([paths.x[:, k] @ L.T - z[:, k] for k in range(T)], axis=1)
-    np.testing.assert_allclose(e_run, d.errors(paths), rtol=1e-8, atol=1e-8)
-    r = monte_carlo({"resend": d}, T, 400, rng=4, path="runtime", graph=g, links=LinkModel(p_drop=0.5))["resend"]
-    assert abs(r.total_mean - d.total_cost) < 4 * r.total_sem, (r.total_mean, r.total_sem, d.total_cost)
+    assert_lossy_agents_match(ds[2], sysm, cost, g, T, 0.5)
 
 
 def test_known_pattern_bound_of_the_protocol():
