@@ -206,3 +206,30 @@ def fill_options() -> tuple[Any, ...]:
             doc='fill = "held": link patterns sampled for the fit and the cost (none: all when few, else 400)',
         ),
     )
+
+
+def form_options() -> tuple[Any, ...]:
+    """``mtmse_lossy``'s registry options of its other classes: ``keyed``, ``resend`` and ``summary``."""
+    from .. import _validation as V
+    from .registry import Option
+
+    return (
+        Option(
+            name="keyed",
+            default=0,
+            check=lambda v, k: V.integer(v, k, minimum=0, maximum=1),
+            doc="1: gains keyed on the current arrivals (the items due at each step; small teams, no memory); 0: pattern-independent",
+        ),
+        Option(
+            name="resend",
+            default=1,
+            check=lambda v, k: V.integer(v, k, minimum=1, maximum=16),
+            doc="r: each packet carries the sender's last r items (a lost item can arrive later; exact cost); 1: one item",
+        ),
+        Option(
+            name="summary",
+            default=0,
+            check=lambda v, k: V.integer(v, k, minimum=0, maximum=32),
+            doc="M: agents send their own filter estimate, gains keyed on its age (< M steps; exact cost); 0: items",
+        ),
+    )

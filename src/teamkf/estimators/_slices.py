@@ -100,6 +100,7 @@ KINDS: dict[str, tuple[str, str]] = {
     "linear-kcf": ("kcf", "kcf_agent_from_slice"),
     "team": ("team", "team_agent_from_slice"),
     "lossy": ("_lossy_slice", "lossy_agent_from_slice"),
+    "summary": ("_lossy_summary", "summary_agent_from_slice"),
 }
 
 

@@ -567,25 +567,17 @@ class LossyTeamAgent:
 # ---------------------------------------------------------------------------
 # entry point
 # ---------------------------------------------------------------------------
-#: the keyed design (``keyed=1``), registered by :mod:`teamkf.estimators._lossy_keyed` when the family loader imports it
-_KEYED: list[Any] = []
-
-
-def register_keyed(design: Any) -> None:
-    """Called by :mod:`teamkf.estimators._lossy_keyed` (it extends this module, which therefore never imports it)."""
-    _KEYED[:] = [design]
-
-
-_RESEND: list[Any] = []  # the re-sending design (``resend=r``), registered by :mod:`teamkf.estimators._lossy_resend`
-
-
-def register_resend(design: Any) -> None:
-    """Called by :mod:`teamkf.estimators._lossy_resend` (as :func:`register_keyed`)."""
-    _RESEND[:] = [design]
-
+# the other classes live in modules of their own that extend this one (which never imports them) and register here when the
+# family loader imports them (_builtin.EXTENSIONS)
+_KEYED: list[Any] = []  #: ``keyed=1``, registered by :mod:`teamkf.estimators._lossy_keyed`
+register_keyed = _KEYED.append
+_RESEND: list[Any] = []  #: ``resend=r``, registered by :mod:`teamkf.estimators._lossy_resend`
+register_resend = _RESEND.append
 
 _HELD: list[Any] = []  #: ``fill="held"`` (the class containing the rule), registered by :mod:`teamkf.estimators._lossy_rulefill`
 register_held = _HELD.append
+_SUMMARY: list[Any] = []  #: ``summary=M`` (age-keyed filter summaries), registered by :mod:`teamkf.estimators._lossy_summary`
+register_summary = _SUMMARY.append
 
 
 def design_mtmse_lossy(
@@ -605,6 +597,7 @@ def design_mtmse_lossy(
     known_window: int | None = None,
     keyed: int = 0,
     resend: int = 1,
+    summary: int = 0,
     threads: int | None = 1,
     progress: bool | None = None,
 ) -> LossyTeamDesign:
@@ -658,6 +651,9 @@ def design_mtmse_lossy(
     resend : int >= 1
         r: every packet carries the sender's last r items, so a lost item can arrive in a later packet
         (:mod:`teamkf.estimators._lossy_resend`: exact cost; no ``memory``, no ``keyed``). 1: one item per packet.
+    summary : int >= 0
+        M >= 1: the class of :mod:`teamkf.estimators._lossy_summary` instead: every agent sends its own filter estimate each
+        step, and gains keyed on the age (< M) of each in-neighbour's newest one (exact cost; long horizons by a steady form).
 
     Returns
     -------
@@ -690,6 +686,19 @@ def design_mtmse_lossy(
     mem = None if memory is None else V.positive_int(memory, "memory")
     coords = V.choice(items, "items", ("auto", "measurements", "innovations"))
     arr = ArrivalModel.build(graph, p, J)
+    if summary:  # age-keyed filter summaries: a class of its own, sized by its own module
+        if keyed or memory is not None or resend != 1 or fill == "held":
+            raise ArgumentError(
+                f"summary: summary = {summary} is a class of its own, found keyed = {keyed}, memory = {memory}, resend = {resend}, "
+                f"fill = {fill!r}; drop them or use summary = 0",
+                argument="summary",
+            )
+        if not _SUMMARY:
+            from .registry import families
+
+            families()
+        d = _SUMMARY[-1](system, cost, graph, T, p, J, arr, summary, bound, threads)
+        return _known(d, system, cost, graph, T, p, J, known_bound, known_window, arr, "all")
 
     def kinds(m: int | None) -> int:  # item kinds designed with memory m (``items="auto"`` may design both)
         return len(_auto_items(system, arr, T, m)) if coords == "auto" else 1
@@ -704,11 +713,11 @@ def design_mtmse_lossy(
 
         families()  # loads the built-in modules and their extensions (_builtin.EXTENSIONS)
     if rs > 1:  # re-sent items
-        return _RESEND[0](system, cost, graph, T, p, J, arr, candidates, rs, fill, bound, threads, keyed=kw, memory=mem)  # type: ignore[no-any-return]
+        return _RESEND[-1](system, cost, graph, T, p, J, arr, candidates, rs, fill, bound, threads, keyed=kw, memory=mem)  # type: ignore[no-any-return]
     if fill == "held":  # the class containing the missed-packet rule
         return _HELD[-1](system, cost, graph, T, p, J, arr, patterns=patterns, keyed=kw, memory=mem)  # type: ignore[no-any-return]
     if kw:  # gains keyed on the current arrivals
-        return _KEYED[0](system, cost, graph, T, p, J, arr, candidates, mem, fill, bound, threads)
+        return _KEYED[-1](system, cost, graph, T, p, J, arr, candidates, mem, fill, bound, threads)
     with blas_threads(threads):
         if mem is not None:  # windowed fills, a lifted moment recursion and a steady form: memory independent of T
             from . import _lossy_window
@@ -742,13 +751,17 @@ def design_mtmse_lossy(
         items_costs={c: float(np.sum(tried[c][3])) for c in candidates},
         info_tail=extra,
     )
+    return _known(d, system, cost, graph, T, p, J, known_bound, known_window, arr, "flood" if coords == "measurements" else "all")
+
+
+def _known(d: Any, system: Any, cost: Any, graph: Any, T: int, p: Any, J: Any, known_bound: int, known_window: Any, arr: Any, relay: str) -> Any:
+    """``d`` with the known-pattern optimum of ``relay`` over ``known_bound`` patterns and its gap in ``info`` (0: ``d`` as it is)."""
     nkb = V.integer(known_bound, "known_bound", minimum=0)
     if nkb:
         W = int(arr.ell.max()) + 4 if known_window is None else V.integer(known_window, "known_window", minimum=0)
-        relay = "flood" if coords == "measurements" else "all"
         kb = known_pattern_stats(system, cost, graph, T, p, J, relay=relay, window=W, n_patterns=nkb, rng=0, exact_first=True)
         d.info["known_pattern_bound"] = kb.as_dict()
-        d.info["known_pattern_gap"] = (d.total_cost - kb.value) / kb.value  # type: ignore[operator]
+        d.info["known_pattern_gap"] = (d.total_cost - kb.value) / kb.value
     return d
 
 
@@ -867,19 +880,8 @@ FAMILY = _register_builtin(
                 doc="also compute the known-pattern optimum over this many sampled drop patterns (0: not)",
             ),
             Option(name="known_window", default=None, check=_check_memory, doc="its window W (none: the largest geodesic delay + 4)"),
-            Option(
-                name="keyed",
-                default=0,
-                check=lambda v, k: V.integer(v, k, minimum=0, maximum=1),
-                doc="1: gains keyed on the current arrivals (the items due at each step; small teams, no memory); 0: pattern-independent",
-            ),
             *_lossy_size.fill_options(),  # fill (and patterns, for fill = "held")
-            Option(
-                name="resend",
-                default=1,
-                check=lambda v, k: V.integer(v, k, minimum=1, maximum=16),
-                doc="r: each packet carries the sender's last r items (a lost item can arrive later; exact cost); 1: one item",
-            ),
+            *_lossy_size.form_options(),  # keyed, resend, summary
             Option(
                 name="items",
                 default="auto",
