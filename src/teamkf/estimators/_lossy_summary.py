@@ -458,6 +458,52 @@ class SummaryAgent:
                 z = z + (got[1] - mine[got[0]][0]) @ G[:, col - sysm.dx : col].T
         return {"xhat": xhat, "own": mine, "newest": newest, "n_runs": state["n_runs"]}, z, [(i, k, xhat)]
 
+    @staticmethod
+    def run_batched(agents: Sequence["SummaryAgent"], ys: Sequence[FloatArray], out: Any) -> FloatArray:
+        """Every agent's :meth:`step` for every run at once on the lossy runtime's link outcomes ``out``
+        (:class:`teamkf.simulation.lossy.LinkOutcomes`): the same numbers run by run (rows stacked as (R, 1, d), so each
+        product has the one-run step's core shapes), the newest summary of each in-edge read off the arrival steps."""
+        d = agents[0].design
+        sysm, n = d.system, len(agents)
+        R, T = ys[0].shape[:2]
+        dx = sysm.dx
+        edge = {(a, b): q for q, (a, b, _) in enumerate(out.edges)}
+        arrive = np.where(out.delivered, out.arrive, -1)  # (R, T, E): the arrival step of the packet sent at τ, -1: never
+        newest = np.full((R, len(out.edges)), -1, dtype=np.int64)
+        span = int(np.max(out.arrive - np.arange(T)[None, :, None], initial=0)) if out.edges else 0  # the longest latency
+        xh = [np.zeros((R, 1, dx)) for _ in range(n)]
+        hist: dict[int, list[tuple[FloatArray, FloatArray]]] = {}
+        keep = int(np.max(d.delays)) + d.ages
+        z_all = np.empty((R, T, n * d.cost.dz))
+        for k in range(T):
+            lo = max(0, k - span)
+            hit = arrive[:, lo : k + 1] == k  # packets of origins lo..k arriving now
+            if hit.any():
+                np.maximum(newest, np.where(hit, np.arange(lo, k + 1)[None, :, None], -1).max(axis=1), out=newest)
+            step = []
+            for i in range(n):
+                xhat = xh[i] if k == 0 else xh[i] @ sysm.A_at(k - 1).T
+                nu = ys[i][:, k, None, :] - xhat @ sysm.C_at(i, k).T
+                xh[i] = xhat + nu @ d.K_local[k][i].T
+                step.append((xh[i], nu))
+            hist[k] = step
+            hist.pop(k - keep - 1, None)
+            for i in range(n):
+                z = xh[i] @ d.cost.L_block(i, k).T
+                G, col = d.gains[k][i], 0
+                for j, m in d.items[k][i]:
+                    if j == i:
+                        col += sysm.dy[i]
+                        z = z + hist[k - m][i][1] @ G[:, col - sysm.dy[i] : col].T
+                        continue
+                    col += dx
+                    tau = k - int(d.delays[j, i]) - m
+                    on = newest[:, edge[(j, i)]] == tau
+                    if on.any():
+                        z = np.where(on[:, None, None], z + (hist[tau][j][0] - hist[tau][i][0]) @ G[:, col - dx : col].T, z)
+                z_all[:, k, i * d.cost.dz : (i + 1) * d.cost.dz] = z[:, 0, :]
+        return z_all
+
 
 _CLASS: list[Any] = []
 

@@ -604,6 +604,8 @@ def _run_lossy(
         return _run_rulefill(agents, graph, ys, t, stats)
     if _is_cikf(agents):
         return _run_cikf(agents, ys, out)
+    if _is_summary(agents):  # mtmse_lossy with summary = M: its own batched step (teamkf.estimators._lossy_summary)
+        return agents[0].run_batched(agents, ys, out)
     if _stackable(agents, graph):
         return _run_stacked(agents, graph, ys, out)
     return _run_grouped(agents, graph, ys, out, stats, design)
@@ -672,6 +674,12 @@ def _run_lossy_team(agents: Sequence[Any], ys: Sequence[FloatArray], t: np.ndarr
                 z = z + np.concatenate(parts, axis=-1) @ d.gains[k][i].T
             zs[i].append(z[:, 0, :])
     return np.concatenate([np.stack(zi, axis=1) for zi in zs], axis=2)  # type: ignore[no-any-return]
+
+
+def _is_summary(agents: Sequence[Any]) -> bool:
+    from ..estimators._lossy_summary import SummaryAgent
+
+    return bool(agents) and all(type(ag) is SummaryAgent and ag.index == i and ag.design is agents[0].design for i, ag in enumerate(agents))
 
 
 def _is_rulefill(agents: Sequence[Any]) -> bool:
