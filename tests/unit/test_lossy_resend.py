@@ -13,6 +13,7 @@ from teamkf.estimators.registry import get_family
 from teamkf.estimators.team import design_mtmse
 from teamkf.estimators.team_lossy import design_mtmse_lossy, known_pattern_bound
 from teamkf.exceptions import ArgumentError
+from teamkf.simulation.sampling import sample_paths
 
 from ..helpers import assert_lossy_agents_match, assert_lossy_mc_matches_exact
 
@@ -104,3 +105,27 @@ def test_on_time_known_pattern_bound_lies_between():
         assert on.exact and on.value <= d.total_cost * (1 + 1e-12)
         if r == 1:
             assert fl.value < on.value  # late copies through the third agent are worth something
+
+
+def test_deployed_slices_rebuild_the_re_sending_agents_bit_for_bit() -> None:
+    """``teamkf deploy`` ships slices: agent i rebuilt from its slice is the re-sending agent, not the one-item agent (whose
+    estimates differ), and gives the design's own agents' numbers bit for bit over the same lossy links."""
+    from teamkf.estimators._slices import SliceContext, agent_from_slice
+    from teamkf.simulation import lossy
+    from teamkf.simulation.links import LinkModel, LinkStats, link_streams
+
+    sysm, cost, g = LinearGaussianSystem.platoon(3), TeamCost.platoon(3, 10.0), CommGraph.line(3)
+    d = design_mtmse_lossy(sysm, cost, g, 8, p_drop=0.4, resend=2)
+    ctx = SliceContext(sysm, cost, g, None, 8)
+    agents = []
+    for i in range(3):
+        kind, arrays, meta = d.agent_slice(i)
+        assert meta["resend"] == 2
+        agents.append(agent_from_slice(kind, ctx, i, arrays, meta)[1])
+    assert type(agents[0]) is type(d.graph_agents()[0])
+    ys = list(sample_paths(sysm, 8, 3, rng=1).y)
+    u, jit = lossy.draw_link_events(link_streams(2, 3), 8, len(g.edges))
+    out = lossy.link_outcomes(LinkModel(p_drop=0.4), sorted(g.edges), u, jit, (False,) * 3)
+    ref = lossy._run_grouped(d.graph_agents(), g, ys, out, LinkStats(), d)
+    got = lossy._run_grouped(agents, g, ys, out, LinkStats(), agents[0].design)
+    assert got.tobytes() == ref.tobytes()

@@ -205,3 +205,21 @@ def test_conditional_mean_feature_conditions_the_joint_gaussian(tiny):
                 want[H] = np.linalg.solve(Syy[np.ix_(H, H)], Sxh.T)  # E[x(k) | y_H] = Σ_xH Σ_HH⁻¹ y_H
                 np.testing.assert_allclose(np.asarray(z), want @ d.cost.L_block(i, k).T, atol=1e-10)
             sent = now
+
+
+def test_a_scenario_table_jitter_is_designed_for_and_refused_for_held(tmp_path):
+    """``[mtmse_lossy] jitter`` in a scenario is the jitter designed for (the [network] table's applies only when the family's
+    own table does not set it), so fill = "held" refuses it in one line instead of designing silently for no jitter."""
+    from pathlib import Path
+
+    from teamkf.study.scenario import load_scenario
+
+    src = (Path(__file__).parents[2] / "examples" / "scenarios" / "lossy-complete-3-unlike.toml").read_text(encoding="utf-8")
+    held = tmp_path / "held.toml"
+    held.write_text(src.replace('fill = "held"', 'fill = "held"\njitter = 1'), encoding="utf-8")
+    with pytest.raises(ArgumentError, match="'held' supports links without jitter, found jitter = 1"):
+        load_scenario(held).design("mtmse_lossy")
+    plain = tmp_path / "plain.toml"
+    plain.write_text(src.replace('fill = "held"', "jitter = 1"), encoding="utf-8")
+    d = load_scenario(plain).design("mtmse_lossy")
+    assert d.jitter == 1 and d.p_drop == 0.3  # the table's jitter, the [network] drop probability

@@ -443,6 +443,11 @@ def _design_class() -> Any:
         def graph_agents(self) -> list[Any]:
             return [ResendLossyAgent(self, i) for i in range(self.n_agents)]
 
+        def agent_slice(self, i: int) -> tuple[str, dict[str, np.ndarray], dict[str, Any]]:
+            """The slice of :meth:`LossyTeamDesign.agent_slice` with ``resend`` in its meta (the agent rebuilt re-sends)."""
+            kind, arrays, meta = super().agent_slice(i)
+            return kind, arrays, {**meta, "resend": int(self.resend)}
+
         def details(self) -> dict[str, Any]:
             out = super().details()
             out["resend"] = self.resend
@@ -496,10 +501,18 @@ def _design_class() -> Any:
                 z = z + np.hstack(parts) @ d.gains[k][i].T
             return {"xhat": xhat, "items": items, "seen": seen, "mine": mine, "n_runs": state["n_runs"]}, z, new
 
+    ResendLossyDesign.Agent = ResendLossyAgent  # type: ignore[attr-defined]  # what a deployed slice rebuilds
     return ResendLossyDesign
 
 
 _CLASS: list[Any] = []
+
+
+def resend_agent_class() -> Any:
+    """The agent class of the re-sending design (for :mod:`teamkf.estimators._lossy_slice`)."""
+    if not _CLASS:
+        _CLASS.append(_design_class())
+    return _CLASS[0].Agent
 
 
 def design_resend(

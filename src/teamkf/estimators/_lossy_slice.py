@@ -41,6 +41,7 @@ class LossySliceView(SliceDesign):
     gains: Any = ()
     fills: Any = ()
     arrivals: Any = None
+    resend: int = 1
 
     @property
     def tolerates_losses(self) -> bool:
@@ -68,5 +69,10 @@ def lossy_agent_from_slice(ctx: Any, i: int, arrays: dict[str, np.ndarray], meta
         gains=[_Own(i, arrays[f"G/{k}"]) for k in range(T)],
         fills=[_Own(i, arrays[f"F/{k}"]) for k in range(T)],
         arrivals=SimpleNamespace(ell=ell),
+        resend=int(meta.get("resend", 1)),
     )
+    if view.resend > 1:  # packets of the sender's last r items (teamkf.estimators._lossy_resend)
+        from ._lossy_resend import resend_agent_class
+
+        return view, resend_agent_class()(view, i)
     return view, LossyTeamAgent(view, i)  # type: ignore[arg-type]

@@ -205,7 +205,9 @@ class Scenario(ScenarioBase):
             opts = _family_options(fam, {})
         if "p_drop" in fam.option_names and opts.get("p_drop") is None and "network" in self.raw:  # drop-aware families
             lm = self.links
-            opts = {**opts, "p_drop": lm.p_drop, **({"jitter": lm.jitter} if "jitter" in fam.option_names else {})}
+            table = self.raw.get(estimator)
+            mine = isinstance(table, dict) and "jitter" in table  # the family's own table sets it: that value is designed for
+            opts = {**opts, "p_drop": lm.p_drop, **({"jitter": lm.jitter} if "jitter" in fam.option_names and not mine else {})}
         try:
             out = fam.build(self.system, self.cost, graph=self.graph, structure=self.information, horizon=T, options=opts)
         except ScenarioError:
