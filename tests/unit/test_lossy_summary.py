@@ -136,7 +136,9 @@ def test_evaluate_runs_it_from_a_scenario(tmp_path: Path, capsys: pytest.Capture
     import json
 
     src = (Path(__file__).parents[2] / "src" / "teamkf" / "scenarios" / "uav-10.toml").read_text(encoding="utf-8")
-    src = src.replace("horizon = 100", "horizon = 30").replace('estimators = ["mtmse", "mmse", "centralized"]', 'estimators = ["mtmse_lossy", "local"]')
+    src = src.replace("horizon = 100", "horizon = 30").replace(
+        'estimators = ["mtmse", "mmse", "centralized"]', 'estimators = ["mtmse_lossy", "local"]'
+    )
     sp = tmp_path / "uav.toml"
     sp.write_text(src + "\n[mtmse_lossy]\nsummary = 1\n", encoding="utf-8")
     assert main(["--quiet", "evaluate", str(sp), "--monte-carlo", "300", "--p-drop", "0.5", "--seed", "4", "--json"]) == 0

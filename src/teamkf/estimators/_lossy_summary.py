@@ -66,10 +66,9 @@ import numpy as np
 from .. import _budget
 from .. import _validation as V
 from .._lazy import scipy_linalg as sla
-
 from .._linalg import block_diag
 from .._validation import FloatArray
-from ..exceptions import ArgumentError, ShapeError
+from ..exceptions import ShapeError
 
 __all__ = ["MAX_AGES", "design_summary", "age_probabilities", "summary_agent_from_slice"]
 
@@ -255,17 +254,18 @@ def solve_summary(system: Any, cost: Any, edges: _Edges, T: int, M: int) -> tupl
             gains.append(gains[-1])
             continue
         steady_from = None
-        plus, minus, owner, key, age, prob = [], [], [], [], [], []
-        for i, j, m, tau, pr, kk in fl:
+        plus, minus, size = [], [], []
+        for i, j, _, tau, _, _ in fl:
             base = (tau - t0) * nz
             if j == i:  # ν_i(τ)
-                rr = base + nd + int(off[i]) + np.arange(system.dy[i])
-                plus.append(rr), minus.append(np.full(rr.size, -1))
+                plus.append(base + nd + int(off[i]) + np.arange(system.dy[i]))
+                minus.append(np.full(system.dy[i], -1))
             else:  # ψ_ij(τ) = e_i(τ) - e_j(τ)
-                plus.append(base + i * dx + np.arange(dx)), minus.append(base + j * dx + np.arange(dx))
-            c = plus[-1].size
-            owner.append(np.full(c, i)), key.append(np.full(c, kk)), age.append(np.full(c, m)), prob.append(np.full(c, pr))
-        pi, pj, r_owner, r_key, r_m, r_p = (np.concatenate(v) for v in (plus, minus, owner, key, age, prob))
+                plus.append(base + i * dx + np.arange(dx))
+                minus.append(base + j * dx + np.arange(dx))
+            size.append(plus[-1].size)
+        pi, pj = np.concatenate(plus), np.concatenate(minus)
+        r_owner, r_m, r_p, r_key = (np.repeat([f[x] for f in fl], size) for x in (0, 2, 4, 5))
         Xpp = X[np.ix_(pi, pi)] - X[np.ix_(pi, pj)] - X[np.ix_(pj, pi)] + X[np.ix_(pj, pj)]
         rows_k = (nt - 1) * nz + np.arange(nd)  # E(k)
         Xkp = X[np.ix_(rows_k, pi)] - X[np.ix_(rows_k, pj)]
@@ -517,7 +517,9 @@ def design_summary(system: Any, cost: Any, graph: Any, T: int, p: Any, J: Any, a
     edges = _Edges.build(graph, p, J)
     peak, flops = _size(system, cost, edges, M, T)
     what = f"the mtmse_lossy summary design (summary = {M}) over T = {T:,} steps"
-    smaller = f"use summary = {max(1, M // 2)} (fewer ages: Γ has Σ_i d_z |N_i| M d_x rows) or a shorter horizon" if M > 1 else "use a shorter horizon"
+    smaller = (
+        f"use summary = {max(1, M // 2)} (fewer ages: Γ has Σ_i d_z |N_i| M d_x rows) or a shorter horizon" if M > 1 else "use a shorter horizon"
+    )
     _budget.check_memory(peak, what, argument="summary", fix=smaller)
     _budget.announce(_budget.check_work(flops, what, argument="summary", fix=smaller), what)
     with blas_threads(threads):
