@@ -14,14 +14,17 @@ The class (stated; exact within it)
 With ψ_ij(τ) = x̂_j(τ|τ) − x̂_i(τ|τ) (the neighbour's summary against the agent's own estimate of the same step,
 which the agent keeps for the last δ + M steps),
 
-.. math::  \hat z_i(k) = L_i \hat x_i(k|k) + \sum_{j \in N_i} \sum_{m=0}^{M-1} G_{ijm}(k)\,
-           \mathbb 1[a_{ij}(k) = m]\, \psi_{ij}(k - \delta_{ji} - m),                                    (S1)
+.. math::  \hat z_i(k) = L_i \hat x_i(k|k) + \sum_{m < W} G_{iim}(k)\, \nu_i(k - m)
+           + \sum_{j \in N_i} \sum_{m=0}^{M-1} G_{ijm}(k)\, \mathbb 1[a_{ij}(k) = m]\, \psi_{ij}(k - \delta_{ji} - m),   (S1)
 
 the gains G_ijm(k) chosen offline and **keyed on the age**, i.e. on the realized arrival pattern: a fresh
 summary gets the weight of a fresh summary, a stale one the weight of a stale one, and a summary older than
 M steps (or none yet) none at all, so the agent falls back on its own filter while a neighbour is silent.
-G = 0 is the local Kalman filters (family ``local``): the design never costs more than they do. At p = 0
-and J = 0 every age is 0 and (S1) is the best linear use of the neighbours' filters of δ steps ago.
+with W = δ_max + M own innovations ν_i (free gains on what only the agent knows: without them the one good sensor
+of the UAV formation cannot pass its measurement of the unstable mode into its estimate, and at p = 0 the class
+costs 14 times MTMSE; with them it is within 10⁻⁶ of it). G = 0 is the local Kalman filters (family ``local``):
+the design never costs more than they do. At p = 0 and J = 0 every age is 0 and (S1) is the best linear use of the
+neighbours' filters of δ steps ago and of the own recent innovations.
 
 Why ages: with gains that do not depend on the pattern (the items classes of :mod:`teamkf.estimators.team_lossy`)
 the weight on a neighbour's data must serve both its arrival and its miss; on an unstable process
@@ -32,7 +35,7 @@ nothing: the weight of a missing summary is simply not applied.
 Optimality conditions and algorithm
 -----------------------------------
 e_i(k) = x(k) − x̂_i(k|k), so ψ_ij(τ) = e_i(τ) − e_j(τ) and agent i's error is L_i e_i(k) − Σ G f with
-f_a = 1[a_ij(k) = m] ψ_ij(τ_a). The ages are independent of the noises, so the expected stage cost is the convex
+f_a = 1[a_ij(k) = m] ψ_ij(τ_a) (or ν_i(k - m), with probability 1). The ages are independent of the noises, so the expected stage cost is the convex
 quadratic J_k(G) = Tr(S L̄ P_e L̄ᵀ) − 2⟨G, η⟩ + ⟨G, ΓG⟩ with
 
 .. math::  \Gamma_{(i,a),(l,b)} = S_{il}\, P(a, b)\, \operatorname{cov}(\psi_a, \psi_b), \qquad
