@@ -36,7 +36,15 @@ for M in (int(x) for x in os.environ.get("TEAMKF_AGES", "1,2").split(",")):
     t = time.process_time()
     d = design_mtmse_lossy(sc.system, sc.cost, sc.graph, T, p_drop=P, summary=M)
     loc = d.info["local_kf_cost"]
-    row(M, f"{d.total_cost:,.0f}", f"{loc:,.0f}", f"{100 * (1 - d.total_cost / loc):.1f} %", f"{d.stage_costs[-1]:.1f}", d.info["steady_from"], f"{time.process_time() - t:.1f}")
+    row(
+        M,
+        f"{d.total_cost:,.0f}",
+        f"{loc:,.0f}",
+        f"{100 * (1 - d.total_cost / loc):.1f} %",
+        f"{d.stage_costs[-1]:.1f}",
+        d.info["steady_from"],
+        f"{time.process_time() - t:.1f}",
+    )
     curves[f"summary, M = {M}"] = d.stage_costs
 row("local filters", "", "", "", f"{d.local_stages[-1]:.1f}", "", "")
 row("MTMSE, perfect links (the certified bound)", f"{d.lower_bound:,.0f}", "", "", f"{d.lower_bound_stages[-1]:.1f}", "", "")

@@ -15,7 +15,7 @@ from .._linalg import block_diag
 from .._validation import FloatArray
 from ..models import LinearGaussianSystem
 
-__all__ = ["LocalMoments", "local_filter_moments", "innovations_to_measurements"]
+__all__ = ["LocalMoments", "local_filter_moments", "local_kalman_gains", "innovations_to_measurements"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -45,21 +45,11 @@ def local_filter_moments(system: LinearGaussianSystem, T: int) -> LocalMoments:
     Sigma = np.zeros((T * dyt, T * dyt))
     ones = np.ones((n, n))
     P_eps = np.kron(ones, system.Sigma_x)
-    P_loc = [np.array(system.Sigma_x, dtype=float) for _ in range(n)]
     Z = np.zeros((n * dx, 0))
-    Ks, Thetas, Pes = [], [], []
+    Ks, Thetas, Pes = local_kalman_gains(system, T), [], []
     for k in range(T):
         Cs = [system.C_at(j, k) for j in range(n)]
-        Rs = [system.R_at(j, k) for j in range(n)]
-        K = []
-        for j in range(n):
-            Sy = Cs[j] @ P_loc[j] @ Cs[j].T + Rs[j]
-            if Sy.size:
-                Kj = sla.cho_solve(sla.cho_factor(0.5 * (Sy + Sy.T), lower=True), Cs[j] @ P_loc[j]).T
-            else:
-                Kj = np.zeros((dx, 0))
-            K.append(Kj)
-        Ks.append(K)
+        K = Ks[k]
         U = block_diag(*[np.eye(dx) - K[j] @ Cs[j] for j in range(n)])
         Kb = block_diag(*K) if dyt else np.zeros((n * dx, 0))
         Cb = block_diag(*Cs) if dyt else np.zeros((0, n * dx))
@@ -79,12 +69,33 @@ def local_filter_moments(system: LinearGaussianSystem, T: int) -> LocalMoments:
         Z = Ab @ Theta
         P_eps = Ab @ Pe @ Ab.T + np.kron(ones, system.Q_at(k))
         P_eps = 0.5 * (P_eps + P_eps.T)
+    return LocalMoments(Ks, Sigma, Thetas, Pes)
+
+
+def local_kalman_gains(system: LinearGaussianSystem, T: int) -> list[list[FloatArray]]:
+    """K_j(k) of every agent's own Kalman filter (prior 0, Σ_x), per step: (d_x, d_y^j) each."""
+    n, dx = system.n_agents, system.dx
+    P_loc = [np.array(system.Sigma_x, dtype=float) for _ in range(n)]
+    Ks = []
+    for k in range(T):
+        Cs = [system.C_at(j, k) for j in range(n)]
+        Rs = [system.R_at(j, k) for j in range(n)]
+        K = []
+        for j in range(n):
+            Sy = Cs[j] @ P_loc[j] @ Cs[j].T + Rs[j]
+            if Sy.size:
+                Kj = sla.cho_solve(sla.cho_factor(0.5 * (Sy + Sy.T), lower=True), Cs[j] @ P_loc[j]).T
+            else:
+                Kj = np.zeros((dx, 0))
+            K.append(Kj)
+        Ks.append(K)
+        A = system.A_at(k)
         for j in range(n):
             IKC = np.eye(dx) - K[j] @ Cs[j]
             Pf = IKC @ P_loc[j] @ IKC.T + K[j] @ Rs[j] @ K[j].T
             Pp = A @ Pf @ A.T + system.Q_at(k)
             P_loc[j] = 0.5 * (Pp + Pp.T)
-    return LocalMoments(Ks, Sigma, Thetas, Pes)
+    return Ks
 
 
 def innovations_to_measurements(system: LinearGaussianSystem, K: Sequence[Sequence[FloatArray]], T: int) -> FloatArray:

@@ -72,6 +72,7 @@ from .._lazy import scipy_linalg as sla
 from .._linalg import block_diag
 from .._validation import FloatArray
 from ..exceptions import ShapeError
+from ._lossy_moments import local_kalman_gains
 
 __all__ = ["MAX_AGES", "design_summary", "age_probabilities", "summary_agent_from_slice"]
 
@@ -111,28 +112,6 @@ class _Edges:
         return cls(tuple(tuple(x) for x in into), dmax)
 
 
-def _local_gains(system: Any, T: int) -> list[list[FloatArray]]:
-    """K_j(k) of every agent's own Kalman filter (prior 0, Σ_x), per step."""
-    n, Ks = system.n_agents, []
-    P = [np.array(system.Sigma_x, dtype=float) for _ in range(n)]
-    for k in range(T):
-        K = []
-        for j in range(n):
-            C, R = system.C_at(j, k), system.R_at(j, k)
-            if C.shape[0]:
-                Sy = C @ P[j] @ C.T + R
-                Kj = sla.cho_solve(sla.cho_factor(0.5 * (Sy + Sy.T), lower=True), C @ P[j]).T
-            else:
-                Kj = np.zeros((system.dx, 0))
-            K.append(Kj)
-            IKC = np.eye(system.dx) - Kj @ C
-            Pf = IKC @ P[j] @ IKC.T + Kj @ R @ Kj.T
-            P[j] = system.A_at(k) @ Pf @ system.A_at(k).T + system.Q_at(k)
-            P[j] = 0.5 * (P[j] + P[j].T)
-        Ks.append(K)
-    return Ks
-
-
 def _solve_psd(G: FloatArray, eta: FloatArray) -> FloatArray:
     """A minimizer of gᵀ Γ g - 2 ηᵀ g for a positive semidefinite Γ with η in its range (η = E[f · error], Γ = E[f fᵀ]-like).
 
@@ -160,10 +139,10 @@ def _solve_psd(G: FloatArray, eta: FloatArray) -> FloatArray:
 
 
 def _size(system: Any, cost: Any, edges: _Edges, M: int, T: int) -> tuple[float, float]:
-    """(peak bytes, flops) of the design: Γ of D = Σ_i d_z |N_i| M d_x rows (a few D² arrays) factored once per step."""
+    """(peak bytes, flops) of the design: Γ of D = Σ_i d_z (|N_i| M d_x + W d_y^i) rows (a few D² arrays), factored once per step."""
     n, dx, dz = system.n_agents, system.dx, cost.dz
-    D = sum(dz * len(edges.into[i]) * M * dx for i in range(n))
-    W = edges.dmax + M + 1
+    W = edges.dmax + M
+    D = sum(dz * (len(edges.into[i]) * M * dx + W * system.dy[i]) for i in range(n))  # summaries and own innovations
     peak = 8.0 * (5 * D * D + 3 * (W * n * dx) ** 2 + T * D * dz)
     return peak, T * (D**3 / 3.0 + 2.0 * D * D)
 
@@ -185,11 +164,17 @@ def _window_moments(system: Any, Ks: list[list[FloatArray]], k: int, hist: list[
     if k == 0:
         P_eps = np.kron(np.ones((n, n)), system.Sigma_x)
         return [_sym(top @ P_eps @ top.T + bot @ Rb @ bot.T)]
-    Ab = np.kron(np.eye(n), system.A_at(k - 1))  # block diagonal: the same A for every agent's error
+    A = system.A_at(k - 1)  # Ā = I ⊗ A, applied block by block (never formed)
     last = hist[-1]
-    P_eps = Ab @ last[0][:nd, :nd] @ Ab.T + np.kron(np.ones((n, n)), system.Q_at(k - 1))
-    F = top @ Ab
-    return [_sym(top @ P_eps @ top.T + bot @ Rb @ bot.T)] + [F @ last[d - 1][:nd] for d in range(1, min(W, k + 1))]
+    AE = [_blocks_left(A, c[:nd], n) for c in last[: min(W, k + 1) - 1]]  # Ā cov(E(k - 1), Z(k - d)), d = 1..
+    P_eps = _blocks_left(A, _blocks_left(A, last[0][:nd, :nd], n).T, n).T + np.tile(system.Q_at(k - 1), (n, n))
+    return [_sym(top @ P_eps @ top.T + bot @ Rb @ bot.T)] + [top @ x for x in AE]
+
+
+def _blocks_left(A: FloatArray, X: FloatArray, n: int) -> FloatArray:
+    """(I_n ⊗ A) X for X with n d_x rows: A applied to each block of d_x rows."""
+    dx = A.shape[0]
+    return np.matmul(A, X.reshape(n, dx, -1)).reshape(n * dx, -1)  # type: ignore[no-any-return]
 
 
 def _sym(a: FloatArray) -> FloatArray:
@@ -216,7 +201,7 @@ def solve_summary(system: Any, cost: Any, edges: _Edges, T: int, M: int) -> tupl
     n, dx, dz, off = system.n_agents, system.dx, cost.dz, system.offsets
     nd = n * dx
     nz = nd + system.dy_total
-    Ks = _local_gains(system, T)
+    Ks = local_kalman_gains(system, T)
     W = edges.dmax + M  # the window: steps k - W + 1 .. k
     hist: list[list[FloatArray]] = []  # hist[-1 - t][d] = cov(Z(k - t), Z(k - t - d)), d < W
     feats: list[list[tuple[tuple[int, int], ...]]] = []
