@@ -5,6 +5,7 @@ The exact cost and the optimum of the class are checked by brute force in ``test
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 from typing import Any
 
@@ -148,3 +149,37 @@ def test_evaluate_runs_it_from_a_scenario(tmp_path: Path, capsys: pytest.Capture
     half = 0.5 * (row["mc_ci95_high"] - row["mc_ci95_low"])  # 1.96 standard errors
     assert row["cost_links"] == "lossy" and abs(row["mc_cost"] - row["total_cost"]) < 2 * half, row
     assert row["total_cost"] < out["estimators"]["local"]["total_cost"]
+
+
+@pytest.mark.skipif(importlib.util.find_spec("zenoh") is None, reason="needs eclipse-zenoh (pip install 'teamkf[deploy]')")
+def test_deploy_ships_summary_slices_and_filter_replays_it(tmp_path: Path) -> None:
+    """``teamkf deploy`` with ``summary = 2`` over drops: agent processes that cannot design (they get slices), and
+    ``teamkf filter --drops`` of the recorded drops gives the same file byte for byte."""
+    import os
+    import subprocess
+    import sys
+
+    from teamkf.study import measurements as Ms
+    from teamkf.study.scenario import load_scenario
+
+    from .test_lossy_long import HOOK
+
+    root = Path(__file__).resolve().parents[2]
+    src = (root / "examples" / "scenarios" / "lossy-complete-3-unlike.toml").read_text(encoding="utf-8")
+    sp = tmp_path / "s.toml"
+    sp.write_text(src.replace('fill = "held"', "summary = 2"), encoding="utf-8")
+    sc = load_scenario(sp)
+    log = tmp_path / "log.csv"
+    Ms.write_measurements(str(log), [y[0] for y in sample_paths(sc.system, sc.horizon, 1, rng=2).y])
+    hook = tmp_path / "hook"
+    hook.mkdir()
+    (hook / "sitecustomize.py").write_text(HOOK, encoding="utf-8")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(hook), str(root / "src"), os.environ.get("PYTHONPATH", "")])}
+    out, rec, rep = tmp_path / "est.csv", tmp_path / "drops.json", tmp_path / "replay.csv"
+    args = ["deploy", str(sp), "--measurements", str(log), "--out", str(out), "--estimator", "mtmse_lossy"]
+    args += ["--p-drop", "0.3", "--seed", "3", "--record", str(rec), "--deadline", "10"]
+    proc = subprocess.run([sys.executable, "-m", "teamkf", *args], capture_output=True, text=True, env=env, timeout=400)
+    assert proc.returncode == 0, proc.stderr
+    assert "designs the team" not in proc.stderr
+    assert main(["--quiet", "filter", str(sp), "--measurements", str(log), "--drops", str(rec), "--out", str(rep)]) == 0
+    assert out.read_bytes() == rep.read_bytes()
