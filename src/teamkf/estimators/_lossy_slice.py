@@ -48,26 +48,38 @@ class LossySliceView(SliceDesign):
         return True
 
 
-def lossy_agent_from_slice(ctx: Any, i: int, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> tuple[Any, Any]:
-    """``(view, agent)`` of agent i rebuilt from the arrays of :meth:`~teamkf.estimators.team_lossy.LossyTeamDesign.agent_slice` and the scenario's model (no design)."""
-    from .team_lossy import LossyTeamAgent
-
+def slice_view(ctx: Any, i: int, arrays: dict[str, np.ndarray], meta: dict[str, Any], items: str, **fields: Any) -> LossySliceView:
+    """The view of agent i's slice: its local gains ``K/k``, the rows ``<items>/k`` (pairs) and gains ``G/k`` of every step."""
     T = int(meta["horizon"])
-    n = int(ctx.system.n_agents)
-    ell = np.full((n, n), -1, dtype=np.int64)  # only column i (the delays of the items reaching agent i) is this agent's
-    ell[:, i] = np.asarray(arrays["ell"], dtype=np.int64)
-    view = LossySliceView(
+    return LossySliceView(
         str(meta.get("estimator", "mtmse_lossy")),
         T,
         ctx.system,
         ctx.cost,
         ctx.graph,
+        K_local=[_Own(i, arrays[f"K/{k}"]) for k in range(T)],
+        items=[_Own(i, tuple((int(j), int(s)) for j, s in np.asarray(arrays[f"{items}/{k}"]).tolist())) for k in range(T)],
+        gains=[_Own(i, arrays[f"G/{k}"]) for k in range(T)],
+        **fields,
+    )
+
+
+def lossy_agent_from_slice(ctx: Any, i: int, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> tuple[Any, Any]:
+    """``(view, agent)`` of agent i rebuilt from the arrays of :meth:`~teamkf.estimators.team_lossy.LossyTeamDesign.agent_slice` and the scenario's model (no design)."""
+    from .team_lossy import LossyTeamAgent
+
+    n = int(ctx.system.n_agents)
+    ell = np.full((n, n), -1, dtype=np.int64)  # only column i (the delays of the items reaching agent i) is this agent's
+    ell[:, i] = np.asarray(arrays["ell"], dtype=np.int64)
+    view = slice_view(
+        ctx,
+        i,
+        arrays,
+        meta,
+        "items",
         coordinates=str(meta["coordinates"]),
         memory=meta.get("memory"),
-        K_local=[_Own(i, arrays[f"K/{k}"]) for k in range(T)],
-        items=[_Own(i, tuple((int(j), int(s)) for j, s in np.asarray(arrays[f"items/{k}"]).tolist())) for k in range(T)],
-        gains=[_Own(i, arrays[f"G/{k}"]) for k in range(T)],
-        fills=[_Own(i, arrays[f"F/{k}"]) for k in range(T)],
+        fills=[_Own(i, arrays[f"F/{k}"]) for k in range(int(meta["horizon"]))],
         arrivals=SimpleNamespace(ell=ell),
         resend=int(meta.get("resend", 1)),
     )

@@ -546,25 +546,12 @@ def design_summary(system: Any, cost: Any, graph: Any, T: int, p: Any, J: Any, a
 # ---------------------------------------------------------------------------
 def summary_agent_from_slice(ctx: Any, i: int, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> tuple[Any, Any]:
     """``(view, agent)`` of agent i rebuilt from :meth:`SummaryLossyDesign.agent_slice` and the scenario's model."""
-    from types import SimpleNamespace
+    from ._lossy_slice import slice_view
 
-    from ._lossy_slice import LossySliceView, _Own
-
-    T, n = int(meta["horizon"]), int(ctx.system.n_agents)
+    n = int(ctx.system.n_agents)
     delays = np.full((n, n), -1, dtype=np.int64)
     delays[:, i] = np.asarray(arrays["delays"], dtype=np.int64)
-    view = LossySliceView(
-        str(meta.get("estimator", "mtmse_lossy")),
-        T,
-        ctx.system,
-        ctx.cost,
-        ctx.graph,
-        coordinates="summaries",
-        K_local=[_Own(i, arrays[f"K/{k}"]) for k in range(T)],
-        items=[_Own(i, tuple((int(j), int(m)) for j, m in np.asarray(arrays[f"feats/{k}"]).tolist())) for k in range(T)],
-        gains=[_Own(i, arrays[f"G/{k}"]) for k in range(T)],
-        arrivals=SimpleNamespace(),
-    )
+    view = slice_view(ctx, i, arrays, meta, "feats", coordinates="summaries")
     view.delays, view.ages = delays, int(meta["ages"])  # type: ignore[attr-defined]
     return view, SummaryAgent(view, i)
 
