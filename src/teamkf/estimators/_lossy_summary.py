@@ -17,12 +17,12 @@ which the agent keeps for the last δ + M steps),
 .. math::  \hat z_i(k) = L_i \hat x_i(k|k) + \sum_{m < W} G_{iim}(k)\, \nu_i(k - m)
            + \sum_{j \in N_i} \sum_{m=0}^{M-1} G_{ijm}(k)\, \mathbb 1[a_{ij}(k) = m]\, \psi_{ij}(k - \delta_{ji} - m),   (S1)
 
-the gains G_ijm(k) chosen offline and **keyed on the age**, i.e. on the realized arrival pattern: a fresh
-summary gets the weight of a fresh summary, a stale one the weight of a stale one, and a summary older than
-M steps (or none yet) none at all, so the agent falls back on its own filter while a neighbour is silent.
-with W = δ_max + M own innovations ν_i (free gains on what only the agent knows: without them the one good sensor
-of the UAV formation cannot pass its measurement of the unstable mode into its estimate, and at p = 0 the class
-costs 14 times MTMSE; with them it is within 10⁻⁶ of it). G = 0 is the local Kalman filters (family ``local``):
+with W = δ_max + M own innovations ν_i and the gains G(k) chosen offline. The summaries' gains are **keyed on the
+age**, i.e. on the realized arrival pattern: a fresh summary gets the weight of a fresh summary, a stale one the
+weight of a stale one, and a summary older than M steps (or none yet) none at all, so the agent falls back on its
+own filter while a neighbour is silent. The own innovations carry what only the agent knows: without them the one
+good sensor of the UAV formation cannot pass its measurement of the unstable mode into its estimate, and at p = 0
+the class costs 14 times MTMSE; with them it is within 10⁻⁶ of it. G = 0 is the local Kalman filters (family ``local``):
 the design never costs more than they do. At p = 0 and J = 0 every age is 0 and (S1) is the best linear use of the
 neighbours' filters of δ steps ago and of the own recent innovations.
 
@@ -48,12 +48,14 @@ packets are independent, so
 .. math::  P(a_{ij}(k) = m) = r_m \prod_{m' < m} (1 - r_{m'}) \qquad (k - \delta_{ji} - m \ge 0),
 
 P(a, b) = P(a) P(b) for features on different edges (independent packets) and P(a) δ_mm' on the same edge (one
-age per edge). The covariances come from one forward pass over the stacked local-filter errors
-E(k) = (e_1(k|k), …, e_n(k|k)), E(k) = U(k)(Ā E(k − 1) + 1 ⊗ w(k − 1)) − K̄(k) v(k), U = diag(I − K_j C_j):
-cov(E(k), E(k − d)) = U(k) Ā cov(E(k − 1), E(k − d)) over a window of δ_max + M steps. Nothing of the size of
-x(k) enters, so unstable processes are fine.
+age per edge); the own innovations have probability 1. The covariances come from one forward pass over the stacked
+local-filter errors and innovations Z(k) = (E(k), ν(k)), E(k) = (e_1(k|k), …, e_n(k|k)):
+Z(k) = [U; C̄] ε(k) + [−K̄; I] v(k), ε(k) = Ā E(k − 1) + 1 ⊗ w(k − 1), U = diag(I − K_j C_j), so
+cov(Z(k), Z(k − d)) = [U Ā; C̄ Ā] cov(E(k − 1), Z(k − d)) over a window of δ_max + M steps. Nothing of the size of
+x(k) enters, so unstable processes are fine. Γ(k) g = η(k) is solved by pivoted Cholesky (early summaries are of
+low rank; a feature that is a combination of others gets zero gain, with the same minimum).
 
-Work: one factorization of Γ(k) per step, of size Σ_i d_z |N_i| M d_x; once the moments of the window stop
+Work: one factorization of Γ(k) per step, of size Σ_i d_z (|N_i| M d_x + W d_y^i); once the moments of the window stop
 changing (a time-invariant model, the local filters converged, every age law stationary) Γ, η and the cost
 do not change either and the last gains serve every later step (the *steady form*: long horizons cost one
 step each).
