@@ -111,7 +111,7 @@ def test_extremes_and_more_ages_never_hurt(ring3: Any) -> None:
 
 
 def test_the_uav_formation_at_half_drops_is_a_fifth_below_the_local_filters() -> None:
-    """uav-10 (ρ = 1.55, one good sensor), T = 100, p = 0.5: the design is at least 20 % below the local filters (the issue's
+    """uav-10 (ρ = 1.55, one good sensor), T = 100, p = 0.5: the design is at least 20 % below the local filters (the
     target), where the classes with pattern-independent gains stay about 12 % below; its Monte Carlo agrees."""
     u = load_packaged("uav-10")
     d = design_mtmse_lossy(u.system, u.cost, u.graph, 100, p_drop=0.5, summary=1, bound=False)
