@@ -223,3 +223,20 @@ def test_a_scenario_table_jitter_is_designed_for_and_refused_for_held(tmp_path):
     plain.write_text(src.replace('fill = "held"', "jitter = 1"), encoding="utf-8")
     d = load_scenario(plain).design("mtmse_lossy")
     assert d.jitter == 1 and d.p_drop == 0.3  # the table's jitter, the [network] drop probability
+
+
+def test_held_window_is_a_scenario_option(tmp_path):
+    """``[mtmse_lossy] held_window = W`` sets the window of the conditional-mean feature; without fill = "held" it is refused."""
+    from pathlib import Path
+
+    from teamkf.study.scenario import load_scenario
+
+    src = (Path(__file__).parents[2] / "examples" / "scenarios" / "lossy-complete-3-unlike.toml").read_text(encoding="utf-8")
+    sp = tmp_path / "w.toml"
+    sp.write_text(
+        src.replace('fill = "held"', 'fill = "held"\nheld_window = 1\npatterns = 20').replace("horizon = 12", "horizon = 5"), encoding="utf-8"
+    )
+    assert load_scenario(sp).design("mtmse_lossy").window == 1
+    sp.write_text(src.replace('fill = "held"', "held_window = 3"), encoding="utf-8")
+    with pytest.raises(ArgumentError, match='held_window: the window of fill = "held"'):
+        load_scenario(sp).design("mtmse_lossy")

@@ -517,7 +517,7 @@ def design_rulefill(
     n = system.n_agents
     nominal = get_family("mtmse").build(system, cost, graph=graph, structure=graph, horizon=T)
     today = design_mtmse_lossy(system, cost, graph, T, p_drop=p, items="measurements", bound=False)
-    W = int(arr.ell.max()) + 2 if window is None else int(window)
+    W = int(arr.ell.max()) + 2 if window is None else V.integer(window, "held_window", minimum=1)
     Syy, Sxy, Px = _joint(system, T)
     d0 = RuleFillDesign(
         estimator="mtmse_lossy",

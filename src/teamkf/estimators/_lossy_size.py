@@ -205,6 +205,12 @@ def fill_options() -> tuple[Any, ...]:
             check=lambda v, k: None if v is None else V.integer(v, k, minimum=2),
             doc='fill = "held": link patterns sampled for the fit and the cost (none: all when few, else 400)',
         ),
+        Option(
+            name="held_window",
+            default=None,
+            check=lambda v, k: None if v is None else V.integer(v, k, minimum=1),
+            doc='fill = "held": the window W of its conditional-mean feature (none: the largest geodesic delay + 2)',
+        ),
     )
 
 

@@ -592,6 +592,7 @@ def design_mtmse_lossy(
     items: str = "auto",
     fill: bool | str = True,
     patterns: int | None = None,
+    held_window: int | None = None,
     bound: bool = True,
     known_bound: int = 0,
     known_window: int | None = None,
@@ -632,7 +633,7 @@ def design_mtmse_lossy(
         Replace a missed item by its predictor from the agent's own innovations (else by zero, its mean). "held": the
         class containing the nominal design under the missed-packet rule, today's class and the local filters
         (:mod:`teamkf.estimators._lossy_rulefill`; never worse than any of them; ``patterns``: link patterns sampled
-        for the fit and as many fresh ones for the cost, None: all of them when few, else 400).
+        for the fit and as many fresh ones for the cost, None: all of them when few, else 400; ``held_window``: its window W).
     threads : int or None
         BLAS threads for the design (1: robust on a shared machine; None: the library's default).
     bound : bool
@@ -715,7 +716,11 @@ def design_mtmse_lossy(
     if rs > 1:  # re-sent items
         return _RESEND[-1](system, cost, graph, T, p, J, arr, candidates, rs, fill, bound, threads, keyed=kw, memory=mem)  # type: ignore[no-any-return]
     if fill == "held":  # the class containing the missed-packet rule
-        return _HELD[-1](system, cost, graph, T, p, J, arr, patterns=patterns, keyed=kw, memory=mem)  # type: ignore[no-any-return]
+        return _HELD[-1](system, cost, graph, T, p, J, arr, patterns=patterns, keyed=kw, memory=mem, window=held_window)  # type: ignore[no-any-return]
+    if held_window is not None:
+        raise ArgumentError(
+            f'held_window: the window of fill = "held", found fill = {fill!r}; drop held_window or set fill = "held"', argument="held_window"
+        )
     if kw:  # gains keyed on the current arrivals
         return _KEYED[-1](system, cost, graph, T, p, J, arr, candidates, mem, fill, bound, threads)
     with blas_threads(threads):
