@@ -73,7 +73,7 @@ from .. import _validation as V
 from .._lazy import scipy_linalg as sla
 from .._linalg import block_diag
 from .._validation import FloatArray
-from ..exceptions import ShapeError
+from ..exceptions import ArgumentError, ShapeError
 from ._lossy_moments import local_kalman_gains
 
 __all__ = ["MAX_AGES", "design_summary", "age_probabilities", "summary_agent_from_slice"]
@@ -498,10 +498,32 @@ class SummaryAgent:
 _CLASS: list[Any] = []
 
 
-def design_summary(system: Any, cost: Any, graph: Any, T: int, p: Any, J: Any, arr: Any, M: int, bound: bool, threads: int | None) -> Any:
-    """``design_mtmse_lossy(..., summary=M)`` (module docstring): sized first, then solved step by step."""
+def design_summary(
+    system: Any,
+    cost: Any,
+    graph: Any,
+    T: int,
+    p: Any,
+    J: Any,
+    arr: Any,
+    M: int,
+    bound: bool,
+    threads: int | None,
+    *,
+    others: tuple = (0, None, 1, True),
+) -> Any:
+    """``design_mtmse_lossy(..., summary=M)`` (module docstring): sized first, then solved step by step. ``others``: the
+    options of the other classes (keyed, memory, resend, fill), refused unless at their defaults."""
     from .._blas import blas_threads
     from .team_lossy import build_lossy_design
+
+    keyed, memory, resend, fill = others
+    if keyed or memory is not None or resend != 1 or fill == "held":
+        raise ArgumentError(
+            f"summary: summary = {M} is a class of its own, found keyed = {keyed}, memory = {memory}, resend = {resend}, "
+            f"fill = {fill!r}; drop them or use summary = 0",
+            argument="summary",
+        )
 
     M = V.integer(M, "summary", minimum=1, maximum=MAX_AGES, what="the ages M kept per in-neighbour")
     edges = _Edges.build(graph, p, J)

@@ -687,18 +687,12 @@ def design_mtmse_lossy(
     mem = None if memory is None else V.positive_int(memory, "memory")
     coords = V.choice(items, "items", ("auto", "measurements", "innovations"))
     arr = ArrivalModel.build(graph, p, J)
-    if summary:  # age-keyed filter summaries: a class of its own, sized by its own module
-        if keyed or memory is not None or resend != 1 or fill == "held":
-            raise ArgumentError(
-                f"summary: summary = {summary} is a class of its own, found keyed = {keyed}, memory = {memory}, resend = {resend}, "
-                f"fill = {fill!r}; drop them or use summary = 0",
-                argument="summary",
-            )
+    if summary:  # age-keyed filter summaries: a class of its own, sized and checked by its own module
         if not _SUMMARY:
             from .registry import families
 
-            families()
-        d = _SUMMARY[-1](system, cost, graph, T, p, J, arr, summary, bound, threads)
+            families()  # loads the built-in modules and their extensions (_builtin.EXTENSIONS)
+        d = _SUMMARY[-1](system, cost, graph, T, p, J, arr, summary, bound, threads, others=(keyed, memory, resend, fill))
         return _known(d, system, cost, graph, T, p, J, known_bound, known_window, arr, "all")
 
     def kinds(m: int | None) -> int:  # item kinds designed with memory m (``items="auto"`` may design both)
