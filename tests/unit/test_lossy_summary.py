@@ -183,3 +183,20 @@ def test_deploy_ships_summary_slices_and_filter_replays_it(tmp_path: Path) -> No
     assert "designs the team" not in proc.stderr
     assert main(["--quiet", "filter", str(sp), "--measurements", str(log), "--drops", str(rec), "--out", str(rep)]) == 0
     assert out.read_bytes() == rep.read_bytes()
+
+
+def test_per_edge_links_unequal_delays_and_several_rows() -> None:
+    """Per-edge drop probabilities (one edge always lost, one never) and jitter, unequal delays, an agent with two rows:
+    the exact cost is its own Monte Carlo (4 SE) and lies between the certified bound and the local filters."""
+    A = 0.9 * np.eye(3) + 0.1 * np.roll(np.eye(3), 1, axis=0)
+    Cs = [np.array([[1.0, 0, 0]]), np.array([[0.0, 0.1, 0]]), np.array([[0, 0, 1.0], [0, 1.0, 0]])]
+    sysm = LinearGaussianSystem(A=A, C=Cs, Q=np.eye(3), R=[np.eye(1) * 0.2, np.eye(1) * 3.0, np.eye(2) * 0.5], Sigma_x=np.eye(3))
+    cost = TeamCost(S=np.eye(3) + np.ones((3, 3)), L=np.eye(3), n_agents=3)
+    g = CommGraph.from_edges(3, [(0, 1, 1), (1, 0, 2), (1, 2, 1), (2, 1, 1), (2, 0, 3)])
+    p = {(0, 1): 0.2, (1, 0): 0.6, (1, 2): 0.0, (2, 1): 1.0, (2, 0): 0.3}
+    J = {(0, 1): 1, (2, 0): 2}
+    d = design_mtmse_lossy(sysm, cost, g, 20, p_drop=p, jitter=J, summary=3)
+    assert d.lower_bound <= d.total_cost < d.info["local_kf_cost"]
+    assert all(j != 2 for (j, _) in d.items[19][1])  # the edge 2 -> 1 never delivers: no feature on it
+    mean, se = _mc(d, sample_paths(sysm, 20, 6000, rng=1), p_drop=p, jitter=J, rng=2)
+    assert abs(mean - d.total_cost) < 4 * se, (mean, se, d.total_cost)
