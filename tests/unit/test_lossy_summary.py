@@ -122,7 +122,7 @@ def test_the_uav_formation_at_half_drops_is_a_fifth_below_the_local_filters() ->
 
 def test_refusals_name_summary(ring3: Any, monkeypatch: pytest.MonkeyPatch) -> None:
     sysm, cost, g = ring3
-    for kw in ({"keyed": 1}, {"memory": 3}, {"resend": 2}, {"fill": "held"}):
+    for kw in ({"keyed": 1}, {"memory": 3}, {"resend": 2}, {"fill": "held"}, {"items": "measurements"}, {"held_window": 2}):
         with pytest.raises(ArgumentError, match="summary: summary = 2 is a class of its own"):
             design_mtmse_lossy(sysm, cost, g, 6, p_drop=0.2, summary=2, **kw)
     with pytest.raises(ArgumentError, match="summary"):

@@ -510,21 +510,20 @@ def design_summary(
     bound: bool,
     threads: int | None,
     *,
-    others: tuple = (0, None, 1, True),
+    others: tuple = (0, None, 1, True, "auto", None),
 ) -> Any:
     """``design_mtmse_lossy(..., summary=M)`` (module docstring): sized first, then solved step by step. ``others``: the
-    options of the other classes (keyed, memory, resend, fill), refused unless at their defaults."""
+    options of the item classes (keyed, memory, resend, fill, items, held_window), refused unless at their defaults."""
     from .._blas import blas_threads
     from .team_lossy import build_lossy_design
 
-    keyed, memory, resend, fill = others
-    if keyed or memory is not None or resend != 1 or fill == "held":
+    keyed, memory, resend, fill, items, held_window = others
+    if keyed or memory is not None or resend != 1 or fill == "held" or items != "auto" or held_window is not None:
         raise ArgumentError(
-            f"summary: summary = {M} is a class of its own, found keyed = {keyed}, memory = {memory}, resend = {resend}, "
-            f"fill = {fill!r}; drop them or use summary = 0",
+            f"summary: summary = {M} is a class of its own (no items), found keyed = {keyed}, memory = {memory}, resend = {resend}, "
+            f"fill = {fill!r}, items = {items!r}, held_window = {held_window}; drop them or use summary = 0",
             argument="summary",
         )
-
     M = V.integer(M, "summary", minimum=1, maximum=MAX_AGES, what="the ages M kept per in-neighbour")
     edges = _Edges.build(graph, p, J)
     peak, flops = _size(system, cost, edges, M, T)

@@ -692,7 +692,7 @@ def design_mtmse_lossy(
             from .registry import families
 
             families()  # loads the built-in modules and their extensions (_builtin.EXTENSIONS)
-        d = _SUMMARY[-1](system, cost, graph, T, p, J, arr, summary, bound, threads, others=(keyed, memory, resend, fill))
+        d = _SUMMARY[-1](system, cost, graph, T, p, J, arr, summary, bound, threads, others=(keyed, memory, resend, fill, items, held_window))
         return _known(d, system, cost, graph, T, p, J, known_bound, known_window, arr, "all")
 
     def kinds(m: int | None) -> int:  # item kinds designed with memory m (``items="auto"`` may design both)

@@ -205,7 +205,7 @@ class Scenario(ScenarioBase):
             opts = _family_options(fam, {})
         if "p_drop" in fam.option_names and opts.get("p_drop") is None and "network" in self.raw:  # drop-aware families
             lm = self.links
-            table = self.raw.get(estimator)
+            table = self.raw.get(fam.name)
             mine = isinstance(table, dict) and "jitter" in table  # the family's own table sets it: that value is designed for
             opts = {**opts, "p_drop": lm.p_drop, **({"jitter": lm.jitter} if "jitter" in fam.option_names and not mine else {})}
         try:
