@@ -200,3 +200,17 @@ def test_per_edge_links_unequal_delays_and_several_rows() -> None:
     assert all(j != 2 for (j, _) in d.items[19][1])  # the edge 2 -> 1 never delivers: no feature on it
     mean, se = _mc(d, sample_paths(sysm, 20, 6000, rng=1), p_drop=p, jitter=J, rng=2)
     assert abs(mean - d.total_cost) < 4 * se, (mean, se, d.total_cost)
+
+
+def test_known_pattern_bound_of_the_summary_protocol(ring3: Any) -> None:
+    """``known_bound = N``: without jitter and with every edge a geodesic the bound is the on-time protocol carrying the
+    whole history (what summaries carry); with jitter (late summaries are used) the every-protocol bound. Both lie below
+    the design and above the full-information bound."""
+    from teamkf.estimators._lossy_summary import _Edges, bound_protocol
+
+    sysm, cost, g = ring3
+    d = design_mtmse_lossy(sysm, cost, g, 8, p_drop=0.4, summary=2, known_bound=30)
+    assert bound_protocol(d.arrivals, _Edges.build(g, 0.4, 0), 8) == ("ontime", 8)
+    kb = d.info["known_pattern_bound"]
+    assert d.lower_bound <= kb["value"] <= d.total_cost and kb["relay"] == "ontime"
+    assert bound_protocol(d.arrivals, _Edges.build(g, 0.4, 1), 8) == ("all", 1)

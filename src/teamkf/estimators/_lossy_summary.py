@@ -511,11 +511,13 @@ def design_summary(
     threads: int | None,
     *,
     others: tuple = (0, None, 1, True, "auto", None),
+    known: tuple = (0, None),
 ) -> Any:
     """``design_mtmse_lossy(..., summary=M)`` (module docstring): sized first, then solved step by step. ``others``: the
-    options of the item classes (keyed, memory, resend, fill, items, held_window), refused unless at their defaults."""
+    options of the item classes (keyed, memory, resend, fill, items, held_window), refused unless at their defaults;
+    ``known``: (known_bound, known_window), the known-pattern optimum of the protocol (:func:`bound_protocol`)."""
     from .._blas import blas_threads
-    from .team_lossy import build_lossy_design
+    from .team_lossy import _known, build_lossy_design
 
     keyed, memory, resend, fill, items, held_window = others
     if keyed or memory is not None or resend != 1 or fill == "held" or items != "auto" or held_window is not None:
@@ -538,7 +540,7 @@ def design_summary(
     if not _CLASS:
         _CLASS.append(_design_class())
     n = system.n_agents
-    return build_lossy_design(
+    d = build_lossy_design(
         _CLASS[0],
         system,
         cost,
@@ -562,6 +564,16 @@ def design_summary(
         ages=M,
         delays=_delays(edges, n),
     )
+    return _known(d, system, cost, graph, T, p, J, known[0], known[1], arr, *bound_protocol(arr, edges, T))
+
+
+def bound_protocol(arr: Any, edges: _Edges, T: int) -> tuple[str, int]:
+    """The known-pattern optimum that bounds the summary design: ``("ontime", T)`` (on-time packets carrying the sender's
+    whole history: what the summaries carry, relays only adding) when there is no jitter and every edge is a geodesic
+    (a summary is then held exactly when its packet is on time), else ``("all", 1)`` (a packet carries everything its
+    sender holds: a bound for every protocol)."""
+    ok = all(J == 0 and d == int(arr.ell[j, i]) for i, lst in enumerate(edges.into) for (j, d, _, J) in lst)
+    return ("ontime", T) if ok else ("all", 1)
 
 
 # ---------------------------------------------------------------------------

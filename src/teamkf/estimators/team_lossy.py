@@ -692,8 +692,8 @@ def design_mtmse_lossy(
             from .registry import families
 
             families()  # loads the built-in modules and their extensions (_builtin.EXTENSIONS)
-        d = _SUMMARY[-1](system, cost, graph, T, p, J, arr, summary, bound, threads, others=(keyed, memory, resend, fill, items, held_window))
-        return _known(d, system, cost, graph, T, p, J, known_bound, known_window, arr, "all")
+        others = (keyed, memory, resend, fill, items, held_window)
+        return _SUMMARY[-1](system, cost, graph, T, p, J, arr, summary, bound, threads, others=others, known=(known_bound, known_window))  # type: ignore[no-any-return]
 
     def kinds(m: int | None) -> int:  # item kinds designed with memory m (``items="auto"`` may design both)
         return len(_auto_items(system, arr, T, m)) if coords == "auto" else 1
@@ -753,12 +753,15 @@ def design_mtmse_lossy(
     return _known(d, system, cost, graph, T, p, J, known_bound, known_window, arr, "flood" if coords == "measurements" else "all")
 
 
-def _known(d: Any, system: Any, cost: Any, graph: Any, T: int, p: Any, J: Any, known_bound: int, known_window: Any, arr: Any, relay: str) -> Any:
-    """``d`` with the known-pattern optimum of ``relay`` over ``known_bound`` patterns and its gap in ``info`` (0: ``d`` as it is)."""
+def _known(
+    d: Any, system: Any, cost: Any, graph: Any, T: int, p: Any, J: Any, known_bound: int, known_window: Any, arr: Any, relay: str, resend: int = 1
+) -> Any:
+    """``d`` with the known-pattern optimum of ``relay`` (and ``resend``) over ``known_bound`` patterns and its gap in ``info``
+    (0: ``d`` as it is)."""
     nkb = V.integer(known_bound, "known_bound", minimum=0)
     if nkb:
         W = int(arr.ell.max()) + 4 if known_window is None else V.integer(known_window, "known_window", minimum=0)
-        kb = known_pattern_stats(system, cost, graph, T, p, J, relay=relay, window=W, n_patterns=nkb, rng=0, exact_first=True)
+        kb = known_pattern_stats(system, cost, graph, T, p, J, relay=relay, window=W, n_patterns=nkb, rng=0, exact_first=True, resend=resend)
         d.info["known_pattern_bound"] = kb.as_dict()
         d.info["known_pattern_gap"] = (d.total_cost - kb.value) / kb.value
     return d
