@@ -43,6 +43,7 @@ from .._lazy import scipy_linalg as sla
 from .._linalg import block_diag
 from ..exceptions import ArgumentError
 from ._arrivals import ArrivalModel, _union_prob
+from ._lossy_moments import local_filter_errors
 
 __all__ = ["MAX_EVENTS", "MAX_DUE", "design_keyed", "solve_keyed", "pattern_index"]
 
@@ -276,7 +277,6 @@ def _design_class() -> Any:
             n_runs, T = v.shape[:2]
             n, dx, dz, dyt = sysm.n_agents, sysm.dx, cost.dz, sysm.dy_total
             off = sysm.offsets
-            eps = np.tile(x0, (1, n))
             nu = np.zeros((n_runs, T * dyt))
             yv = (
                 np.concatenate([np.asarray(yi, dtype=float) for yi in paths.y], axis=2).reshape(n_runs, -1)
@@ -288,12 +288,8 @@ def _design_class() -> Any:
                 for j in range(n):
                     mask[:, s * dyt + int(off[j]) : s * dyt + int(off[j]) + sysm.dy[j], :] = arrived[:, s, j, :][:, None, :]
             out = np.empty((n_runs, T, n * dz))
-            for k in range(T):
-                Cs = [sysm.C_at(j, k) for j in range(n)]
-                K = self.K_local[k]
-                nu_k = np.hstack([eps[:, j * dx : (j + 1) * dx] @ Cs[j].T for j in range(n)]) + v[:, k]
+            for k, nu_k, ef in local_filter_errors(sysm, self.K_local, x0, w, v):
                 nu[:, k * dyt : (k + 1) * dyt] = nu_k
-                ef = np.hstack([eps[:, j * dx : (j + 1) * dx] - nu_k[:, int(off[j]) : int(off[j]) + sysm.dy[j]] @ K[j].T for j in range(n)])
                 L = cost.L_at(k)
                 for i in range(n):
                     rows = _rows(sysm, self.items[k][i])
@@ -308,7 +304,6 @@ def _design_class() -> Any:
                         Gst = np.stack([self.keyed_gains[k][i][p] for p in range(1 << len(self.due[k][i]))])
                         z = z - np.einsum("rc,rzc->rz", f, Gst[pat])
                     out[:, k, i * dz : (i + 1) * dz] = z
-                eps = ef @ np.kron(np.eye(n), sysm.A_at(k)).T + (np.tile(w[:, k], (1, n)) if k < w.shape[1] else 0.0)
             return out
 
         def graph_agents(self) -> list[Any]:

@@ -6,7 +6,7 @@ See :mod:`teamkf.estimators.team_lossy` (module docstring) for where they enter.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Iterator, Sequence
 
 import numpy as np
 
@@ -15,7 +15,7 @@ from .._linalg import block_diag
 from .._validation import FloatArray
 from ..models import LinearGaussianSystem
 
-__all__ = ["LocalMoments", "local_filter_moments", "local_kalman_gains", "innovations_to_measurements"]
+__all__ = ["LocalMoments", "local_filter_moments", "local_kalman_gains", "local_filter_errors", "innovations_to_measurements"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -122,3 +122,21 @@ def _item_moments(system: LinearGaussianSystem, mom: LocalMoments, T: int, coord
         return mom
     B = innovations_to_measurements(system, mom.K, T)
     return LocalMoments(mom.K, B @ mom.Sigma @ B.T, [Th @ B[: Th.shape[1], : Th.shape[1]].T for Th in mom.Theta], mom.Pe)
+
+
+def local_filter_errors(
+    system: LinearGaussianSystem, K: Sequence[Sequence[FloatArray]], x0: FloatArray, w: FloatArray, v: FloatArray
+) -> Iterator[tuple[int, FloatArray, FloatArray]]:
+    r"""Per step k, every run's innovations ν(k) (R, Σ d_y) and filtered errors e(k|k) (R, n d_x) of the agents' own filters.
+
+    Propagated from the primitive noises (x(0), w, v: R runs), never from the states, so unstable processes stay accurate:
+    ε(0) = 1 ⊗ x(0), ν_j(k) = C_j ε_j(k) + v_j(k), e_j(k|k) = ε_j(k) - K_j ν_j(k), ε(k+1) = (I ⊗ A) e(k|k) + 1 ⊗ w(k)
+    (I ⊗ A applied block by block)."""
+    n, dx, off = system.n_agents, system.dx, system.offsets
+    R, T = v.shape[:2]
+    eps = np.tile(x0, (1, n))
+    for k in range(T):
+        nu_k = np.hstack([eps[:, j * dx : (j + 1) * dx] @ system.C_at(j, k).T for j in range(n)]) + v[:, k]
+        ef = np.hstack([eps[:, j * dx : (j + 1) * dx] - nu_k[:, int(off[j]) : int(off[j]) + system.dy[j]] @ K[k][j].T for j in range(n)])
+        yield k, nu_k, ef
+        eps = (ef.reshape(R, n, dx) @ system.A_at(k).T).reshape(R, n * dx) + (np.tile(w[:, k], (1, n)) if k < w.shape[1] else 0.0)

@@ -52,6 +52,7 @@ from .._lazy import scipy_linalg as sla
 from .._linalg import block_diag
 from ..exceptions import ArgumentError
 from ._arrivals import ArrivalModel, _union_prob
+from ._lossy_moments import local_filter_errors
 
 __all__ = ["MAX_RESEND", "design_resend", "availability_prob"]
 
@@ -410,8 +411,6 @@ def _design_class() -> Any:
             sysm, cost = self.system, self.cost
             n_runs, T = v.shape[:2]
             n, dx, dz, dyt = sysm.n_agents, sysm.dx, cost.dz, sysm.dy_total
-            off = sysm.offsets
-            eps = np.tile(x0, (1, n))
             nu = np.zeros((n_runs, T * dyt))
             yv = (
                 np.concatenate([np.asarray(yi, dtype=float) for yi in paths.y], axis=2).reshape(n_runs, -1)
@@ -419,12 +418,8 @@ def _design_class() -> Any:
                 else nu
             )
             out = np.empty((n_runs, T, n * dz))
-            for k in range(T):
-                Cs = [sysm.C_at(j, k) for j in range(n)]
-                K = self.K_local[k]
-                nu_k = np.hstack([eps[:, j * dx : (j + 1) * dx] @ Cs[j].T for j in range(n)]) + v[:, k]
+            for k, nu_k, ef in local_filter_errors(sysm, self.K_local, x0, w, v):
                 nu[:, k * dyt : (k + 1) * dyt] = nu_k
-                ef = np.hstack([eps[:, j * dx : (j + 1) * dx] - nu_k[:, int(off[j]) : int(off[j]) + sysm.dy[j]] @ K[j].T for j in range(n)])
                 L = cost.L_at(k)
                 for i in range(n):
                     its = self.items[k][i]
@@ -437,7 +432,6 @@ def _design_class() -> Any:
                         f = vals[:, rows] * m + (1.0 - m) * (vals[:, _own_cols(sysm, i, k)] @ self.fills[k][i].T)
                         z = z - f @ self.gains[k][i].T
                     out[:, k, i * dz : (i + 1) * dz] = z
-                eps = ef @ np.kron(np.eye(n), sysm.A_at(k)).T + (np.tile(w[:, k], (1, n)) if k < w.shape[1] else 0.0)
             return out
 
         def graph_agents(self) -> list[Any]:

@@ -74,7 +74,7 @@ from .._lazy import scipy_linalg as sla
 from .._linalg import block_diag
 from .._validation import FloatArray
 from ..exceptions import ArgumentError, ShapeError
-from ._lossy_moments import local_kalman_gains
+from ._lossy_moments import local_filter_errors, local_kalman_gains
 
 __all__ = ["MAX_AGES", "design_summary", "age_probabilities", "summary_agent_from_slice"]
 
@@ -346,20 +346,13 @@ def _design_class() -> Any:
             newest = np.full((n_runs, n, n), -1, dtype=np.int64)  # newest origin arrived so far on j -> i
             Wd = int(np.max(self.delays)) + self.ages
             hist: dict[int, Any] = {}  # step -> (e(k|k) of every agent, [ν_j(k)])
-            eps = np.tile(x0, (1, n))  # e(k|k-1) of every agent
             out = np.empty((n_runs, T, n * dz))
-            for k in range(T):
+            for k, nu_k, ef in local_filter_errors(sysm, self.K_local, x0, w, v):
                 hits = at == k  # (n_runs, τ, j, i)
                 if hits.any():
                     tau = np.where(hits, np.arange(T)[None, :, None, None], -1).max(axis=1)
                     np.maximum(newest, tau, out=newest)
-                K = self.K_local[k]
-                ef, nu = np.empty_like(eps), []
-                for j in range(n):
-                    e_j = eps[:, j * dx : (j + 1) * dx]
-                    nu.append(e_j @ sysm.C_at(j, k).T + v[:, k, int(off[j]) : int(off[j]) + sysm.dy[j]])
-                    ef[:, j * dx : (j + 1) * dx] = e_j - nu[j] @ K[j].T
-                hist[k] = (ef, nu)
+                hist[k] = (ef, [nu_k[:, int(off[j]) : int(off[j]) + sysm.dy[j]] for j in range(n)])
                 hist.pop(k - Wd - 1, None)
                 L = cost.L_at(k)
                 for i in range(n):
@@ -378,7 +371,6 @@ def _design_class() -> Any:
                             psi = e_t[:, i * dx : (i + 1) * dx] - e_t[:, j * dx : (j + 1) * dx]  # e_i(τ) - e_j(τ)
                             z = z - on[:, None] * (psi @ self.gains[k][i][:, col - dx : col].T)
                     out[:, k, i * dz : (i + 1) * dz] = z
-                eps = ef @ np.kron(np.eye(n), sysm.A_at(k)).T + (np.tile(w[:, k], (1, n)) if k < w.shape[1] else 0.0)
             return out
 
         def graph_agents(self) -> list[Any]:

@@ -90,7 +90,7 @@ from ..network.graph import CommGraph
 from . import _lossy_size
 from ._arrivals import ArrivalModel, _jitter_value, _p_value
 from ._lossy_bound import known_pattern_bound, known_pattern_stats
-from ._lossy_moments import LocalMoments, _item_moments, local_filter_moments
+from ._lossy_moments import LocalMoments, _item_moments, local_filter_errors, local_filter_moments
 from .base import Design, check_paths
 from .checks import check_graph, check_model
 from .registry import Family, Option, _register_builtin, register_alias
@@ -433,7 +433,6 @@ class LossyTeamDesign(Design):
         n_runs, T = v.shape[:2]
         n, dx, dz, dyt = sysm.n_agents, sysm.dx, cost.dz, sysm.dy_total
         off = sysm.offsets
-        eps = np.tile(x0, (1, n))  # ε(0) = 1 ⊗ x(0)
         nu = np.zeros((n_runs, T * dyt))
         yv = np.concatenate([np.asarray(yi, dtype=float) for yi in paths.y], axis=2).reshape(n_runs, -1) if self.coordinates == "measurements" else nu
         mask = np.zeros((n_runs, T * dyt, n))  # mask[:, row, i] = d_i(source of row, step of row)
@@ -442,14 +441,8 @@ class LossyTeamDesign(Design):
                 rr = slice(s * dyt + int(off[j]), s * dyt + int(off[j]) + sysm.dy[j])
                 mask[:, rr, :] = arrived[:, s, j, :][:, None, :]
         out = np.empty((n_runs, T, n * dz))
-        for k in range(T):
-            Cs = [sysm.C_at(j, k) for j in range(n)]
-            K = self.K_local[k]
-            nu_k = np.hstack([eps[:, j * dx : (j + 1) * dx] @ Cs[j].T for j in range(n)]) + v[:, k]
+        for k, nu_k, ef in local_filter_errors(sysm, self.K_local, x0, w, v):
             nu[:, k * dyt : (k + 1) * dyt] = nu_k
-            ef = np.hstack(
-                [eps[:, j * dx : (j + 1) * dx] - nu_k[:, int(off[j]) : int(off[j]) + sysm.dy[j]] @ K[j].T for j in range(n)]
-            )  # e_j(k|k) = e_j(k|k-1) - K_j ν_j(k)
             L = cost.L_at(k)
             for i in range(n):
                 rows = _rows(sysm, self.items[k][i])
@@ -462,8 +455,6 @@ class LossyTeamDesign(Design):
                     f = vals[:, rows] * m + (1.0 - m) * (vals[:, own] @ self.fills[k][i].T)  # the fill of a missed item
                     z = z - f @ self.gains[k][i].T
                 out[:, k, i * dz : (i + 1) * dz] = z
-            A = sysm.A_at(k)
-            eps = ef @ np.kron(np.eye(n), A).T + (np.tile(w[:, k], (1, n)) if k < w.shape[1] else 0.0)
         return out
 
     # --- online agents -------------------------------------------------------------------
