@@ -23,6 +23,23 @@ What an agent holds under a pattern depends on what the packets carry (``relay``
   the most any protocol can deliver over these links, so a bound for every design (re-sends,
   summaries, innovations). The held sets are prefixes y_j(0 : h_ji(k)).
 
+What an agent is told of the pattern (``knowledge``):
+
+* ``"every"``: every link event, the others' arrivals of the current step included (the bound above);
+* ``"causal"``: the events due before step k, and its own arrivals of step k (the bits b_i of the
+  packets due at k on its in-edges), nothing of the others' arrivals of step k. No protocol can tell
+  an agent more by step k: what reaches it was sent before k, by agents that knew at most the events
+  due by then. So this is still a lower bound for every design over the same relays, and a tighter one.
+  Given the earlier events (common to all), the bits of different agents are independent (disjoint
+  in-edges) and independent of the noises; linear strategies in the held data, one per (i, b_i), that
+  satisfy the Radner conditions averaged over the others' bits are team-optimal,
+
+  .. math::  \sum_l S_{il} \big(L_l\, \mathrm{cov}(x(k), Y_i^{b_i})
+             - \sum_{b_l} \pi_l(b_l)^{[l \ne i]}\, G_l^{b_l}\, \mathrm{cov}(Y_l^{b_l}, Y_i^{b_i})\big) = 0,
+
+  (for l = i, only b_l = b_i, weight 1): one symmetric positive semidefinite system over the pairs (i, b_i) per step
+  and pattern of the earlier events. No jitter (a late packet's fate is not one bit at its due step).
+
 Computation. Data that every agent holds, Y(0:m) for the largest such m, is common: conditioning on
 it (the centralized Kalman filter's P(m+1|m)) leaves a static team problem on the residuals of the
 window y(m+1 : k) only (exact: a linear strategy splits into a function of the common data, best
@@ -60,8 +77,10 @@ class KnownPatternBound:
     sem : float                standard error of ``value`` (0 when exact)
     n_patterns : int           patterns enumerated or sampled
     exact : bool               every pattern enumerated
-    relay : str                "flood" or "all"
+    relay : str                "flood", "ontime" or "all"
     window : int or None       data older than k - window given to every agent (None: exact)
+    knowledge : str            "every": every agent told every link event; "causal": the events due before
+                               the step and its own arrivals of the step (module docstring)
     """
 
     value: float
@@ -71,6 +90,7 @@ class KnownPatternBound:
     exact: bool
     relay: str
     window: int | None
+    knowledge: str = "every"
 
     @property
     def interval(self) -> tuple[float, float]:
@@ -87,6 +107,7 @@ class KnownPatternBound:
             "exact": self.exact,
             "relay": self.relay,
             "window": self.window,
+            "knowledge": self.knowledge,
         }
 
 
@@ -208,6 +229,7 @@ class _Windows:
             P = 0.5 * (P + P.T)
         self.cache: dict[tuple[int, int], tuple[FloatArray, FloatArray, FloatArray]] = {}
         self.stage_cache: dict[tuple[int, int, bytes], float] = {}
+        self.causal_cache: dict[tuple[Any, ...], float] = {}
 
     def get(self, m: int, k: int) -> tuple[FloatArray, FloatArray, FloatArray]:
         """(Cyy, Cxy, Pk): cov of the residuals ỹ(m+1:k), cov(x̃(k), ỹ), cov(x̃(k)) given Y(0:m)."""
@@ -296,6 +318,112 @@ def _solve_stage(win: _Windows, cost: Any, held_k: np.ndarray, k: int, m: int) -
     return c0 - float(g @ eta)
 
 
+# ---------------------------------------------------------------------------
+# the causal-knowledge bound: this step's arrivals known only to their receivers
+# ---------------------------------------------------------------------------
+def _private_configs(
+    delay: np.ndarray, edges: list[tuple[int, int, int]], p: np.ndarray, n: int, k: int, relay: str, resend: int
+) -> list[list[tuple[np.ndarray, float]]]:
+    """Per agent i, its private configurations at step k: [(held_i[j, s] for s <= k, probability), ...].
+
+    The events of the packets due at step k (sent at k - d_e on an in-edge e of i) are i's private bits;
+    every other event of the pattern (those due before k) is given to every agent. Under the flooding or
+    "all" relays what i holds at k is what it held at k - 1 and the contents of the packets arriving at k,
+    so its held set depends on its own bits only."""
+    pre = delay[: k + 1].copy()
+    due = [(k - d, e) for e, (_, _, d) in enumerate(edges) if k - d >= 0]
+    for t, e in due:
+        pre[t, e] = -1
+    base = held_sets(pre, edges, n, k + 1, relay, resend)[k]
+    gain: dict[int, np.ndarray] = {}
+    for t, e in due:
+        one = pre.copy()
+        one[t, e] = edges[e][2]
+        gain[e] = held_sets(one, edges, n, k + 1, relay, resend)[k]
+    out = []
+    for i in range(n):
+        mine = [e for (_, e) in due if edges[e][1] == i]
+        configs = []
+        for bits in product((0, 1), repeat=len(mine)):
+            prob = float(np.prod([p[e] if b == 0 else 1.0 - p[e] for e, b in zip(mine, bits)]))
+            if prob <= 0.0:
+                continue
+            h = base[:, :, i].copy()
+            for e, b in zip(mine, bits):
+                if b:
+                    h |= gain[e][:, :, i]
+            configs.append((h, prob))
+        out.append(configs)
+    return out
+
+
+def _solve_stage_causal(win: _Windows, cost: Any, configs: list[list[tuple[np.ndarray, float]]], k: int, window: int | None) -> float:
+    r"""J_k* when agent i knows the events due before k and its own arrivals at k (bits b_i, law π_i).
+
+    The others' bits are independent of i's and of the noises, so the Radner conditions read, for every
+    (i, b_i): Σ_l S_il (L_l cov(x, Y_i^{b_i}) - Σ_{b_l} π_l(b_l) G_l^{b_l} cov(Y_l^{b_l}, Y_i^{b_i})) = 0 for
+    l ≠ i, with G_i^{b_i} itself for l = i: one symmetric system over the pairs (i, b_i) (each row weighted by
+    π_i(b_i)), whose solution is optimal among all strategies (the cost is convex and linear strategies in
+    the data for each b_i satisfy the conditions)."""
+    n = win.system.n_agents
+    common = np.ones(k + 1, dtype=bool)
+    for i in range(n):
+        for h, _ in configs[i]:
+            common &= h.all(axis=0)
+    m = int(np.argmin(common)) - 1 if not common.all() else k
+    if window is not None:
+        m = max(m, k - window - 1)
+    if m == k:
+        return _solve_stage(win, cost, np.ones((n, k + 1, n), dtype=bool), k, k)
+    key = (k, m, tuple((i, h[:, m + 1 :].tobytes(), prob) for i in range(n) for h, prob in configs[i]))
+    hit = win.causal_cache.get(key)
+    if hit is None:
+        hit = _solve_causal(win, cost, configs, k, m)
+        if len(win.causal_cache) < 200_000:
+            win.causal_cache[key] = hit
+    return hit
+
+
+def _solve_causal(win: _Windows, cost: Any, configs: list[list[tuple[np.ndarray, float]]], k: int, m: int) -> float:
+    sysm = win.system
+    n, dyt, off, dz = sysm.n_agents, sysm.dy_total, sysm.offsets, cost.dz
+    S, L = cost.S_at(k), cost.L_at(k)
+    Cyy, Cxy, Pk = win.get(m, k)
+    SLC = S @ L @ Cxy
+    blocks = []  # (agent, prob, z rows, y rows)
+    for i in range(n):
+        for h, prob in configs[i]:
+            rows = [(s - m - 1) * dyt + int(off[j]) + r for s in range(m + 1, k + 1) for j in range(n) if h[j, s] for r in range(sysm.dy[j])]
+            zi = np.repeat(np.arange(i * dz, (i + 1) * dz), len(rows))
+            yr = np.tile(np.asarray(rows, dtype=int), dz)
+            blocks.append((i, prob, zi, yr))
+    size = sum(b[2].size for b in blocks)
+    if size > MAX_UNKNOWNS:
+        raise ResourceError(
+            f"window: the causal-knowledge bound's step {k} has {size} unknowns (at most {MAX_UNKNOWNS}); "
+            "give a smaller window = W (data older than k - W given to every agent: a looser bound)",
+            argument="window",
+        )
+    c0 = float(np.trace(S @ L @ Pk @ L.T))
+    if not size:
+        return c0
+    Gam = np.zeros((size, size))
+    eta = np.zeros(size)
+    starts = np.cumsum([0] + [b[2].size for b in blocks])
+    for a, (i, pa, za, ya) in enumerate(blocks):
+        eta[starts[a] : starts[a + 1]] = pa * SLC[za, ya]
+        for b, (j, pb, zb, yb) in enumerate(blocks):
+            if j == i and a != b:
+                continue  # one agent is in one configuration at a time
+            w = pa if a == b else pa * pb
+            Gam[starts[a] : starts[a + 1], starts[b] : starts[b + 1]] = w * S[np.ix_(za, zb)] * Cyy[np.ix_(ya, yb)]
+    try:
+        g = sla.cho_solve(sla.cho_factor(Gam, lower=True, check_finite=False), eta, check_finite=False)
+    except np.linalg.LinAlgError:
+        g = np.linalg.lstsq(Gam, eta, rcond=None)[0]
+    return c0 - float(g @ eta)
+
+
 def known_pattern_stats(
     system: Any,
     cost: Any,
@@ -310,6 +438,7 @@ def known_pattern_stats(
     rng: Any = None,
     exact_first: bool = False,
     resend: int = 1,
+    knowledge: str = "every",
 ) -> KnownPatternBound:
     """The known-pattern optimum (validated arguments; :func:`teamkf.estimators.team_lossy.known_pattern_bound`).
 
@@ -318,22 +447,27 @@ def known_pattern_stats(
     n = system.n_agents
     edges, p, J = _edge_params(graph, p_drop, jitter)
     win = _Windows(system, T)
+
+    def stages_of(delay: np.ndarray) -> list[float]:
+        if knowledge == "causal":
+            return [_solve_stage_causal(win, cost, _private_configs(delay, edges, p, n, k, relay, resend), k, window) for k in range(T)]
+        held = held_sets(delay, edges, n, T, relay, resend)
+        return [_stage_optimum(win, cost, held[k], k, window) for k in range(T)]
+
     pats = _enumerate(edges, p, J, T) if n_patterns is None or exact_first else None
     if pats is not None:
         stages = np.zeros(T)
         for delay, prob in pats:
-            held = held_sets(delay, edges, n, T, relay, resend)
-            stages += prob * np.array([_stage_optimum(win, cost, held[k], k, window) for k in range(T)])
-        return KnownPatternBound(float(stages.sum()), stages, 0.0, len(pats), True, relay, window)
+            stages += prob * np.array(stages_of(delay))
+        return KnownPatternBound(float(stages.sum()), stages, 0.0, len(pats), True, relay, window, knowledge)
     R = 200 if n_patterns is None else n_patterns
     gen = np.random.default_rng(rng)
     per = np.zeros((R, T))
     for r in range(R):
-        held = held_sets(_sample(edges, p, J, T, gen), edges, n, T, relay, resend)
-        per[r] = [_stage_optimum(win, cost, held[k], k, window) for k in range(T)]
+        per[r] = stages_of(_sample(edges, p, J, T, gen))
     tot = per.sum(axis=1)
     sem = float(tot.std(ddof=1) / np.sqrt(R)) if R > 1 else float("inf")
-    return KnownPatternBound(float(tot.mean()), per.mean(axis=0), sem, R, False, relay, window)
+    return KnownPatternBound(float(tot.mean()), per.mean(axis=0), sem, R, False, relay, window, knowledge)
 
 
 def known_pattern_bound(
@@ -349,6 +483,7 @@ def known_pattern_bound(
     n_patterns: int | None = None,
     rng: Any = None,
     resend: int = 1,
+    knowledge: str = "every",
 ) -> KnownPatternBound:
     """The known-pattern optimum: the expected team cost of a team told every link event (a lower bound).
 
@@ -372,6 +507,10 @@ def known_pattern_bound(
     resend : int
         With relay "flood": each packet carries the sender's last ``resend`` measurements (``mtmse_lossy``'s
         ``resend = r``), each packet flooded once.
+    knowledge : "every" or "causal"
+        What each agent is told of the link events: every one ("every"), or only those due before the step and
+        its own arrivals of the step ("causal": all that any protocol can tell it, so a tighter bound, still
+        below every design; no jitter).
 
     Returns
     -------
@@ -409,4 +548,12 @@ def known_pattern_bound(
                 V.integer(v, label, minimum=0)
     graph.require_strongly_connected()
     resend = V.integer(resend, "resend", minimum=1)
-    return known_pattern_stats(system, cost, graph, T, p_drop, jitter, relay=relay, window=window, n_patterns=n_patterns, rng=rng, resend=resend)
+    knowledge = V.choice(knowledge, "knowledge", ("every", "causal"))
+    if knowledge == "causal" and any(v for v in (jitter.values() if isinstance(jitter, dict) else [jitter])):
+        raise ArgumentError(
+            f"knowledge: 'causal' is for links without jitter, found jitter = {jitter!r}; give jitter = 0 or knowledge = 'every'",
+            argument="knowledge",
+        )
+    return known_pattern_stats(
+        system, cost, graph, T, p_drop, jitter, relay=relay, window=window, n_patterns=n_patterns, rng=rng, resend=resend, knowledge=knowledge
+    )

@@ -503,11 +503,11 @@ def design_summary(
     threads: int | None,
     *,
     others: tuple = (0, None, 1, True, "auto", None),
-    known: tuple = (0, None),
+    known: tuple = (0, None, "every"),
 ) -> Any:
     """``design_mtmse_lossy(..., summary=M)`` (module docstring): sized first, then solved step by step. ``others``: the
     options of the item classes (keyed, memory, resend, fill, items, held_window), refused unless at their defaults;
-    ``known``: (known_bound, known_window), the known-pattern optimum of the protocol (:func:`bound_protocol`)."""
+    ``known``: (known_bound, known_window, known_knowledge), the known-pattern optimum of the protocol (:func:`bound_protocol`)."""
     from .._blas import blas_threads
     from .team_lossy import _known, build_lossy_design
 
@@ -556,7 +556,7 @@ def design_summary(
         ages=M,
         delays=_delays(edges, n),
     )
-    return _known(d, system, cost, graph, T, p, J, known[0], known[1], arr, *bound_protocol(arr, edges, T))
+    return _known(d, system, cost, graph, T, p, J, *known, arr, *bound_protocol(arr, edges, T))
 
 
 def bound_protocol(arr: Any, edges: _Edges, T: int) -> tuple[str, int]:

@@ -587,6 +587,7 @@ def design_mtmse_lossy(
     bound: bool = True,
     known_bound: int = 0,
     known_window: int | None = None,
+    known_knowledge: str = "every",
     keyed: int = 0,
     resend: int = 1,
     summary: int = 0,
@@ -636,6 +637,10 @@ def design_mtmse_lossy(
         ``info["known_pattern_bound"]`` (value, sem, interval) and ``info["known_pattern_gap"]``.
     known_window : int or None
         Its window (data older than k - W given to every agent: a looser bound, less work); None: W = ℓ_max + 4.
+    known_knowledge : "every" or "causal"
+        What that bound's agents are told of the link events: every one, or only those due before the step and their own
+        arrivals of the step (all that any protocol can tell an agent: a tighter bound, still below every design;
+        no jitter). Recorded in ``info["known_pattern_bound"]["knowledge"]``.
     keyed : 0 or 1
         1: gains keyed on the agent's current arrivals (the on-time indicators of the items due at step k;
         :mod:`teamkf.estimators._lossy_keyed`): a larger class containing today's, exact cost, small teams only
@@ -684,7 +689,8 @@ def design_mtmse_lossy(
 
             families()  # loads the built-in modules and their extensions (_builtin.EXTENSIONS)
         others = (keyed, memory, resend, fill, items, held_window)
-        return _SUMMARY[-1](system, cost, graph, T, p, J, arr, summary, bound, threads, others=others, known=(known_bound, known_window))  # type: ignore[no-any-return]
+        known = (known_bound, known_window, known_knowledge)
+        return _SUMMARY[-1](system, cost, graph, T, p, J, arr, summary, bound, threads, others=others, known=known)  # type: ignore[no-any-return]
 
     def kinds(m: int | None) -> int:  # item kinds designed with memory m (``items="auto"`` may design both)
         return len(_auto_items(system, arr, T, m)) if coords == "auto" else 1
@@ -698,16 +704,20 @@ def design_mtmse_lossy(
         from .registry import families
 
         families()  # loads the built-in modules and their extensions (_builtin.EXTENSIONS)
+    known = (known_bound, known_window, known_knowledge)
     if rs > 1:  # re-sent items
-        return _RESEND[-1](system, cost, graph, T, p, J, arr, candidates, rs, fill, bound, threads, keyed=kw, memory=mem)  # type: ignore[no-any-return]
-    if fill == "held":  # the class containing the missed-packet rule
-        return _HELD[-1](system, cost, graph, T, p, J, arr, patterns=patterns, keyed=kw, memory=mem, window=held_window)  # type: ignore[no-any-return]
+        d = _RESEND[-1](system, cost, graph, T, p, J, arr, candidates, rs, fill, bound, threads, keyed=kw, memory=mem)
+        return _known(d, system, cost, graph, T, p, J, *known, arr, *_relay_of(d.coordinates, rs))
+    if fill == "held":  # the class containing the missed-packet rule (raw measurements, relayed once)
+        d = _HELD[-1](system, cost, graph, T, p, J, arr, patterns=patterns, keyed=kw, memory=mem, window=held_window)
+        return _known(d, system, cost, graph, T, p, J, *known, arr, "flood")
     if held_window is not None:
         raise ArgumentError(
             f'held_window: the window of fill = "held", found fill = {fill!r}; drop held_window or set fill = "held"', argument="held_window"
         )
     if kw:  # gains keyed on the current arrivals
-        return _KEYED[-1](system, cost, graph, T, p, J, arr, candidates, mem, fill, bound, threads)
+        d = _KEYED[-1](system, cost, graph, T, p, J, arr, candidates, mem, fill, bound, threads)
+        return _known(d, system, cost, graph, T, p, J, *known, arr, *_relay_of(d.coordinates))
     with blas_threads(threads):
         if mem is not None:  # windowed fills, a lifted moment recursion and a steady form: memory independent of T
             from . import _lossy_window
@@ -741,18 +751,45 @@ def design_mtmse_lossy(
         items_costs={c: float(np.sum(tried[c][3])) for c in candidates},
         info_tail=extra,
     )
-    return _known(d, system, cost, graph, T, p, J, known_bound, known_window, arr, "flood" if coords == "measurements" else "all")
+    return _known(d, system, cost, graph, T, p, J, *known, arr, *_relay_of(coords))
+
+
+def _relay_of(coords: str, resend: int = 1) -> tuple[str, int]:
+    """The relays of the known-pattern optimum of a design on ``coords`` items: raw measurements flooded as the design
+    floods them (its own protocol), else everything held (innovations are not raw data: a bound for every protocol)."""
+    return ("flood", resend) if coords == "measurements" else ("all", 1)
 
 
 def _known(
-    d: Any, system: Any, cost: Any, graph: Any, T: int, p: Any, J: Any, known_bound: int, known_window: Any, arr: Any, relay: str, resend: int = 1
+    d: Any,
+    system: Any,
+    cost: Any,
+    graph: Any,
+    T: int,
+    p: Any,
+    J: Any,
+    known_bound: int,
+    known_window: Any,
+    knowledge: Any,
+    arr: Any,
+    relay: str,
+    resend: int = 1,
 ) -> Any:
-    """``d`` with the known-pattern optimum of ``relay`` (and ``resend``) over ``known_bound`` patterns and its gap in ``info``
-    (0: ``d`` as it is)."""
+    """``d`` with the known-pattern optimum of ``relay`` (and ``resend``) over ``known_bound`` patterns, agents told
+    ``knowledge`` ("every" link event or the "causal" ones), and its gap in ``info`` (0: ``d`` as it is)."""
     nkb = V.integer(known_bound, "known_bound", minimum=0)
+    knowledge = V.choice(knowledge, "known_knowledge", ("every", "causal"))
+    if knowledge == "causal" and any(v for v in (J.values() if isinstance(J, dict) else [J])):
+        raise ArgumentError(
+            "known_knowledge: 'causal' is for links without jitter (a late packet's fate is not one bit); "
+            "give jitter = 0 or known_knowledge = 'every'",
+            argument="known_knowledge",
+        )
     if nkb:
         W = int(arr.ell.max()) + 4 if known_window is None else V.integer(known_window, "known_window", minimum=0)
-        kb = known_pattern_stats(system, cost, graph, T, p, J, relay=relay, window=W, n_patterns=nkb, rng=0, exact_first=True, resend=resend)
+        kb = known_pattern_stats(
+            system, cost, graph, T, p, J, relay=relay, window=W, n_patterns=nkb, rng=0, exact_first=True, resend=resend, knowledge=knowledge
+        )
         d.info["known_pattern_bound"] = kb.as_dict()
         d.info["known_pattern_gap"] = (d.total_cost - kb.value) / kb.value
     return d
@@ -873,6 +910,12 @@ FAMILY = _register_builtin(
                 doc="also compute the known-pattern optimum over this many sampled drop patterns (0: not)",
             ),
             Option(name="known_window", default=None, check=_check_memory, doc="its window W (none: the largest geodesic delay + 4)"),
+            Option(
+                name="known_knowledge",
+                default="every",
+                check=lambda v, k: V.choice(v, k, ("every", "causal")),
+                doc="what the bound's agents are told: every link event, or the causal ones (all any protocol can tell)",
+            ),
             *_lossy_size.fill_options(),  # fill (and patterns, for fill = "held")
             *_lossy_size.form_options(),  # keyed, resend, summary
             Option(
