@@ -140,3 +140,27 @@ def test_every_design_form_reports_the_bound_it_is_asked_for():
         assert dk.info["known_pattern_bound"]["knowledge"] == "causal"
     with pytest.raises(ArgumentError, match="known_knowledge.*jitter"):
         design_mtmse_lossy(sysm, cost, g, 4, p_drop=0.5, jitter=1, known_bound=10, known_knowledge="causal")
+
+
+def test_evaluate_prints_and_records_the_gap(tmp_path, capsys):
+    import json
+
+    from teamkf.cli import main
+
+    sp = tmp_path / "pl.toml"
+    sp.write_text(
+        'name = "pl"\nhorizon = 5\nestimators = ["mtmse_lossy", "local"]\n'
+        "[system]\nA = [[0.9, 0.0], [0.7, 0.9]]\nQ = 1.0\nSigma_x = 1.0\n"
+        "[[agents]]\nC = [[1, 0], [0, 1]]\nR = 0.1\n[[agents]]\nC = [[1, 0], [0, 1]]\nR = 0.1\n"
+        '[graph]\nkind = "line"\ndelay = 1\n[cost]\nkind = "platoon"\nlambda = 10.0\n[network]\np_drop = 0.5\n'
+        '[mtmse_lossy]\nitems = "measurements"\nresend = 2\nknown_bound = 20\nknown_knowledge = "causal"\n'
+    )
+    assert main(["--quiet", "evaluate", str(sp), "--json"]) == 0
+    entry = json.loads(capsys.readouterr().out)["estimators"]["mtmse_lossy"]
+    kb, gap = entry["known_pattern_bound"], entry["known_pattern_gap"]
+    assert kb["knowledge"] == "causal" and kb["relay"] == "flood" and kb["resend"] == 2 and kb["exact"]
+    assert gap == pytest.approx((entry["total_cost"] - kb["value"]) / kb["value"]) and gap > 0
+    assert main(["--quiet", "evaluate", str(sp)]) == 0
+    out = capsys.readouterr().out
+    assert f"mtmse_lossy: {100 * gap:.2f} % above the known-pattern bound" in out
+    assert "(causal); relays flood, re-sending 2; exact)" in out

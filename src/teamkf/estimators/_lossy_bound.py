@@ -81,6 +81,7 @@ class KnownPatternBound:
     window : int or None       data older than k - window given to every agent (None: exact)
     knowledge : str            "every": every agent told every link event; "causal": the events due before
                                the step and its own arrivals of the step (module docstring)
+    resend : int               with relay "flood" or "ontime": the sender's last measurements each packet carries
     """
 
     value: float
@@ -91,6 +92,7 @@ class KnownPatternBound:
     relay: str
     window: int | None
     knowledge: str = "every"
+    resend: int = 1
 
     @property
     def interval(self) -> tuple[float, float]:
@@ -108,6 +110,7 @@ class KnownPatternBound:
             "relay": self.relay,
             "window": self.window,
             "knowledge": self.knowledge,
+            "resend": self.resend,
         }
 
 
@@ -459,7 +462,7 @@ def known_pattern_stats(
         stages = np.zeros(T)
         for delay, prob in pats:
             stages += prob * np.array(stages_of(delay))
-        return KnownPatternBound(float(stages.sum()), stages, 0.0, len(pats), True, relay, window, knowledge)
+        return KnownPatternBound(float(stages.sum()), stages, 0.0, len(pats), True, relay, window, knowledge, resend)
     R = 200 if n_patterns is None else n_patterns
     gen = np.random.default_rng(rng)
     per = np.zeros((R, T))
@@ -467,7 +470,7 @@ def known_pattern_stats(
         per[r] = stages_of(_sample(edges, p, J, T, gen))
     tot = per.sum(axis=1)
     sem = float(tot.std(ddof=1) / np.sqrt(R)) if R > 1 else float("inf")
-    return KnownPatternBound(float(tot.mean()), per.mean(axis=0), sem, R, False, relay, window, knowledge)
+    return KnownPatternBound(float(tot.mean()), per.mean(axis=0), sem, R, False, relay, window, knowledge, resend)
 
 
 def known_pattern_bound(

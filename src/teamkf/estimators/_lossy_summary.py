@@ -503,7 +503,7 @@ def design_summary(
     threads: int | None,
     *,
     others: tuple = (0, None, 1, True, "auto", None),
-    known: tuple = (0, None, "every"),
+    known: tuple[int, int | None, str] = (0, None, "every"),
 ) -> Any:
     """``design_mtmse_lossy(..., summary=M)`` (module docstring): sized first, then solved step by step. ``others``: the
     options of the item classes (keyed, memory, resend, fill, items, held_window), refused unless at their defaults;

@@ -237,6 +237,7 @@ def evaluation_table(ev: Any) -> str:
         )
     if "assumed" in marks:
         notes.append(f"{_ASSUMED_MARK}: the expected cost under the links given in its own table, not these")
+    notes += [bound_note(r["label"], d.info) for r in ev.rows if (d := ev.designs.get(r["estimator"])) is not None and "known_pattern_gap" in d.info]
     if lossy and refrow is not None:
         notes.append(
             "vs mtmse: costs under these links (exact where the row has one, else the MC mean)"
@@ -244,6 +245,15 @@ def evaluation_table(ev: Any) -> str:
             else "vs mtmse: only between costs under the same links ('-': a cost under these links against a perfect-link one)"
         )
     return out + "".join(f"\n  {n}" for n in notes)
+
+
+def bound_note(label: str, info: Mapping[str, Any]) -> str:
+    """The line under a table for a design that computed its known-pattern bound (``known_bound``): the gap and the bound."""
+    b = info["known_pattern_bound"]
+    told = "told what any protocol can tell (causal)" if b.get("knowledge") == "causal" else "told every drop"
+    relays = b["relay"] + (f", re-sending {b['resend']}" if b.get("resend", 1) > 1 and b["relay"] == "flood" else "")
+    how = "exact" if b["exact"] else f"{b['n_patterns']} patterns, 95 % [{fmt(b['interval'][0])}, {fmt(b['interval'][1])}]"
+    return f"{label}: {100.0 * info['known_pattern_gap']:.2f} % above the known-pattern bound {fmt(b['value'])} ({told}; relays {relays}; {how})"
 
 
 def _json_float(x: float) -> float | None:
@@ -279,6 +289,8 @@ def evaluation_json(ev: Any, version: str) -> dict[str, Any]:
         d = ev.designs.get(name)
         if d is not None and "variant" in d.info:
             entry["variant"] = d.info["variant"]
+        if d is not None and "known_pattern_gap" in d.info:  # known_bound: the bound (value, interval, knowledge) and the gap
+            entry.update(known_pattern_bound=d.info["known_pattern_bound"], known_pattern_gap=d.info["known_pattern_gap"])
         entry["diverged"] = row["diverged"]
         if "non_finite" in row:
             entry["non_finite"] = row["non_finite"]
