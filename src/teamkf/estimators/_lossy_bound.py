@@ -271,24 +271,38 @@ class _Windows:
         return out
 
 
+def _last_common(common: np.ndarray, k: int, window: int | None) -> int:
+    """m: y(0:m) is held by every agent (``common[s]``), or given to every agent as older than k - window."""
+    m = int(np.argmin(common)) - 1 if not common.all() else k
+    return m if window is None else max(m, k - window - 1)
+
+
+def _memo(cache: dict[Any, float], key: Any, solve: Any) -> float:
+    """``cache[key]``, computed by ``solve()`` the first time (the cache is bounded)."""
+    hit = cache.get(key)
+    if hit is None:
+        hit = solve()
+        if len(cache) < 200_000:
+            cache[key] = hit
+    return hit
+
+
+def _held_rows(sysm: Any, h: np.ndarray, m: int, k: int) -> list[int]:
+    """Rows of the window y(m+1 : k) that an agent holding h[j, s] holds."""
+    n, dyt, off = sysm.n_agents, sysm.dy_total, sysm.offsets
+    return [(s - m - 1) * dyt + int(off[j]) + r for s in range(m + 1, k + 1) for j in range(n) if h[j, s] for r in range(sysm.dy[j])]
+
+
 def _stage_optimum(win: _Windows, cost: Any, held_k: np.ndarray, k: int, window: int | None) -> float:
     """J_k* given the held sets of step k (held_k[j, s, i])."""
-    common = np.all(held_k[:, : k + 1, :], axis=(0, 2))  # y(s) held by every agent
-    m = int(np.argmin(common)) - 1 if not common.all() else k
-    if window is not None:
-        m = max(m, k - window - 1)
+    m = _last_common(np.all(held_k[:, : k + 1, :], axis=(0, 2)), k, window)  # y(s) held by every agent
     key = (k, m, held_k[:, m + 1 : k + 1, :].tobytes())  # the optimum depends on the window's held sets only
-    hit = win.stage_cache.get(key)
-    if hit is None:
-        hit = _solve_stage(win, cost, held_k, k, m)
-        if len(win.stage_cache) < 200_000:
-            win.stage_cache[key] = hit
-    return hit
+    return _memo(win.stage_cache, key, lambda: _solve_stage(win, cost, held_k, k, m))
 
 
 def _solve_stage(win: _Windows, cost: Any, held_k: np.ndarray, k: int, m: int) -> float:
     sysm = win.system
-    n, dyt, off, dz = sysm.n_agents, sysm.dy_total, sysm.offsets, cost.dz
+    n, dz = sysm.n_agents, cost.dz
     S, L = cost.S_at(k), cost.L_at(k)
     if m == k:  # everything is common: the centralized estimate, cost Tr(S L P(k|k) Lᵀ)
         C, R = sysm.C_stack(k), sysm.R_stack(k)
@@ -298,7 +312,7 @@ def _solve_stage(win: _Windows, cost: Any, held_k: np.ndarray, k: int, m: int) -
     Cyy, Cxy, Pk = win.get(m, k)
     zi, yr = [], []
     for i in range(n):
-        rows = [(s - m - 1) * dyt + int(off[j]) + r for s in range(m + 1, k + 1) for j in range(n) if held_k[j, s, i] for r in range(sysm.dy[j])]
+        rows = _held_rows(sysm, held_k[:, :, i], m, k)
         for c in range(dz):
             zi += [i * dz + c] * len(rows)
             yr += rows
@@ -373,30 +387,23 @@ def _solve_stage_causal(win: _Windows, cost: Any, configs: list[list[tuple[np.nd
     for i in range(n):
         for h, _ in configs[i]:
             common &= h.all(axis=0)
-    m = int(np.argmin(common)) - 1 if not common.all() else k
-    if window is not None:
-        m = max(m, k - window - 1)
+    m = _last_common(common, k, window)
     if m == k:
         return _solve_stage(win, cost, np.ones((n, k + 1, n), dtype=bool), k, k)
     key = (k, m, tuple((i, h[:, m + 1 :].tobytes(), prob) for i in range(n) for h, prob in configs[i]))
-    hit = win.causal_cache.get(key)
-    if hit is None:
-        hit = _solve_causal(win, cost, configs, k, m)
-        if len(win.causal_cache) < 200_000:
-            win.causal_cache[key] = hit
-    return hit
+    return _memo(win.causal_cache, key, lambda: _solve_causal(win, cost, configs, k, m))
 
 
 def _solve_causal(win: _Windows, cost: Any, configs: list[list[tuple[np.ndarray, float]]], k: int, m: int) -> float:
     sysm = win.system
-    n, dyt, off, dz = sysm.n_agents, sysm.dy_total, sysm.offsets, cost.dz
+    n, dz = sysm.n_agents, cost.dz
     S, L = cost.S_at(k), cost.L_at(k)
     Cyy, Cxy, Pk = win.get(m, k)
     SLC = S @ L @ Cxy
     blocks = []  # (agent, prob, z rows, y rows)
     for i in range(n):
         for h, prob in configs[i]:
-            rows = [(s - m - 1) * dyt + int(off[j]) + r for s in range(m + 1, k + 1) for j in range(n) if h[j, s] for r in range(sysm.dy[j])]
+            rows = _held_rows(sysm, h, m, k)
             zi = np.repeat(np.arange(i * dz, (i + 1) * dz), len(rows))
             yr = np.tile(np.asarray(rows, dtype=int), dz)
             blocks.append((i, prob, zi, yr))
