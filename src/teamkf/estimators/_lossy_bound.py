@@ -533,6 +533,9 @@ def known_pattern_bound(
     >>> b = known_pattern_bound(LinearGaussianSystem.platoon(2), TeamCost.platoon(2, 10.0), CommGraph.line(2), 3, 0.5)
     >>> b.exact, b.n_patterns
     (True, 16)
+    >>> c = known_pattern_bound(LinearGaussianSystem.platoon(2), TeamCost.platoon(2, 10.0), CommGraph.line(2), 3, 0.5, knowledge="causal")
+    >>> bool(c.value > b.value)  # told less: the others' arrivals of each step are unknown
+    True
     """
     from .. import _validation as V
     from ..exceptions import ArgumentError
