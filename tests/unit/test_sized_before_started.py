@@ -176,6 +176,33 @@ def test_ctrl_c_stops_a_long_monte_carlo_in_one_line(tmp_path: Path) -> None:
     assert sorted(p.name for p in tmp_path.iterdir()) == ["g.json"]
 
 
+def _numpy_loaded(pid: int) -> bool:
+    """numpy's compiled core is mapped in the process: teamkf's own imports are under way."""
+    try:
+        return "_multiarray_umath" in Path(f"/proc/{pid}/maps").read_text()
+    except OSError:
+        return False
+
+
+@pytest.mark.skipif(not Path("/proc/self/maps").exists(), reason="reads the loaded libraries from /proc")
+def test_ctrl_c_while_the_libraries_load_is_one_line_too(tmp_path: Path) -> None:
+    """Ctrl-C while teamkf's libraries still import (numpy mapped, scipy and the rest to come): exit 130, one line."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT / "src") + os.pathsep + os.environ.get("PYTHONPATH", ""), TEAMKF_PROGRESS="0")
+    argv = [sys.executable, "-m", "teamkf", "evaluate", str(ROOT / "examples" / "scenarios" / "platoon-4.toml")]
+    proc = subprocess.Popen(
+        argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=tmp_path, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL)
+    )
+    end = time.monotonic() + 30
+    while not _numpy_loaded(proc.pid) and proc.poll() is None and time.monotonic() < end:
+        time.sleep(0.001)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    if proc.returncode == 0:
+        pytest.skip("the command finished before the signal")
+    assert proc.returncode == 130, (out, err)
+    assert err.strip().splitlines() == ["teamkf: interrupted"] and "Traceback" not in err
+
+
 def test_announcement_on_a_terminal_only(monkeypatch: Any, capsys: Any) -> None:
     """A team whose reading is estimated over ANNOUNCE_S says so on a terminal (Ctrl-C stops it), and is silent elsewhere."""
     monkeypatch.setattr(_budget, "available_memory", lambda: 10**6 * GIB)
