@@ -190,7 +190,13 @@ def test_ctrl_c_while_the_libraries_load_is_one_line_too(tmp_path: Path) -> None
     env = dict(os.environ, PYTHONPATH=str(ROOT / "src") + os.pathsep + os.environ.get("PYTHONPATH", ""), TEAMKF_PROGRESS="0")
     argv = [sys.executable, "-m", "teamkf", "evaluate", str(ROOT / "examples" / "scenarios" / "platoon-4.toml")]
     proc = subprocess.Popen(
-        argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=tmp_path, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL)
+        argv,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        cwd=tmp_path,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     end = time.monotonic() + 30
     while not _numpy_loaded(proc.pid) and proc.poll() is None and time.monotonic() < end:
