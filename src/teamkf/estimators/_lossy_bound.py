@@ -56,11 +56,21 @@ from typing import Any
 
 import numpy as np
 
+from .. import _validation as V
 from .._lazy import scipy_linalg as sla
 from .._validation import FloatArray
-from ..exceptions import ResourceError
+from ..exceptions import ArgumentError, ResourceError
 
-__all__ = ["KnownPatternBound", "known_pattern_bound", "known_pattern_stats", "EXACT_LIMIT", "MAX_UNKNOWNS"]
+__all__ = [
+    "KnownPatternBound",
+    "known_pattern_bound",
+    "known_pattern_stats",
+    "attach_known",
+    "check_knowledge",
+    "relay_of",
+    "EXACT_LIMIT",
+    "MAX_UNKNOWNS",
+]
 
 #: patterns enumerated exactly when there are at most this many (else Monte Carlo)
 EXACT_LIMIT = 4096
@@ -537,8 +547,6 @@ def known_pattern_bound(
     >>> bool(c.value > b.value)  # told less: the others' arrivals of each step are unknown
     True
     """
-    from .. import _validation as V
-    from ..exceptions import ArgumentError
     from .checks import check_graph, check_model
 
     check_model(system, cost)
@@ -561,12 +569,57 @@ def known_pattern_bound(
                 V.integer(v, label, minimum=0)
     graph.require_strongly_connected()
     resend = V.integer(resend, "resend", minimum=1)
-    knowledge = V.choice(knowledge, "knowledge", ("every", "causal"))
-    if knowledge == "causal" and any(v for v in (jitter.values() if isinstance(jitter, dict) else [jitter])):
-        raise ArgumentError(
-            f"knowledge: 'causal' is for links without jitter, found jitter = {jitter!r}; give jitter = 0 or knowledge = 'every'",
-            argument="knowledge",
-        )
+    knowledge = check_knowledge(knowledge, jitter, "knowledge")
     return known_pattern_stats(
         system, cost, graph, T, p_drop, jitter, relay=relay, window=window, n_patterns=n_patterns, rng=rng, resend=resend, knowledge=knowledge
     )
+
+
+# ---------------------------------------------------------------------------
+# the bound a drop-aware design reports (known_bound, known_window, known_knowledge)
+# ---------------------------------------------------------------------------
+def check_knowledge(knowledge: Any, J: Any, name: str = "known_knowledge") -> str:
+    """``knowledge`` (the argument ``name``), checked before any work: "every", or "causal" on links without jitter."""
+    knowledge = V.choice(knowledge, name, ("every", "causal"))
+    if knowledge == "causal" and any(v for v in (J.values() if isinstance(J, dict) else [J])):
+        raise ArgumentError(
+            f"{name}: 'causal' is for links without jitter (a late packet's fate is not one bit), found jitter = {J!r}; "
+            f"give jitter = 0 or {name} = 'every'",
+            argument=name,
+        )
+    return knowledge
+
+
+def relay_of(coords: str, resend: int = 1) -> tuple[str, int]:
+    """The relays of the known-pattern optimum of a design on ``coords`` items: raw measurements flooded as the design
+    floods them (its own protocol), else everything held (innovations are not raw data: a bound for every protocol)."""
+    return ("flood", resend) if coords == "measurements" else ("all", 1)
+
+
+def attach_known(
+    d: Any,
+    system: Any,
+    cost: Any,
+    graph: Any,
+    T: int,
+    p: Any,
+    J: Any,
+    known_bound: int,
+    known_window: Any,
+    knowledge: Any,
+    arr: Any,
+    relay: str,
+    resend: int = 1,
+) -> Any:
+    """``d`` with the known-pattern optimum of ``relay`` (and ``resend``) over ``known_bound`` patterns, agents told
+    ``knowledge`` ("every" link event or the "causal" ones; checked by :func:`check_knowledge`), and its gap in ``info``
+    (0: ``d`` as it is)."""
+    nkb = V.integer(known_bound, "known_bound", minimum=0)
+    if nkb:
+        W = int(arr.ell.max()) + 4 if known_window is None else V.integer(known_window, "known_window", minimum=0)
+        kb = known_pattern_stats(
+            system, cost, graph, T, p, J, relay=relay, window=W, n_patterns=nkb, rng=0, exact_first=True, resend=resend, knowledge=knowledge
+        )
+        d.info["known_pattern_bound"] = kb.as_dict()
+        d.info["known_pattern_gap"] = (d.total_cost - kb.value) / kb.value
+    return d

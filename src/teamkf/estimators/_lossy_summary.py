@@ -509,7 +509,8 @@ def design_summary(
     options of the item classes (keyed, memory, resend, fill, items, held_window), refused unless at their defaults;
     ``known``: (known_bound, known_window, known_knowledge), the known-pattern optimum of the protocol (:func:`bound_protocol`)."""
     from .._blas import blas_threads
-    from .team_lossy import _known, build_lossy_design
+    from ._lossy_bound import attach_known
+    from .team_lossy import build_lossy_design
 
     keyed, memory, resend, fill, items, held_window = others
     if keyed or memory is not None or resend != 1 or fill == "held" or items != "auto" or held_window is not None:
@@ -556,7 +557,7 @@ def design_summary(
         ages=M,
         delays=_delays(edges, n),
     )
-    return _known(d, system, cost, graph, T, p, J, *known, arr, *bound_protocol(arr, edges, T))
+    return attach_known(d, system, cost, graph, T, p, J, *known, arr, *bound_protocol(arr, edges, T))
 
 
 def bound_protocol(arr: Any, edges: _Edges, T: int) -> tuple[str, int]:

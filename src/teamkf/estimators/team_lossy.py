@@ -89,7 +89,7 @@ from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
 from . import _lossy_size
 from ._arrivals import ArrivalModel, _jitter_value, _p_value
-from ._lossy_bound import known_pattern_bound, known_pattern_stats
+from ._lossy_bound import attach_known, check_knowledge, known_pattern_bound, relay_of
 from ._lossy_moments import LocalMoments, _item_moments, local_filter_errors, local_filter_moments
 from .base import Design, check_paths
 from .checks import check_graph, check_model
@@ -680,6 +680,7 @@ def design_mtmse_lossy(
         p_drop = 0.0
     p = _p_value(p_drop, "p_drop")
     J = _jitter_value(jitter, "jitter")
+    known_knowledge = check_knowledge(known_knowledge, J)
     mem = None if memory is None else V.positive_int(memory, "memory")
     coords = V.choice(items, "items", ("auto", "measurements", "innovations"))
     arr = ArrivalModel.build(graph, p, J)
@@ -707,17 +708,17 @@ def design_mtmse_lossy(
     known = (known_bound, known_window, known_knowledge)
     if rs > 1:  # re-sent items
         d = _RESEND[-1](system, cost, graph, T, p, J, arr, candidates, rs, fill, bound, threads, keyed=kw, memory=mem)
-        return _known(d, system, cost, graph, T, p, J, *known, arr, *_relay_of(d.coordinates, rs))
+        return attach_known(d, system, cost, graph, T, p, J, *known, arr, *relay_of(d.coordinates, rs))
     if fill == "held":  # the class containing the missed-packet rule (raw measurements, relayed once)
         d = _HELD[-1](system, cost, graph, T, p, J, arr, patterns=patterns, keyed=kw, memory=mem, window=held_window)
-        return _known(d, system, cost, graph, T, p, J, *known, arr, "flood")
+        return attach_known(d, system, cost, graph, T, p, J, *known, arr, "flood")
     if held_window is not None:
         raise ArgumentError(
             f'held_window: the window of fill = "held", found fill = {fill!r}; drop held_window or set fill = "held"', argument="held_window"
         )
     if kw:  # gains keyed on the current arrivals
         d = _KEYED[-1](system, cost, graph, T, p, J, arr, candidates, mem, fill, bound, threads)
-        return _known(d, system, cost, graph, T, p, J, *known, arr, *_relay_of(d.coordinates))
+        return attach_known(d, system, cost, graph, T, p, J, *known, arr, *relay_of(d.coordinates))
     with blas_threads(threads):
         if mem is not None:  # windowed fills, a lifted moment recursion and a steady form: memory independent of T
             from . import _lossy_window
@@ -751,48 +752,7 @@ def design_mtmse_lossy(
         items_costs={c: float(np.sum(tried[c][3])) for c in candidates},
         info_tail=extra,
     )
-    return _known(d, system, cost, graph, T, p, J, *known, arr, *_relay_of(coords))
-
-
-def _relay_of(coords: str, resend: int = 1) -> tuple[str, int]:
-    """The relays of the known-pattern optimum of a design on ``coords`` items: raw measurements flooded as the design
-    floods them (its own protocol), else everything held (innovations are not raw data: a bound for every protocol)."""
-    return ("flood", resend) if coords == "measurements" else ("all", 1)
-
-
-def _known(
-    d: Any,
-    system: Any,
-    cost: Any,
-    graph: Any,
-    T: int,
-    p: Any,
-    J: Any,
-    known_bound: int,
-    known_window: Any,
-    knowledge: Any,
-    arr: Any,
-    relay: str,
-    resend: int = 1,
-) -> Any:
-    """``d`` with the known-pattern optimum of ``relay`` (and ``resend``) over ``known_bound`` patterns, agents told
-    ``knowledge`` ("every" link event or the "causal" ones), and its gap in ``info`` (0: ``d`` as it is)."""
-    nkb = V.integer(known_bound, "known_bound", minimum=0)
-    knowledge = V.choice(knowledge, "known_knowledge", ("every", "causal"))
-    if knowledge == "causal" and any(v for v in (J.values() if isinstance(J, dict) else [J])):
-        raise ArgumentError(
-            "known_knowledge: 'causal' is for links without jitter (a late packet's fate is not one bit); "
-            "give jitter = 0 or known_knowledge = 'every'",
-            argument="known_knowledge",
-        )
-    if nkb:
-        W = int(arr.ell.max()) + 4 if known_window is None else V.integer(known_window, "known_window", minimum=0)
-        kb = known_pattern_stats(
-            system, cost, graph, T, p, J, relay=relay, window=W, n_patterns=nkb, rng=0, exact_first=True, resend=resend, knowledge=knowledge
-        )
-        d.info["known_pattern_bound"] = kb.as_dict()
-        d.info["known_pattern_gap"] = (d.total_cost - kb.value) / kb.value
-    return d
+    return attach_known(d, system, cost, graph, T, p, J, *known, arr, *relay_of(coords))
 
 
 #: ``items="auto"`` designs both kinds only while raw measurements stay bounded: ρ(A)^(2T) at most this
