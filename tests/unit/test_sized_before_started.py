@@ -150,23 +150,27 @@ def test_parquet_parts_carry_non_finite(tmp_path: Path) -> None:
     assert rows[(1, "mtmse")]["non_finite"] is None and rows[(1, "mtmse")][spec.cost_keys[0]] == 3.5
 
 
+def _foreground(args: list[str], cwd: Path) -> subprocess.Popen[str]:
+    """``python -m teamkf ARGS`` as from a shell's foreground: SIGINT at its default (pytest-xdist workers ignore it,
+    and a child inherits that)."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT / "src") + os.pathsep + os.environ.get("PYTHONPATH", ""), TEAMKF_PROGRESS="0")
+    return subprocess.Popen(
+        [sys.executable, "-m", "teamkf", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        cwd=cwd,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+
+
 @pytest.mark.skipif(sys.platform == "win32", reason="SIGINT to a child process")
 def test_ctrl_c_stops_a_long_monte_carlo_in_one_line(tmp_path: Path) -> None:
     """A long job (10^8 runs: about half an hour here, under the limit) stops on Ctrl-C: exit 130, one line, no traceback, no file."""
     scen = tmp_path / "g.json"
     scen.write_text(json.dumps({**_team(2, "line", horizon=4), "cost": {"kind": "average", "lambda": 1.0}}))
-    env = dict(os.environ, PYTHONPATH=str(ROOT / "src") + os.pathsep + os.environ.get("PYTHONPATH", ""), TEAMKF_PROGRESS="0")
-    argv = [sys.executable, "-m", "teamkf", "evaluate", str(scen), "--monte-carlo", str(10**8), "--plot", str(tmp_path / "p.png")]
-    # as from a shell's foreground: SIGINT at its default (pytest-xdist workers ignore it, and a child inherits that)
-    proc = subprocess.Popen(
-        argv,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=env,
-        cwd=tmp_path,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-    )
+    proc = _foreground(["evaluate", str(scen), "--monte-carlo", str(10**8), "--plot", str(tmp_path / "p.png")], tmp_path)
     time.sleep(3.0)
     assert proc.poll() is None, proc.communicate()
     proc.send_signal(signal.SIGINT)
@@ -187,17 +191,7 @@ def _numpy_loaded(pid: int) -> bool:
 @pytest.mark.skipif(not Path("/proc/self/maps").exists(), reason="reads the loaded libraries from /proc")
 def test_ctrl_c_while_the_libraries_load_is_one_line_too(tmp_path: Path) -> None:
     """Ctrl-C while teamkf's libraries still import (numpy mapped, scipy and the rest to come): exit 130, one line."""
-    env = dict(os.environ, PYTHONPATH=str(ROOT / "src") + os.pathsep + os.environ.get("PYTHONPATH", ""), TEAMKF_PROGRESS="0")
-    argv = [sys.executable, "-m", "teamkf", "evaluate", str(ROOT / "examples" / "scenarios" / "platoon-4.toml")]
-    proc = subprocess.Popen(
-        argv,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=env,
-        cwd=tmp_path,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-    )
+    proc = _foreground(["evaluate", str(ROOT / "examples" / "scenarios" / "platoon-4.toml")], tmp_path)
     end = time.monotonic() + 30
     while not _numpy_loaded(proc.pid) and proc.poll() is None and time.monotonic() < end:
         time.sleep(0.001)
