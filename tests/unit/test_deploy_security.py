@@ -507,8 +507,8 @@ def test_a_stranger_on_the_network_changes_nothing(log6, tmp_path):
     assert counts.get("corrupt_auth", 0) > 0 and counts.get("corrupt_unkeyed", 0) > 0, counts
     assert counts.get("corrupt_magic", 0) + counts.get("corrupt_short", 0) > 0, counts
     # the flood reached the target during its run and was refused (how much of it arrived before the run ended depends on
-    # the machine's load, and Zenoh may drop 1 MB frames under congestion: a count, not a share)
-    assert 0 < counts.get("oversize", 0) <= flooded[0], counts
+    # the machine's load, and a frame can be counted once per matching subscription: a count, not a share)
+    assert counts.get("oversize", 0) > 0, counts
     print(f"stranger: {flooded[0]} MB flood, {sent} rounds; target RSS {rss}; counts {counts}")
     assert rss["base"] is not None and rss["peak"] - rss["base"] <= 100, rss
 
