@@ -65,7 +65,7 @@ __all__ = [
     "KnownPatternBound",
     "known_pattern_bound",
     "known_pattern_stats",
-    "attach_known",
+    "KnownRequest",
     "check_knowledge",
     "relay_of",
     "EXACT_LIMIT",
@@ -596,30 +596,48 @@ def relay_of(coords: str, resend: int = 1) -> tuple[str, int]:
     return ("flood", resend) if coords == "measurements" else ("all", 1)
 
 
-def attach_known(
-    d: Any,
-    system: Any,
-    cost: Any,
-    graph: Any,
-    T: int,
-    p: Any,
-    J: Any,
-    known_bound: int,
-    known_window: Any,
-    knowledge: Any,
-    arr: Any,
-    relay: str,
-    resend: int = 1,
-) -> Any:
-    """``d`` with the known-pattern optimum of ``relay`` (and ``resend``) over ``known_bound`` patterns, agents told
-    ``knowledge`` ("every" link event or the "causal" ones; checked by :func:`check_knowledge`), and its gap in ``info``
-    (0: ``d`` as it is)."""
-    nkb = V.integer(known_bound, "known_bound", minimum=0)
-    if nkb:
+@dataclass(frozen=True)
+class KnownRequest:
+    """The known-pattern bound a drop-aware design was asked to report (``known_bound``, ``known_window``,
+    ``known_knowledge``), checked before any work, with the problem it is for; :meth:`attach` computes it."""
+
+    system: Any
+    cost: Any
+    graph: Any
+    T: int
+    p: Any
+    J: Any
+    n_patterns: int  # 0: not asked for
+    window: int
+    knowledge: str
+
+    @classmethod
+    def build(
+        cls, system: Any, cost: Any, graph: Any, T: int, p: Any, J: Any, arr: Any, known_bound: Any, known_window: Any, knowledge: Any
+    ) -> KnownRequest:
+        """Validated options; the window defaults to the largest geodesic delay + 4."""
+        nkb = V.integer(known_bound, "known_bound", minimum=0)
         W = int(arr.ell.max()) + 4 if known_window is None else V.integer(known_window, "known_window", minimum=0)
-        kb = known_pattern_stats(
-            system, cost, graph, T, p, J, relay=relay, window=W, n_patterns=nkb, rng=0, exact_first=True, resend=resend, knowledge=knowledge
-        )
-        d.info["known_pattern_bound"] = kb.as_dict()
-        d.info["known_pattern_gap"] = (d.total_cost - kb.value) / kb.value
-    return d
+        return cls(system, cost, graph, T, p, J, nkb, W, check_knowledge(knowledge, J))
+
+    def attach(self, d: Any, relay: str, resend: int = 1) -> Any:
+        """``d`` with the known-pattern optimum of ``relay`` (and ``resend``) and its gap in ``info`` (nothing asked: ``d``)."""
+        if self.n_patterns:
+            kb = known_pattern_stats(
+                self.system,
+                self.cost,
+                self.graph,
+                self.T,
+                self.p,
+                self.J,
+                relay=relay,
+                window=self.window,
+                n_patterns=self.n_patterns,
+                rng=0,
+                exact_first=True,
+                resend=resend,
+                knowledge=self.knowledge,
+            )
+            d.info["known_pattern_bound"] = kb.as_dict()
+            d.info["known_pattern_gap"] = (d.total_cost - kb.value) / kb.value
+        return d

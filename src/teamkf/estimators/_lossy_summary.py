@@ -503,13 +503,12 @@ def design_summary(
     threads: int | None,
     *,
     others: tuple = (0, None, 1, True, "auto", None),
-    known: tuple[int, int | None, str] = (0, None, "every"),
+    known: Any = None,
 ) -> Any:
     """``design_mtmse_lossy(..., summary=M)`` (module docstring): sized first, then solved step by step. ``others``: the
     options of the item classes (keyed, memory, resend, fill, items, held_window), refused unless at their defaults;
-    ``known``: (known_bound, known_window, known_knowledge), the known-pattern optimum of the protocol (:func:`bound_protocol`)."""
+    ``known``: the :class:`~teamkf.estimators._lossy_bound.KnownRequest` of the design (None: no bound), the known-pattern optimum of the protocol (:func:`bound_protocol`)."""
     from .._blas import blas_threads
-    from ._lossy_bound import attach_known
     from .team_lossy import build_lossy_design
 
     keyed, memory, resend, fill, items, held_window = others
@@ -557,7 +556,7 @@ def design_summary(
         ages=M,
         delays=_delays(edges, n),
     )
-    return attach_known(d, system, cost, graph, T, p, J, *known, arr, *bound_protocol(arr, edges, T))
+    return d if known is None else known.attach(d, *bound_protocol(arr, edges, T))
 
 
 def bound_protocol(arr: Any, edges: _Edges, T: int) -> tuple[str, int]:

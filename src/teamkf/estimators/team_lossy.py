@@ -89,7 +89,7 @@ from ..models import LinearGaussianSystem, TeamCost
 from ..network.graph import CommGraph
 from . import _lossy_size
 from ._arrivals import ArrivalModel, _jitter_value, _p_value
-from ._lossy_bound import attach_known, check_knowledge, known_pattern_bound, relay_of
+from ._lossy_bound import KnownRequest, known_pattern_bound, relay_of
 from ._lossy_moments import LocalMoments, _item_moments, local_filter_errors, local_filter_moments
 from .base import Design, check_paths
 from .checks import check_graph, check_model
@@ -680,17 +680,16 @@ def design_mtmse_lossy(
         p_drop = 0.0
     p = _p_value(p_drop, "p_drop")
     J = _jitter_value(jitter, "jitter")
-    known_knowledge = check_knowledge(known_knowledge, J)
     mem = None if memory is None else V.positive_int(memory, "memory")
     coords = V.choice(items, "items", ("auto", "measurements", "innovations"))
     arr = ArrivalModel.build(graph, p, J)
+    known = KnownRequest.build(system, cost, graph, T, p, J, arr, known_bound, known_window, known_knowledge)  # checked before any work
     if summary:  # age-keyed filter summaries: a class of its own, sized and checked by its own module
         if not _SUMMARY:
             from .registry import families
 
             families()  # loads the built-in modules and their extensions (_builtin.EXTENSIONS)
         others = (keyed, memory, resend, fill, items, held_window)
-        known = (known_bound, known_window, known_knowledge)
         return _SUMMARY[-1](system, cost, graph, T, p, J, arr, summary, bound, threads, others=others, known=known)  # type: ignore[no-any-return]
 
     def kinds(m: int | None) -> int:  # item kinds designed with memory m (``items="auto"`` may design both)
@@ -705,20 +704,19 @@ def design_mtmse_lossy(
         from .registry import families
 
         families()  # loads the built-in modules and their extensions (_builtin.EXTENSIONS)
-    known = (known_bound, known_window, known_knowledge)
     if rs > 1:  # re-sent items
         d = _RESEND[-1](system, cost, graph, T, p, J, arr, candidates, rs, fill, bound, threads, keyed=kw, memory=mem)
-        return attach_known(d, system, cost, graph, T, p, J, *known, arr, *relay_of(d.coordinates, rs))
+        return known.attach(d, *relay_of(d.coordinates, rs))
     if fill == "held":  # the class containing the missed-packet rule (raw measurements, relayed once)
         d = _HELD[-1](system, cost, graph, T, p, J, arr, patterns=patterns, keyed=kw, memory=mem, window=held_window)
-        return attach_known(d, system, cost, graph, T, p, J, *known, arr, "flood")
+        return known.attach(d, "flood")
     if held_window is not None:
         raise ArgumentError(
             f'held_window: the window of fill = "held", found fill = {fill!r}; drop held_window or set fill = "held"', argument="held_window"
         )
     if kw:  # gains keyed on the current arrivals
         d = _KEYED[-1](system, cost, graph, T, p, J, arr, candidates, mem, fill, bound, threads)
-        return attach_known(d, system, cost, graph, T, p, J, *known, arr, *relay_of(d.coordinates))
+        return known.attach(d, *relay_of(d.coordinates))
     with blas_threads(threads):
         if mem is not None:  # windowed fills, a lifted moment recursion and a steady form: memory independent of T
             from . import _lossy_window
@@ -752,7 +750,7 @@ def design_mtmse_lossy(
         items_costs={c: float(np.sum(tried[c][3])) for c in candidates},
         info_tail=extra,
     )
-    return attach_known(d, system, cost, graph, T, p, J, *known, arr, *relay_of(coords))
+    return known.attach(d, *relay_of(coords))
 
 
 #: ``items="auto"`` designs both kinds only while raw measurements stay bounded: ρ(A)^(2T) at most this
