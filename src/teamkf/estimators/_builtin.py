@@ -178,7 +178,7 @@ def check_declared(family: Any) -> None:
 
 #: modules that extend a family module (imported after it; each registers its part with the family module)
 #: mtmse_lossy's keyed=1 (gains keyed on the current arrivals), fill="held" (the class of the rule), resend=r (re-sent items)
-EXTENSIONS: tuple[str, ...] = ("_lossy_keyed", "_lossy_rulefill", "_lossy_resend", "_lossy_summary")
+EXTENSIONS: tuple[str, ...] = ("_lossy_keyed", "_lossy_rulefill", "_lossy_resend", "_lossy_adaptive", "_lossy_summary")
 
 
 def load() -> None:

@@ -180,6 +180,12 @@ def check(system: Any, arr: Any, T: int, memory: int | None, dz: int, prefix: bo
     _budget.announce(t, what)
 
 
+def _flag(v: Any, key: str) -> bool:
+    if isinstance(v, (bool, np.bool_)):
+        return bool(v)
+    raise ArgumentError(f"{key}: expected true or false, found {v!r}", argument=key)
+
+
 def check_fill(v: Any, key: str) -> Any:
     """``mtmse_lossy``'s ``fill``: true (missed items filled from the own items), false (by zero) or "held"."""
     if isinstance(v, (bool, np.bool_)) or v == "held":
@@ -203,7 +209,7 @@ def fill_options() -> tuple[Any, ...]:
             name="patterns",
             default=None,
             check=lambda v, k: None if v is None else V.integer(v, k, minimum=2),
-            doc='fill = "held": link patterns sampled for the fit and the cost (none: all when few, else 400)',
+            doc='fill = "held" or adaptive: link patterns sampled for the fit and the cost (none: fill = "held" all when few, else 400; adaptive 200)',
         ),
         Option(
             name="held_window",
@@ -215,7 +221,7 @@ def fill_options() -> tuple[Any, ...]:
 
 
 def form_options() -> tuple[Any, ...]:
-    """``mtmse_lossy``'s registry options of its other classes: ``keyed``, ``resend`` and ``summary``."""
+    """``mtmse_lossy``'s registry options of its other classes: ``keyed``, ``resend``, ``adaptive`` and ``summary``."""
     from .. import _validation as V
     from .registry import Option
 
@@ -231,6 +237,13 @@ def form_options() -> tuple[Any, ...]:
             default=1,
             check=lambda v, k: V.integer(v, k, minimum=1, maximum=16),
             doc="r: each packet carries the sender's last r items (a lost item can arrive later; exact cost); 1: one item",
+        ),
+        Option(
+            name="adaptive",
+            default=False,
+            check=lambda v, k: _flag(v, k),
+            doc="true: gains also on each agent's exact conditional means of the recent states given what it holds "
+            "(re-weighted with the realized pattern; cost sampled over patterns, paired with resend = r's exact cost)",
         ),
         Option(
             name="summary",

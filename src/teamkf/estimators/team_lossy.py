@@ -558,13 +558,13 @@ class LossyTeamAgent:
 # ---------------------------------------------------------------------------
 # entry point
 # ---------------------------------------------------------------------------
-# the other classes live in modules of their own that extend this one (which never imports them) and register here when the
-# family loader imports them (_builtin.EXTENSIONS)
+# the other classes: modules of their own that extend this one (never imported here), registered by the loader (_builtin.EXTENSIONS)
 _KEYED: list[Any] = []  #: ``keyed=1``, registered by :mod:`teamkf.estimators._lossy_keyed`
 register_keyed = _KEYED.append
 _RESEND: list[Any] = []  #: ``resend=r``, registered by :mod:`teamkf.estimators._lossy_resend`
 register_resend = _RESEND.append
-
+_ADAPTIVE: list[Any] = []  #: ``adaptive=true`` on top of ``resend=r``, registered by :mod:`teamkf.estimators._lossy_adaptive`
+register_adaptive = _ADAPTIVE.append
 _HELD: list[Any] = []  #: ``fill="held"`` (the class containing the rule), registered by :mod:`teamkf.estimators._lossy_rulefill`
 register_held = _HELD.append
 _SUMMARY: list[Any] = []  #: ``summary=M`` (age-keyed filter summaries), registered by :mod:`teamkf.estimators._lossy_summary`
@@ -590,6 +590,7 @@ def design_mtmse_lossy(
     known_knowledge: str = "every",
     keyed: int = 0,
     resend: int = 1,
+    adaptive: bool = False,
     summary: int = 0,
     threads: int | None = 1,
     progress: bool | None = None,
@@ -648,6 +649,10 @@ def design_mtmse_lossy(
     resend : int >= 1
         r: every packet carries the sender's last r items, so a lost item can arrive in a later packet
         (:mod:`teamkf.estimators._lossy_resend`: exact cost; no ``memory``, no ``keyed``). 1: one item per packet.
+    adaptive : bool
+        True: on top of ``resend = r`` (raw measurements), gains also on each agent's exact conditional means of the recent
+        states given what it holds, re-weighted with the realized pattern (:mod:`teamkf.estimators._lossy_adaptive`: cost sampled
+        over ``patterns`` link patterns, paired with the re-sending design's exact cost).
     summary : int >= 0
         M >= 1: the class of :mod:`teamkf.estimators._lossy_summary` instead: every agent sends its own filter estimate each
         step, and gains keyed on the age (< M) of each in-neighbour's newest one (exact cost; long horizons by a steady form).
@@ -700,12 +705,17 @@ def design_mtmse_lossy(
     candidates = _auto_items(system, arr, T, mem) if coords == "auto" else (coords,)
     fill = _lossy_size.check_fill(fill, "fill")
     rs = V.integer(resend, "resend", minimum=1, maximum=16, what="the items per packet r (1: one item per packet)")
-    if (fill == "held" and not _HELD) or (kw and not _KEYED) or (rs > 1 and not _RESEND):  # modules of their own that register here
+    ad = _lossy_size._flag(adaptive, "adaptive")
+    if (fill == "held" and not _HELD) or (kw and not _KEYED) or ((rs > 1 or ad) and not (_RESEND and _ADAPTIVE)):  # modules of their own
         from .registry import families
 
-        families()  # loads the built-in modules and their extensions (_builtin.EXTENSIONS)
-    if rs > 1:  # re-sent items
+        families()  # loads the built-in modules and their extensions (_builtin.EXTENSIONS), which register here
+    if ad and (fill == "held" or held_window is not None):
+        raise ArgumentError('adaptive: a class of its own over re-sending relays, found fill = "held"; drop one of them', argument="adaptive")
+    if rs > 1 or ad:  # re-sent items (and the pattern-adaptive features on top)
         d = _RESEND[-1](system, cost, graph, T, p, J, arr, candidates, rs, fill, bound, threads, keyed=kw, memory=mem)
+        if ad:
+            d = _ADAPTIVE[-1](d, patterns=patterns)
         return known.attach(d, *relay_of(d.coordinates, rs))
     if fill == "held":  # the class containing the missed-packet rule (raw measurements, relayed once)
         d = _HELD[-1](system, cost, graph, T, p, J, arr, patterns=patterns, keyed=kw, memory=mem, window=held_window)

@@ -1,0 +1,477 @@
+r"""Pattern-adaptive features over re-sending relays (``mtmse_lossy`` with ``resend = r`` and ``adaptive = true``).
+
+Why
+---
+Every other drop-aware class applies gains fixed offline to items, so an item gets the same weight whether its
+neighbours in time arrived or not. The team that is told every drop re-weights *every* held item with the realized
+pattern; on the platoon that is most of what separates the re-sending design from the known-pattern optimum
+(``docs/lossy-design.md``). This class gives each agent a feature that re-weights with the pattern: its exact
+conditional mean of the recent states given what it holds.
+
+The class
+---------
+Agent i runs the re-sending design (:mod:`teamkf.estimators._lossy_resend`, same relays, same items) and, on the
+same items (available once a packet carrying them arrived on time), a **fixed-lag Kalman smoother** over the last
+D + 1 states, D = ℓ_max + r − 1 (an item (j, s) is available by s + ℓ_ji + r − 1 or never, so every one lands in
+the window). Its features at step k are
+
+.. math::  φ_i(k) = \big[\hat z^r_i(k);\ E[x(k - D : k) \mid H_i(k)];\ E[x(k) \mid H_i(k - l)],\ l = 1..ℓ_{max}\big],
+
+ẑ^r the re-sending design's estimate and H_i(k) the measurements agent i holds at k (its own y_i(0 : k) and the
+others' available items). The smoother's gains depend on the realized pattern, so the conditional means are exact
+for every pattern. The output is
+
+.. math::  \hat z_i(k) = G_i(k)\, φ_i(k),
+
+G_i(k) fixed offline. G_i = [I 0 0] is the re-sending design, which is kept when the fitted gains do not beat it.
+
+Expected cost
+-------------
+Given the pattern ω (the on-time packet events), every feature is a linear map of the stacked measurements y, and ω
+is independent of the Gaussian variables, so the stage cost of G given ω is an exact quadratic form in the joint
+moments Σ_yy, Σ_{x(k)y} (as in :mod:`teamkf.estimators._lossy_rulefill`). Gains minimizing the average over
+``patterns`` sampled patterns (ArrivalModel.sample: the on-time indicators) are fitted per step; on as many
+**fresh** patterns the paired difference Δ = J(G; ω) − J(G_r; ω) is computed exactly per pattern, and the reported
+cost is
+
+.. math::  \hat J = J_r + \bar Δ \qquad (J_r \text{ the re-sending design's exact expected cost}),
+
+an unbiased estimate (a control variate: J_r is known exactly) with the standard error of Δ̄, much smaller than that
+of the cost itself. The maps are computed by the agents' own smoother arithmetic on the unit vectors of y.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from typing import Any, Sequence
+
+import numpy as np
+
+from .. import _validation as V
+from .._lazy import scipy_linalg as sla
+from .._validation import FloatArray
+from ..exceptions import ArgumentError
+from ._arrivals import ArrivalModel
+from ._lossy_resend import _design_class, resend_agent_class
+from .team_lossy import _own_cols
+
+__all__ = ["DEFAULT_PATTERNS", "design_adaptive", "available_steps", "Smoother"]
+
+#: sampled link patterns for the fit (and as many fresh ones for the cost) when ``patterns`` is not given
+DEFAULT_PATTERNS = 200
+#: patterns whose feature maps are held at once
+CHUNK = 32
+
+
+# ---------------------------------------------------------------------------
+# what is available when, and the smoother
+# ---------------------------------------------------------------------------
+def available_steps(arrived: np.ndarray, ell: np.ndarray, r: int) -> np.ndarray:
+    """a[b, i, j, s]: the step from which agent i holds y_j(s) (T: never), from the on-time indicators ``arrived``
+    (B, T, n, n) [b, τ, j, i] of the packets of origin (j, τ), each carrying y_j(τ - r + 1 : τ).
+
+    The packet of (j, τ) is on time at τ + ℓ_ji; y_j(s) is available from the first on-time packet τ ∈ [s, s + r - 1]
+    (the availability of :meth:`ResendLossyDesign.available`)."""
+    B, T, n, _ = arrived.shape
+    arrived = arrived.copy()
+    arrived[:, :, np.arange(n), np.arange(n)] = True  # the own measurement, held at its step
+    due = np.where(arrived, np.arange(T)[None, :, None, None] + ell[None, None, :, :], T)  # [b, τ, j, i]
+    first = due.copy()
+    for c in range(1, min(r, T)):
+        first[:, : T - c] = np.minimum(first[:, : T - c], due[:, c:])
+    first = np.minimum(first, T)
+    return first.transpose(0, 3, 2, 1)  # type: ignore[no-any-return]
+
+
+class Smoother:
+    """Fixed-lag Kalman smoother over [x(k); x(k-1); ...; x(k-D)] for B patterns at once, its mean with C columns.
+
+    The mean is M (B, (D+1) d_x, C) (C: runs, or the unit vectors of y for the maps), the covariance P (B, ., .)
+    depends on the pattern only. States before step 0 are zero (variance 0, never measured)."""
+
+    def __init__(self, system: Any, D: int, B: int, C: int):
+        self.system, self.D, self.dx = system, D, system.dx
+        m = (D + 1) * system.dx
+        self.M = np.zeros((B, m, C))
+        self.P = np.zeros((B, m, m))
+        self.P[:, : self.dx, : self.dx] = system.Sigma_x
+
+    def predict(self, k: int) -> None:
+        """From k - 1 to k: shift the window, x(k) = A x(k-1) + w."""
+        dx, A = self.dx, self.system.A_at(k - 1)
+        M, P = self.M, self.P
+        Mn = np.empty_like(M)
+        Mn[:, :dx] = A @ M[:, :dx]
+        Mn[:, dx:] = M[:, :-dx]
+        Pn = np.empty_like(P)
+        Pn[:, dx:, dx:] = P[:, :-dx, :-dx]
+        Pn[:, :dx, dx:] = A @ P[:, :dx, :-dx]
+        Pn[:, dx:, :dx] = Pn[:, :dx, dx:].transpose(0, 2, 1)
+        Pn[:, :dx, :dx] = A @ P[:, :dx, :dx] @ A.T + self.system.Q_at(k - 1)
+        self.M, self.P = Mn, Pn
+
+    def update(self, k: int, j: int, s: int, rows: np.ndarray, values: FloatArray) -> None:
+        """Condition the patterns ``rows`` on y_j(s) = C_j x(s) + v, ``values`` (len(rows) or 1, d_y^j, C)."""
+        if rows.size == 0:
+            return
+        dx, b = self.dx, k - s
+        Cm, R = self.system.C_at(j, s), self.system.R_at(j, s)
+        P, M = self.P[rows], self.M[rows]
+        PH = P[:, :, b * dx : (b + 1) * dx] @ Cm.T  # (B', m, d_y)
+        S = Cm @ PH[:, b * dx : (b + 1) * dx] + R
+        K = np.linalg.solve(S, PH.transpose(0, 2, 1)).transpose(0, 2, 1)  # P Hᵀ S⁻¹ (S symmetric)
+        inn = values - Cm @ M[:, b * dx : (b + 1) * dx]
+        M = M + K @ inn
+        P = P - K @ PH.transpose(0, 2, 1)
+        self.M[rows], self.P[rows] = M, 0.5 * (P + P.transpose(0, 2, 1))
+
+
+# ---------------------------------------------------------------------------
+# the design
+# ---------------------------------------------------------------------------
+_CLS: list[Any] = []
+
+
+def _adaptive_class() -> Any:
+    if _CLS:
+        return _CLS[0]
+    Base = _design_class() if not _BASE else _BASE[0]
+    ResendAgent = resend_agent_class()
+
+    @dataclass(frozen=True, eq=False, kw_only=True)
+    class AdaptiveLossyDesign(Base):  # type: ignore[misc, valid-type]
+        """The re-sending design plus pattern-adaptive features (module docstring).
+
+        G : (T, n, d_z, n_f) the gains on φ = [ẑ^r; E[x(k-D : k) | H]; E[x(k) | H(k-l)], l = 1..lags]
+        D : the smoother's lag; lags : ℓ_max; kept : "class" or "resend"
+        """
+
+        G: FloatArray = field(default_factory=lambda: np.zeros(0), repr=False)
+        D: int = 0
+        lags: int = 0
+        kept: str = "class"
+
+        @property
+        def n_features(self) -> int:
+            return int(self.cost.dz + (self.D + 1 + self.lags) * self.system.dx)
+
+        # --- features -----------------------------------------------------------------
+        def smoothed(self, i: int, avail: np.ndarray, values: Any, C: int) -> Any:
+            """Yield, per step k, agent i's [E[x(k-D : k) | H]; E[x(k) | H(k-l)]] (B, (D+1+lags) d_x, C) for B patterns
+            ``avail`` (B, n, T) [b, j, s] (the step y_j(s) becomes available to i), ``values(j, s, rows)`` the measurement."""
+            sysm, D, L, dx = self.system, self.D, self.lags, self.system.dx
+            B, n, T = avail.shape
+            sm = Smoother(sysm, D, B, C)
+            tops: list[FloatArray] = []
+            for k in range(T):
+                if k:
+                    sm.predict(k)
+                for s in range(max(0, k - D), k + 1):
+                    for j in range(n):
+                        rows = np.flatnonzero(avail[:, j, s] == k)
+                        if rows.size:
+                            sm.update(k, j, s, rows, values(j, s, rows))
+                tops.append(sm.M[:, :dx].copy())
+                lag = np.zeros((B, L * dx, C))
+                for lg in range(1, L + 1):
+                    if k - lg >= 0:
+                        x = tops[k - lg]
+                        for m in range(k - lg, k):
+                            x = sysm.A_at(m) @ x
+                        lag[:, (lg - 1) * dx : lg * dx] = x
+                if len(tops) > L:
+                    tops[k - L] = None  # type: ignore[call-overload]  # no longer needed
+                yield np.concatenate([sm.M, lag], axis=1)
+
+        def combine(self, k: int, zr: FloatArray, sm: FloatArray, i: int) -> FloatArray:
+            """ẑ_i(k) = G_i(k) φ_i(k) for rows of φ = [zr (., d_z); sm (., n_f - d_z)]."""
+            dz = self.cost.dz
+            G = self.G[k, i]
+            return zr @ G[:, :dz].T + sm @ G[:, dz:].T  # type: ignore[no-any-return]
+
+        # --- Monte Carlo -------------------------------------------------------------------
+        def errors(self, paths: Any, *, p_drop: Any = None, jitter: Any = None, rng: Any = None, arrived: Any = None) -> Any:
+            """Team errors with sampled packet events (as :meth:`LossyTeamDesign.errors`): the re-sending design's estimate
+            and every run's own smoother (its own pattern), all runs at once."""
+            x0, w, v, arrived = self._error_inputs(paths, p_drop, jitter, rng, arrived)
+            er = super().errors(paths, arrived=arrived)  # the re-sending design's errors L x - ẑ^r
+            if self.kept != "class":
+                return er
+            sysm, cost = self.system, self.cost
+            n_runs, T = v.shape[:2]
+            n, dz = sysm.n_agents, cost.dz
+            X = np.asarray(paths.x, dtype=float)[:, :T]
+            Lx = np.stack([X[:, k] @ cost.L_at(k).T for k in range(T)], axis=1)
+            zr = Lx - er
+            ys = [np.asarray(yi, dtype=float) for yi in paths.y]
+            av = available_steps(arrived, np.asarray(self.arrivals.ell, dtype=int), self.resend)
+            out = np.empty_like(er)
+            for i in range(n):
+                vals = lambda j, s, rows: ys[j][rows, s, :, None]  # noqa: E731
+                for k, sm in enumerate(self.smoothed(i, av[:, i], vals, 1)):
+                    z = self.combine(k, zr[:, k, i * dz : (i + 1) * dz], sm[:, :, 0], i)
+                    out[:, k, i * dz : (i + 1) * dz] = Lx[:, k, i * dz : (i + 1) * dz] - z
+            return out
+
+        def graph_agents(self) -> list[Any]:
+            return [AdaptiveLossyAgent(self, i) for i in range(self.n_agents)]
+
+        def agent_slice(self, i: int) -> tuple[str, dict[str, np.ndarray], dict[str, Any]]:
+            raise ArgumentError(
+                "adaptive: deployed agents of the pattern-adaptive class are not built yet; deploy the re-sending design "
+                "(drop adaptive) or run it in the simulation",
+                argument="adaptive",
+            )
+
+        def details(self) -> dict[str, Any]:
+            out = super().details()
+            out["adaptive"] = True
+            out["class"] = (
+                f"gains per step on the re-sending design's estimate (each packet carries the sender's last {self.resend}) and the "
+                "agent's exact conditional means of the recent states given what it holds (re-weighted with the realized pattern)"
+            )
+            out.update({key: self.info[key] for key in ("kept", "patterns", "sem", "interval", "paired", "resend_cost") if key in self.info})
+            return out
+
+        def arrays(self) -> dict[str, np.ndarray]:
+            return {**super().arrays(), "G": np.asarray(self.G)}
+
+    class AdaptiveLossyAgent(ResendAgent):  # type: ignore[misc, valid-type]
+        """Agent i: the re-sending agent (its packets, its estimate ẑ^r) plus its smoother on the items it holds."""
+
+        def init_state(self, n_runs: int) -> dict[str, Any]:
+            st = super().init_state(n_runs)
+            d = self.design
+            st["sm"] = Smoother(self.system, d.D, 1, n_runs)  # type: ignore[attr-defined]
+            st["tops"] = []
+            return st
+
+        def step(self, state: dict[str, Any], k: int, own: Any, inbox: Sequence[Any]) -> tuple[dict[str, Any], Any, list[Any]]:
+            d: Any = self.design
+            before = set(state["items"])
+            sm = Smoother.__new__(Smoother)
+            sm.__dict__.update(state["sm"].__dict__)  # a copy: the state given is left as it was
+            new_state, zr, msgs = super().step(state, k, own, inbox)
+            if d.kept != "class":
+                return new_state, zr, msgs
+            sysm, dx = self.system, self.system.dx
+            if k:
+                sm.predict(k)
+            fresh = sorted((s, j) for (j, s) in new_state["items"] if (j, s) not in before and k - d.D <= s <= k)
+            one = np.zeros(1, dtype=int)
+            for s, j in fresh:
+                val = np.asarray(new_state["items"][(j, s)], dtype=float).reshape(-1, sysm.dy[j]).T[None]
+                sm.update(k, j, s, one, val)
+            tops = [*state["tops"], sm.M[0, :dx].copy()][-(d.lags + 1) :]
+            lag = np.zeros((d.lags * dx, sm.M.shape[2]))
+            for lg in range(1, d.lags + 1):
+                if k - lg >= 0:
+                    x = tops[-1 - lg]
+                    for m in range(k - lg, k):
+                        x = sysm.A_at(m) @ x
+                    lag[(lg - 1) * dx : lg * dx] = x
+            phi = np.concatenate([sm.M[0], lag], axis=0).T  # (n_runs, n_f - d_z)
+            z = d.combine(k, np.asarray(zr).reshape(phi.shape[0], -1), phi, self.index)
+            new_state["sm"], new_state["tops"] = sm, tops
+            return new_state, z, msgs
+
+    AdaptiveLossyDesign.Agent = AdaptiveLossyAgent  # type: ignore[attr-defined]
+    _CLS.append(AdaptiveLossyDesign)
+    return AdaptiveLossyDesign
+
+
+_BASE: list[Any] = []
+
+
+# ---------------------------------------------------------------------------
+# maps, fit and cost
+# ---------------------------------------------------------------------------
+def _resend_maps(d: Any, i: int, k: int, Ny: int) -> tuple[FloatArray, FloatArray, list[tuple[int, int]]]:
+    """ẑ^r_i(k) = base + Σ_c a_c U_c as maps of y: base (d_z, Ny) with every item filled, U (items, d_z, Ny)."""
+    sysm = d.system
+    dyt, off = sysm.dy_total, sysm.offsets
+    its = list(d.items[k][i])
+    X = d._loc[k][i]
+    base = d.cost.L_block(i, k) @ X
+    U = np.zeros((len(its), d.cost.dz, Ny))
+    if its:
+        G = d.gains[k][i]
+        F = np.zeros((d.fills[k][i].shape[0], Ny))
+        F[:, _own_cols(sysm, i, k)] = d.fills[k][i]
+        base = base + G @ F
+        col = 0
+        for c, (j, s) in enumerate(its):
+            dj = int(sysm.dy[j])
+            Gc = G[:, col : col + dj]
+            U[c] = -Gc @ F[col : col + dj]
+            U[c][:, s * dyt + int(off[j]) + np.arange(dj)] += Gc
+            col += dj
+    return base, U, its
+
+
+def _local_maps(d: Any, T: int) -> list[list[FloatArray]]:
+    """x̂_i(k|k) of the local filters as maps of y (d_x × T d_y)."""
+    sysm = d.system
+    dyt, off = sysm.dy_total, sysm.offsets
+    out: list[list[FloatArray]] = []
+    X = [np.zeros((sysm.dx, T * dyt)) for _ in range(sysm.n_agents)]
+    for k in range(T):
+        row = []
+        for i in range(sysm.n_agents):
+            pred = X[i] if k == 0 else sysm.A_at(k - 1) @ X[i]
+            nu = -sysm.C_at(i, k) @ pred
+            nu[:, k * dyt + int(off[i]) + np.arange(sysm.dy[i])] += np.eye(sysm.dy[i])
+            X[i] = pred + d.K_local[k][i] @ nu
+            row.append(X[i])
+        out.append(row)
+    return out
+
+
+def _maps(d: Any, av: np.ndarray) -> Any:
+    """Per step k: Φ (B, n, n_f, Ny), every feature of every agent as a map of y, for the B patterns ``av``."""
+    sysm = d.system
+    n, T, dyt, off = sysm.n_agents, int(d.horizon), sysm.dy_total, sysm.offsets
+    Ny = T * dyt
+    B = av.shape[0]
+    unit = {}
+    for j in range(n):
+        for s in range(T):
+            e = np.zeros((1, int(sysm.dy[j]), Ny))
+            e[0, :, s * dyt + int(off[j]) + np.arange(sysm.dy[j])] = np.eye(sysm.dy[j])
+            unit[(j, s)] = e
+    gens = [d.smoothed(i, av[:, i], lambda j, s, rows: unit[(j, s)], Ny) for i in range(n)]
+    for k in range(T):
+        Phi = np.zeros((B, n, d.n_features, Ny))
+        for i in range(n):
+            base, U, its = _resend_maps(d, i, k, Ny)
+            a = np.stack([av[:, i, j, s] <= k for (j, s) in its], axis=1).astype(float) if its else np.zeros((B, 0))
+            Phi[:, i, : d.cost.dz] = base[None] + np.einsum("bc,caz->baz", a, U)
+            Phi[:, i, d.cost.dz :] = next(gens[i])
+        yield k, Phi
+
+
+def _moments(d: Any, av: np.ndarray, Syy: FloatArray, Sxy: Sequence[FloatArray]) -> tuple[FloatArray, FloatArray]:
+    """Mean over the patterns of E[φ φᵀ] and E[φ x(k)ᵀ] per step: (T, n n_f, n n_f), (T, n n_f, d_x)."""
+    T, n, nf, dyt = int(d.horizon), d.system.n_agents, d.n_features, d.system.dy_total
+    Mff, Mfx = np.zeros((T, n * nf, n * nf)), np.zeros((T, n * nf, d.system.dx))
+    P = av.shape[0]
+    for a in range(0, P, CHUNK):
+        for k, Phi in _maps(d, av[a : a + CHUNK]):
+            c = (k + 1) * dyt  # y after step k is not used
+            F = Phi.reshape(Phi.shape[0], n * nf, -1)[:, :, :c]
+            Mff[k] += np.einsum("bfc,bgc->fg", F @ Syy[:c, :c], F, optimize=True) / P
+            Mfx[k] += np.einsum("bfc,xc->fx", F, Sxy[k][:, :c], optimize=True) / P
+    return Mff, Mfx
+
+
+def _fit(d: Any, Mff: FloatArray, Mfx: FloatArray) -> FloatArray:
+    """Gains minimizing the mean stage cost over the fit patterns (Γ g = η per step; least squares if singular)."""
+    T, n, dz, nf = int(d.horizon), d.system.n_agents, d.cost.dz, d.n_features
+    G = np.zeros((T, n, dz, nf))
+    for k in range(T):
+        S, L = d.cost.S_at(k), d.cost.L_at(k)
+        Gam = np.einsum("iajb,ifjh->iafjbh", S.reshape(n, dz, n, dz), Mff[k].reshape(n, nf, n, nf)).reshape(n * dz * nf, -1)
+        eta = np.einsum("iax,ifx->iaf", (S @ L).reshape(n, dz, -1), Mfx[k].reshape(n, nf, -1)).ravel()
+        Gam = 0.5 * (Gam + Gam.T)
+        sc = max(float(np.max(np.abs(np.diag(Gam)))), 1e-300)
+        try:
+            g = sla.solve(Gam + 1e-12 * sc * np.eye(Gam.shape[0]), eta, assume_a="pos", check_finite=False)
+        except np.linalg.LinAlgError:  # pragma: no cover - redundant features: any solution has the same cost
+            g = np.linalg.lstsq(Gam, eta, rcond=1e-12)[0]
+        G[k] = g.reshape(n, dz, nf)
+    return G
+
+
+def pattern_costs(
+    d: Any, av: np.ndarray, Gs: Sequence[FloatArray], Syy: FloatArray, Sxy: Sequence[FloatArray], Px: Sequence[FloatArray]
+) -> np.ndarray:
+    """(len(Gs), B, T): the exact stage cost of each gain set given each pattern."""
+    T, n, dz, dyt = int(d.horizon), d.system.n_agents, d.cost.dz, d.system.dy_total
+    out = np.zeros((len(Gs), av.shape[0], T))
+    for a in range(0, av.shape[0], CHUNK):
+        for k, Phi in _maps(d, av[a : a + CHUNK]):
+            S, L = d.cost.S_at(k), d.cost.L_at(k)
+            c = (k + 1) * dyt
+            c0 = float(np.trace(S @ L @ Px[k] @ L.T))
+            for g, G in enumerate(Gs):
+                Z = np.einsum("iaf,bifc->biac", G[k], Phi[:, :, :, :c], optimize=True).reshape(Phi.shape[0], n * dz, c)
+                cross = np.einsum("ax,bax->b", S @ L, Z @ Sxy[k][:, :c].T)
+                quad = np.einsum("bac,bac->b", S[None] @ Z @ Syy[:c, :c], Z)
+                out[g, a : a + Phi.shape[0], k] = c0 - 2.0 * cross + quad
+    return out
+
+
+def design_adaptive(resend_design: Any, *, patterns: int | None = None, rng: Any = 0) -> Any:
+    """``design_mtmse_lossy(..., resend=r, adaptive=True)`` (module docstring) from the re-sending design ``resend_design``:
+    gains fitted on ``patterns`` sampled link patterns, the cost on as many fresh ones (paired with the re-sending design)."""
+    from ._lossy_rulefill import _joint
+
+    rd = resend_design
+    if rd.coordinates != "measurements":
+        raise ArgumentError(
+            f'adaptive: the smoother conditions on raw measurements, found items = "{rd.coordinates}"; set items = "measurements"',
+            argument="adaptive",
+        )
+    count = DEFAULT_PATTERNS if patterns is None else V.integer(patterns, "patterns", minimum=2)
+    if not _BASE:
+        _BASE.append(type(rd))  # the re-sending design's class (the agents' base)
+    cls = _adaptive_class()
+    sysm, T = rd.system, int(rd.horizon)
+    arr: ArrivalModel = rd.arrivals
+    ell = np.asarray(arr.ell, dtype=int)
+    r = int(rd.resend)
+    init = {f.name: getattr(rd, f.name) for f in fields(rd) if f.init}
+    D, lags = int(ell.max()) + r - 1, int(ell.max())
+    d0 = cls(**{**init, "D": D, "lags": lags, "G": np.zeros((T, sysm.n_agents, rd.cost.dz, 0))})
+    object.__setattr__(d0, "_loc", _local_maps(rd, T))
+    Syy, Sxy, Px = _joint(sysm, T)
+    gen = np.random.default_rng(rng)
+    av_fit = available_steps(arr.sample(count, T, gen), ell, r)
+    Gc = _fit(d0, *_moments(d0, av_fit, Syy, Sxy))
+    Gr = np.zeros_like(Gc)
+    Gr[:, :, :, : rd.cost.dz] = np.eye(rd.cost.dz)
+    av_new = available_steps(arr.sample(count, T, gen), ell, r)  # fresh: the reported cost is unbiased
+    costs = pattern_costs(d0, av_new, [Gc, Gr], Syy, Sxy, Px)
+    diff = costs[0] - costs[1]  # (P, T): paired, per pattern
+    dtot = diff.sum(axis=1)
+    sem = float(dtot.std(ddof=1) / np.sqrt(count))
+    j_r = float(np.sum(rd.stage_costs))
+    kept = "class" if dtot.mean() < 0.0 else "resend"
+    stage = np.asarray(rd.stage_costs, dtype=float) + (diff.mean(axis=0) if kept == "class" else 0.0)
+    value = float(stage.sum())
+    info = dict(rd.info)
+    info.update(
+        {
+            "adaptive": True,
+            "kept": kept,
+            "patterns": count,
+            "sem": sem if kept == "class" else 0.0,
+            "interval": [value - 1.96 * sem, value + 1.96 * sem] if kept == "class" else [value, value],
+            "paired": {"diff": float(dtot.mean()), "sem": sem},
+            "resend_cost": j_r,
+            "resend_cost_sampled": {"cost": float(costs[1].sum(axis=1).mean()), "sem": float(costs[1].sum(axis=1).std(ddof=1) / np.sqrt(count))},
+            "smoother_lag": D,
+        }
+    )
+    lb = np.minimum(np.asarray(rd.lower_bound_stages, dtype=float), stage)
+    d = cls(
+        **{
+            **init,
+            "stage_costs": stage,
+            "info": info,
+            "lower_bound_stages": lb,
+            "D": D,
+            "lags": lags,
+            "G": Gc if kept == "class" else Gr,
+            "kept": kept,
+        }
+    )
+    object.__setattr__(d, "_loc", d0._loc)
+    d.info["lower_bound"] = d.lower_bound
+    d.info["gap"] = d.gap
+    return d
+
+
+from .team_lossy import register_adaptive  # noqa: E402  (this module extends team_lossy, which never imports it)
+
+register_adaptive(design_adaptive)

@@ -1,0 +1,98 @@
+"""``mtmse_lossy`` with ``adaptive = true``: the smoother against direct conditioning of the joint Gaussian, the class
+against the re-sending design it contains, Monte Carlo of its errors and of its runtime agents, refusals."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from teamkf import CommGraph, LinearGaussianSystem, TeamCost
+from teamkf.estimators import _lossy_adaptive as LA
+from teamkf.estimators._lossy_rulefill import _joint
+from teamkf.estimators.registry import get_family
+from teamkf.estimators.team import design_mtmse
+from teamkf.estimators.team_lossy import design_mtmse_lossy
+from teamkf.exceptions import ArgumentError
+
+from ..helpers import assert_lossy_agents_match, assert_lossy_mc_matches_exact
+
+T = 8
+
+
+def unlike_line(n: int = 3) -> tuple[LinearGaussianSystem, TeamCost]:
+    """A line of agents that all estimate x₁; agent 0 measures it precisely, the others poorly (unlike sensors)."""
+    A = np.array([[0.95, 0.2], [0.0, 0.9]])
+    C = [np.array([[1.0, 0.0]]), np.array([[1.0, 0.5]]), np.array([[0.0, 1.0]])][:n]
+    sysm = LinearGaussianSystem(A=A, Q=0.5, Sigma_x=1.0, C=C, R=[0.01] + [4.0] * (n - 1))
+    S = 2 * np.eye(n) - np.ones((n, n)) / n
+    return sysm, TeamCost(S=S, L=np.tile([[1.0, 0.0]], (n, 1)), n_agents=n)
+
+
+@pytest.fixture(scope="module")
+def team():
+    sysm, cost = unlike_line()
+    g = CommGraph.line(3)
+    d = design_mtmse_lossy(sysm, cost, g, T, p_drop=0.5, items="measurements", resend=2, adaptive=True, patterns=60, bound=False)
+    return sysm, cost, g, d
+
+
+def test_the_smoother_is_the_exact_conditional_mean_given_what_is_held(team):
+    """E[x(k - D : k) | H] of every agent and step, for sampled patterns, against Σ_xH Σ_HH⁻¹ of the joint law of (x, y)."""
+    sysm, _, _, d = team
+    Syy, Sxy, _ = _joint(sysm, T)
+    dyt, off, dx = sysm.dy_total, sysm.offsets, sysm.dx
+    av = LA.available_steps(d.arrivals.sample(5, T, np.random.default_rng(7)), np.asarray(d.arrivals.ell), d.resend)
+    Ny = T * dyt
+    for i in range(3):
+        unit = lambda j, s, rows: np.eye(Ny)[None, s * dyt + int(off[j]) : s * dyt + int(off[j]) + sysm.dy[j]]  # noqa: E731
+        for k, phi in enumerate(d.smoothed(i, av[:, i], unit, Ny)):
+            for b in range(av.shape[0]):
+                H = [s * dyt + int(off[j]) + c for s in range(k + 1) for j in range(3) if av[b, i, j, s] <= k for c in range(sysm.dy[j])]
+                for lag in range(d.D + 1):
+                    want = np.zeros((dx, Ny))
+                    if k - lag >= 0:
+                        want[:, H] = np.linalg.solve(Syy[np.ix_(H, H)], Sxy[k - lag][:, H].T).T
+                    np.testing.assert_allclose(phi[b, lag * dx : (lag + 1) * dx], want, atol=1e-9)
+    assert d.D == int(np.max(d.arrivals.ell)) + d.resend - 1 and d.lags == int(np.max(d.arrivals.ell))
+
+
+def test_the_class_contains_the_re_sending_design_and_reports_a_paired_cost(team):
+    sysm, cost, g, d = team
+    rd = design_mtmse_lossy(sysm, cost, g, T, p_drop=0.5, items="measurements", resend=2, bound=False)
+    info = d.info
+    assert info["resend_cost"] == pytest.approx(rd.total_cost, rel=1e-12)
+    assert d.total_cost == pytest.approx(rd.total_cost + info["paired"]["diff"], rel=1e-12)
+    assert info["kept"] == "class" and info["paired"]["diff"] < -4 * info["paired"]["sem"] < 0  # it re-weights: it pays
+    lo, hi = info["interval"]
+    assert lo < d.total_cost < hi and hi - lo == pytest.approx(2 * 1.96 * info["paired"]["sem"])
+    s = info["resend_cost_sampled"]  # the re-sending design's cost over the fresh patterns agrees with its exact value
+    assert abs(s["cost"] - rd.total_cost) < 4 * s["sem"]
+    # at p = 0 every pattern is the full one: nothing to re-weight, the class is MTMSE
+    d0 = design_mtmse_lossy(sysm, cost, g, T, p_drop=0.0, items="measurements", resend=2, adaptive=True, patterns=4, bound=False)
+    assert d0.total_cost == pytest.approx(design_mtmse(sysm, cost, g, T).total_cost, rel=1e-8)
+
+
+def test_monte_carlo_of_its_errors_agrees_with_its_cost(team):
+    sysm, cost, _, d = team
+    assert_lossy_mc_matches_exact(d, sysm, cost, T, 0.5)
+
+
+def test_graph_agents_reproduce_errors_and_run_over_drops(team):
+    sysm, cost, g, d = team
+    assert_lossy_agents_match(d, sysm, cost, g, T, 0.5)
+
+
+def test_refusals_and_registry(team):
+    sysm, cost, g, d = team
+    with pytest.raises(ArgumentError, match="adaptive"):
+        design_mtmse_lossy(sysm, cost, g, 4, p_drop=0.3, items="innovations", resend=2, adaptive=True, patterns=4)
+    with pytest.raises(ArgumentError, match="adaptive"):
+        design_mtmse_lossy(sysm, cost, g, 4, p_drop=0.3, items="measurements", fill="held", adaptive=True, patterns=4)
+    for bad in ("yes", 1, None):
+        with pytest.raises(ArgumentError, match="adaptive"):
+            design_mtmse_lossy(sysm, cost, g, 4, p_drop=0.3, items="measurements", adaptive=bad)
+    with pytest.raises(ArgumentError, match="adaptive"):
+        d.agent_slice(0)  # deployed agents: not built, said in one line
+    opts = {"p_drop": 0.3, "resend": 2, "adaptive": True, "items": "measurements", "patterns": 4}
+    b = get_family("mtmse_lossy").build(sysm, cost, graph=g, structure=g, horizon=4, options=opts)
+    assert b.details()["adaptive"] is True and b.arrays()["G"].shape[:3] == (4, 3, 1)
