@@ -91,8 +91,55 @@ def test_refusals_and_registry(team):
     for bad in ("yes", 1, None):
         with pytest.raises(ArgumentError, match="adaptive"):
             design_mtmse_lossy(sysm, cost, g, 4, p_drop=0.3, items="measurements", adaptive=bad)
-    with pytest.raises(ArgumentError, match="adaptive"):
-        d.agent_slice(0)  # deployed agents: not built, said in one line
     opts = {"p_drop": 0.3, "resend": 2, "adaptive": True, "items": "measurements", "patterns": 4}
     b = get_family("mtmse_lossy").build(sysm, cost, graph=g, structure=g, horizon=4, options=opts)
     assert b.details()["adaptive"] is True and b.arrays()["G"].shape[:3] == (4, 3, 1)
+
+
+def test_evaluate_prints_its_sampled_cost_with_its_interval(tmp_path):
+    """``teamkf evaluate`` on a scenario with ``adaptive = true``: the row carries the interval of its sampled cost."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    text = (root / "examples" / "scenarios" / "platoon-4-lossy.toml").read_text()
+    text = text.replace("horizon = 50", "horizon = 6").replace("known_bound = 50", "known_bound = 0").replace("resend = 4", "resend = 2\npatterns = 30")
+    assert "adaptive = true" in text
+    (tmp_path / "s.toml").write_text(text)
+    env = {**os.environ, "PYTHONPATH": str(root / "src"), "TEAMKF_PROGRESS": "0"}
+    out = subprocess.run(
+        [sys.executable, "-m", "teamkf", "evaluate", str(tmp_path / "s.toml"), "--json", "--quiet"], capture_output=True, text=True, env=env, timeout=300
+    )
+    assert out.returncode == 0, out.stderr
+    row = json.loads(out.stdout)["estimators"]["mtmse_lossy"]
+    assert row["cost_links"] == "lossy" and row["ci95"][0] < row["total_cost"] < row["ci95"][1]
+
+
+def test_deployed_slices_rebuild_the_adaptive_agents_bit_for_bit(team) -> None:
+    """``teamkf deploy`` ships slices: agent i rebuilt from its slice (no team design) is the adaptive agent and gives the
+    design's own agents' numbers bit for bit over the same lossy links."""
+    from teamkf.estimators._slices import SliceContext, agent_from_slice
+    from teamkf.simulation import lossy
+    from teamkf.simulation.links import LinkModel, LinkStats, link_streams
+    from teamkf.simulation.sampling import sample_paths
+
+    sysm, cost, g, d = team
+    ctx = SliceContext(sysm, cost, g, None, T)
+    agents = []
+    for i in range(3):
+        kind, arrays, meta = d.agent_slice(i)
+        assert meta["adaptive"] and meta["resend"] == 2
+        agents.append(agent_from_slice(kind, ctx, i, arrays, meta)[1])
+    assert type(agents[0]) is type(d.graph_agents()[0])
+    ys = list(sample_paths(sysm, T, 3, rng=1).y)
+    u, jit = lossy.draw_link_events(link_streams(2, 3), T, len(g.edges))
+    out = lossy.link_outcomes(LinkModel(p_drop=0.5), sorted(g.edges), u, jit, (False,) * 3)
+    ref = lossy._run_grouped(d.graph_agents(), g, ys, out, LinkStats(), d)
+    got = lossy._run_grouped(agents, g, ys, out, LinkStats(), agents[0].design)
+    assert got.tobytes() == ref.tobytes()
+    rd = design_mtmse_lossy(sysm, cost, g, T, p_drop=0.5, items="measurements", resend=2, bound=False)
+    other = lossy._run_grouped(rd.graph_agents(), g, ys, out, LinkStats(), rd)
+    assert not np.allclose(other, got)  # not the re-sending agent's estimates

@@ -52,10 +52,10 @@ from .._lazy import scipy_linalg as sla
 from .._validation import FloatArray
 from ..exceptions import ArgumentError
 from ._arrivals import ArrivalModel
-from ._lossy_resend import _design_class, resend_agent_class
+from ._lossy_resend import resend_agent_class, resend_design_class
 from .team_lossy import _own_cols
 
-__all__ = ["DEFAULT_PATTERNS", "design_adaptive", "available_steps", "Smoother"]
+__all__ = ["DEFAULT_PATTERNS", "Smoother", "adaptive_agent_class", "available_steps", "combine", "design_adaptive"]
 
 #: sampled link patterns for the fit (and as many fresh ones for the cost) when ``patterns`` is not given
 DEFAULT_PATTERNS = 200
@@ -126,6 +126,17 @@ class Smoother:
         self.M[rows], self.P[rows] = M, 0.5 * (P + P.transpose(0, 2, 1))
 
 
+def combine(G: FloatArray, zr: FloatArray, sm: FloatArray) -> FloatArray:
+    """ẑ_i(k) = G_i(k) φ_i(k) for rows of φ = [zr (., d_z); sm (., n_f - d_z)] (G = G_i(k), d_z × n_f)."""
+    dz = zr.shape[-1]
+    return zr @ G[:, :dz].T + sm @ G[:, dz:].T  # type: ignore[no-any-return]
+
+
+def adaptive_agent_class() -> Any:
+    """The agent class of the pattern-adaptive design (for :mod:`teamkf.estimators._lossy_slice`)."""
+    return _adaptive_class().Agent
+
+
 # ---------------------------------------------------------------------------
 # the design
 # ---------------------------------------------------------------------------
@@ -135,7 +146,7 @@ _CLS: list[Any] = []
 def _adaptive_class() -> Any:
     if _CLS:
         return _CLS[0]
-    Base = _design_class() if not _BASE else _BASE[0]
+    Base = resend_design_class()
     ResendAgent = resend_agent_class()
 
     @dataclass(frozen=True, eq=False, kw_only=True)
@@ -183,12 +194,6 @@ def _adaptive_class() -> Any:
                     tops[k - L] = None  # type: ignore[call-overload]  # no longer needed
                 yield np.concatenate([sm.M, lag], axis=1)
 
-        def combine(self, k: int, zr: FloatArray, sm: FloatArray, i: int) -> FloatArray:
-            """ẑ_i(k) = G_i(k) φ_i(k) for rows of φ = [zr (., d_z); sm (., n_f - d_z)]."""
-            dz = self.cost.dz
-            G = self.G[k, i]
-            return zr @ G[:, :dz].T + sm @ G[:, dz:].T  # type: ignore[no-any-return]
-
         # --- Monte Carlo -------------------------------------------------------------------
         def errors(self, paths: Any, *, p_drop: Any = None, jitter: Any = None, rng: Any = None, arrived: Any = None) -> Any:
             """Team errors with sampled packet events (as :meth:`LossyTeamDesign.errors`): the re-sending design's estimate
@@ -209,7 +214,7 @@ def _adaptive_class() -> Any:
             for i in range(n):
                 vals = lambda j, s, rows: ys[j][rows, s, :, None]  # noqa: E731
                 for k, sm in enumerate(self.smoothed(i, av[:, i], vals, 1)):
-                    z = self.combine(k, zr[:, k, i * dz : (i + 1) * dz], sm[:, :, 0], i)
+                    z = combine(self.G[k][i], zr[:, k, i * dz : (i + 1) * dz], sm[:, :, 0])
                     out[:, k, i * dz : (i + 1) * dz] = Lx[:, k, i * dz : (i + 1) * dz] - z
             return out
 
@@ -217,11 +222,11 @@ def _adaptive_class() -> Any:
             return [AdaptiveLossyAgent(self, i) for i in range(self.n_agents)]
 
         def agent_slice(self, i: int) -> tuple[str, dict[str, np.ndarray], dict[str, Any]]:
-            raise ArgumentError(
-                "adaptive: deployed agents of the pattern-adaptive class are not built yet; deploy the re-sending design "
-                "(drop adaptive) or run it in the simulation",
-                argument="adaptive",
-            )
+            """The re-sending agent's slice plus its gains ``AG/k`` = G_i(k) and the smoother's ``D`` and ``lags`` in ``meta``."""
+            kind, arrays, meta = super().agent_slice(i)
+            T = int(self.horizon or 0)
+            arrays.update({f"AG/{k}": np.asarray(self.G[k][i]) for k in range(T)})
+            return kind, arrays, {**meta, "adaptive": self.kept == "class", "D": int(self.D), "lags": int(self.lags)}
 
         def details(self) -> dict[str, Any]:
             out = super().details()
@@ -271,7 +276,7 @@ def _adaptive_class() -> Any:
                         x = sysm.A_at(m) @ x
                     lag[(lg - 1) * dx : lg * dx] = x
             phi = np.concatenate([sm.M[0], lag], axis=0).T  # (n_runs, n_f - d_z)
-            z = d.combine(k, np.asarray(zr).reshape(phi.shape[0], -1), phi, self.index)
+            z = combine(d.G[k][self.index], np.asarray(zr).reshape(phi.shape[0], -1), phi)
             new_state["sm"], new_state["tops"] = sm, tops
             return new_state, z, msgs
 
@@ -280,7 +285,6 @@ def _adaptive_class() -> Any:
     return AdaptiveLossyDesign
 
 
-_BASE: list[Any] = []
 
 
 # ---------------------------------------------------------------------------
@@ -413,8 +417,6 @@ def design_adaptive(resend_design: Any, *, patterns: int | None = None, rng: Any
             argument="adaptive",
         )
     count = DEFAULT_PATTERNS if patterns is None else V.integer(patterns, "patterns", minimum=2)
-    if not _BASE:
-        _BASE.append(type(rd))  # the re-sending design's class (the agents' base)
     cls = _adaptive_class()
     sysm, T = rd.system, int(rd.horizon)
     arr: ArrivalModel = rd.arrivals
@@ -443,6 +445,7 @@ def design_adaptive(resend_design: Any, *, patterns: int | None = None, rng: Any
     info.update(
         {
             "adaptive": True,
+            "exact": kept != "class",  # the class's cost is estimated over sampled patterns (its interval in the table)
             "kept": kept,
             "patterns": count,
             "sem": sem if kept == "class" else 0.0,

@@ -502,11 +502,16 @@ def _design_class() -> Any:
 _CLASS: list[Any] = []
 
 
-def resend_agent_class() -> Any:
-    """The agent class of the re-sending design (for :mod:`teamkf.estimators._lossy_slice`)."""
+def resend_design_class() -> Any:
+    """The re-sending design's class (built once, on first use)."""
     if not _CLASS:
         _CLASS.append(_design_class())
-    return _CLASS[0].Agent
+    return _CLASS[0]
+
+
+def resend_agent_class() -> Any:
+    """The agent class of the re-sending design (for :mod:`teamkf.estimators._lossy_slice`)."""
+    return resend_design_class().Agent
 
 
 def design_resend(
@@ -545,12 +550,10 @@ def design_resend(
             tried[c] = solve_resend(system, cost, arr, _item_moments(system, mom0, T, c), T, fill, r, schur=schur)
     coords = min(candidates, key=lambda c: float(np.sum(tried[c][3])))
     items, gains, fills, stage, local = tried[coords]
-    if not _CLASS:
-        _CLASS.append(_design_class())
     from .team_lossy import build_lossy_design
 
     return build_lossy_design(
-        _CLASS[0],
+        resend_design_class(),
         system,
         cost,
         graph,

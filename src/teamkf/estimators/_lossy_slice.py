@@ -42,6 +42,10 @@ class LossySliceView(SliceDesign):
     fills: Any = ()
     arrivals: Any = None
     resend: int = 1
+    G: Any = ()  # adaptive: per step, the agent's gains on its features
+    D: int = 0
+    lags: int = 0
+    kept: str = "resend"
 
     @property
     def tolerates_losses(self) -> bool:
@@ -83,6 +87,12 @@ def lossy_agent_from_slice(ctx: Any, i: int, arrays: dict[str, np.ndarray], meta
         arrivals=SimpleNamespace(ell=ell),
         resend=int(meta.get("resend", 1)),
     )
+    if meta.get("adaptive"):  # the re-sending agent plus its smoother (teamkf.estimators._lossy_adaptive)
+        from ._lossy_adaptive import adaptive_agent_class
+
+        view.G = [_Own(i, arrays[f"AG/{k}"]) for k in range(int(meta["horizon"]))]
+        view.D, view.lags, view.kept = int(meta["D"]), int(meta["lags"]), "class"
+        return view, adaptive_agent_class()(view, i)
     if view.resend > 1:  # packets of the sender's last r items (teamkf.estimators._lossy_resend)
         from ._lossy_resend import resend_agent_class
 
