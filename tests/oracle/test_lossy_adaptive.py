@@ -106,12 +106,18 @@ def test_evaluate_prints_its_sampled_cost_with_its_interval(tmp_path):
 
     root = Path(__file__).resolve().parents[2]
     text = (root / "examples" / "scenarios" / "platoon-4-lossy.toml").read_text()
-    text = text.replace("horizon = 50", "horizon = 6").replace("known_bound = 50", "known_bound = 0").replace("resend = 4", "resend = 2\npatterns = 30")
+    text = (
+        text.replace("horizon = 50", "horizon = 6").replace("known_bound = 50", "known_bound = 0").replace("resend = 4", "resend = 2\npatterns = 30")
+    )
     assert "adaptive = true" in text
     (tmp_path / "s.toml").write_text(text)
     env = {**os.environ, "PYTHONPATH": str(root / "src"), "TEAMKF_PROGRESS": "0"}
     out = subprocess.run(
-        [sys.executable, "-m", "teamkf", "evaluate", str(tmp_path / "s.toml"), "--json", "--quiet"], capture_output=True, text=True, env=env, timeout=300
+        [sys.executable, "-m", "teamkf", "evaluate", str(tmp_path / "s.toml"), "--json", "--quiet"],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
     )
     assert out.returncode == 0, out.stderr
     row = json.loads(out.stdout)["estimators"]["mtmse_lossy"]
@@ -143,3 +149,24 @@ def test_deployed_slices_rebuild_the_adaptive_agents_bit_for_bit(team) -> None:
     rd = design_mtmse_lossy(sysm, cost, g, T, p_drop=0.5, items="measurements", resend=2, bound=False)
     other = lossy._run_grouped(rd.graph_agents(), g, ys, out, LinkStats(), rd)
     assert not np.allclose(other, got)  # not the re-sending agent's estimates
+
+
+@pytest.mark.parametrize("jitter", [0, 1])
+def test_the_batched_runtime_gives_the_agents_own_numbers(jitter) -> None:
+    """The lossy runtime steps every run at once (:meth:`AdaptiveLossyDesign.estimates` on the on-time events read off the
+    link outcomes); the agents' own one-run steps on the same link events give the same numbers (late packets ignored)."""
+    from teamkf.simulation import lossy
+    from teamkf.simulation.links import LinkModel, LinkStats, link_streams
+    from teamkf.simulation.sampling import sample_paths
+
+    sysm, cost = unlike_line()
+    g = CommGraph.complete(3, delay=1)  # a relayed copy (two hops) is late: ignored
+    d = design_mtmse_lossy(sysm, cost, g, T, p_drop=0.4, jitter=jitter, items="measurements", resend=2, adaptive=True, patterns=30, bound=False)
+    ys = list(sample_paths(sysm, T, 40, rng=2).y)
+    u, jit = lossy.draw_link_events(link_streams(3, 40), T, len(g.edges))
+    out = lossy.link_outcomes(LinkModel(p_drop=0.4, jitter=jitter), sorted(g.edges), u, jit, (False,) * 3)
+    agents = d.graph_agents()
+    assert lossy._is_adaptive(agents)
+    ref = lossy._run_grouped(agents, g, ys, out, LinkStats(), d)
+    got = type(agents[0]).run_batched(agents, ys, out)
+    np.testing.assert_allclose(got, ref, rtol=1e-10, atol=1e-10)

@@ -53,9 +53,9 @@ from .._validation import FloatArray
 from ..exceptions import ArgumentError
 from ._arrivals import ArrivalModel
 from ._lossy_resend import resend_agent_class, resend_design_class
-from .team_lossy import _own_cols
+from .team_lossy import _own_cols, _rows
 
-__all__ = ["DEFAULT_PATTERNS", "Smoother", "adaptive_agent_class", "available_steps", "combine", "design_adaptive"]
+__all__ = ["DEFAULT_PATTERNS", "Smoother", "adaptive_agent_class", "available_steps", "combine", "design_adaptive", "on_time"]
 
 #: sampled link patterns for the fit (and as many fresh ones for the cost) when ``patterns`` is not given
 DEFAULT_PATTERNS = 200
@@ -126,6 +126,27 @@ class Smoother:
         self.M[rows], self.P[rows] = M, 0.5 * (P + P.transpose(0, 2, 1))
 
 
+def on_time(out: Any, arr: ArrivalModel) -> np.ndarray:
+    """(R, T, n, n) [r, τ, j, i]: the packet of origin (j, τ) reached agent i on time (at τ + ℓ_ji), from the lossy runtime's
+    link outcomes ``out``: some geodesic path whose every hop was delivered without extra delay (relays flood a packet
+    when they first learn it, and on time is the first time)."""
+    ok = out.delivered & (out.extra == 0)  # (R, T, E)
+    R, T, _ = ok.shape
+    if [tuple(e) for e in out.edges] != [tuple(e) for e in arr.edges]:  # pragma: no cover - both sort the graph's edges
+        raise ValueError("the link outcomes' edges are not the arrival model's")
+    d = np.zeros((R, T, arr.n_agents, arr.n_agents), dtype=bool)
+    for (j, i), plist in arr.paths.items():
+        acc = np.zeros((R, T), dtype=bool)
+        for p in plist:
+            hit = np.ones((R, T), dtype=bool)
+            for e, o in p:
+                hit[:, T - o :] = False  # the hop would be sent after the horizon
+                hit[:, : T - o] &= ok[:, o:, e]
+            acc |= hit
+        d[:, :, j, i] = acc
+    return d
+
+
 def combine(G: FloatArray, zr: FloatArray, sm: FloatArray) -> FloatArray:
     """ẑ_i(k) = G_i(k) φ_i(k) for rows of φ = [zr (., d_z); sm (., n_f - d_z)] (G = G_i(k), d_z × n_f)."""
     dz = zr.shape[-1]
@@ -194,29 +215,40 @@ def _adaptive_class() -> Any:
                     tops[k - L] = None  # type: ignore[call-overload]  # no longer needed
                 yield np.concatenate([sm.M, lag], axis=1)
 
-        # --- Monte Carlo -------------------------------------------------------------------
-        def errors(self, paths: Any, *, p_drop: Any = None, jitter: Any = None, rng: Any = None, arrived: Any = None) -> Any:
-            """Team errors with sampled packet events (as :meth:`LossyTeamDesign.errors`): the re-sending design's estimate
-            and every run's own smoother (its own pattern), all runs at once."""
-            x0, w, v, arrived = self._error_inputs(paths, p_drop, jitter, rng, arrived)
-            er = super().errors(paths, arrived=arrived)  # the re-sending design's errors L x - ẑ^r
-            if self.kept != "class":
-                return er
+        # --- every run at once ----------------------------------------------------------------
+        def estimates(self, ys: Sequence[FloatArray], arrived: np.ndarray) -> FloatArray:
+            """ẑ (R, T, n d_z) of every run from its measurements ``ys[i]`` (R, T, d_y^i) and its on-time packet indicators
+            ``arrived`` (R, T, n, n) [r, τ, j, i]: the agents' own arithmetic (:class:`AdaptiveLossyAgent`), runs stacked."""
             sysm, cost = self.system, self.cost
-            n_runs, T = v.shape[:2]
-            n, dz = sysm.n_agents, cost.dz
-            X = np.asarray(paths.x, dtype=float)[:, :T]
-            Lx = np.stack([X[:, k] @ cost.L_at(k).T for k in range(T)], axis=1)
-            zr = Lx - er
-            ys = [np.asarray(yi, dtype=float) for yi in paths.y]
-            av = available_steps(arrived, np.asarray(self.arrivals.ell, dtype=int), self.resend)
-            out = np.empty_like(er)
+            R, T = ys[0].shape[:2]
+            n, dz, dx = sysm.n_agents, cost.dz, sysm.dx
+            Y = np.concatenate([np.asarray(y, dtype=float) for y in ys], axis=2).reshape(R, -1)  # [r, s d_y + off_j + c]
+            av = available_steps(np.asarray(arrived, dtype=bool)[:, :T], np.asarray(self.arrivals.ell, dtype=int), self.resend)
+            out = np.empty((R, T, n * dz))
             for i in range(n):
-                vals = lambda j, s, rows: ys[j][rows, s, :, None]  # noqa: E731
-                for k, sm in enumerate(self.smoothed(i, av[:, i], vals, 1)):
-                    z = combine(self.G[k][i], zr[:, k, i * dz : (i + 1) * dz], sm[:, :, 0])
-                    out[:, k, i * dz : (i + 1) * dz] = Lx[:, k, i * dz : (i + 1) * dz] - z
+                xh = np.zeros((R, dx))
+                gen = self.smoothed(i, av[:, i], lambda j, s, rows: ys[j][rows, s, :, None], 1) if self.kept == "class" else None
+                for k in range(T):
+                    xh = xh if k == 0 else xh @ sysm.A_at(k - 1).T
+                    xh = xh + (ys[i][:, k] - xh @ sysm.C_at(i, k).T) @ self.K_local[k][i].T
+                    z = xh @ cost.L_block(i, k).T
+                    its = self.items[k][i]
+                    if its:  # the re-sending estimate: available items, else their fills from the own measurements
+                        fill = Y[:, _own_cols(sysm, i, k)] @ self.fills[k][i].T
+                        a = np.repeat(np.stack([av[:, i, j, s] <= k for (j, s) in its], axis=1), [sysm.dy[j] for j, _ in its], axis=1)
+                        z = z + np.where(a, Y[:, _rows(sysm, its)], fill) @ self.gains[k][i].T
+                    if gen is not None:
+                        z = combine(self.G[k][i], z, next(gen)[:, :, 0])
+                    out[:, k, i * dz : (i + 1) * dz] = z
             return out
+
+        def errors(self, paths: Any, *, p_drop: Any = None, jitter: Any = None, rng: Any = None, arrived: Any = None) -> Any:
+            """Team errors e(k) = L x(k) - ẑ(k) with sampled packet events (as :meth:`LossyTeamDesign.errors`), all runs at once."""
+            _, _, v, arrived = self._error_inputs(paths, p_drop, jitter, rng, arrived)
+            T = v.shape[1]
+            X = np.asarray(paths.x, dtype=float)[:, :T]
+            Lx = np.stack([X[:, k] @ self.cost.L_at(k).T for k in range(T)], axis=1)
+            return Lx - self.estimates([np.asarray(y, dtype=float)[:, :T] for y in paths.y], arrived)
 
         def graph_agents(self) -> list[Any]:
             return [AdaptiveLossyAgent(self, i) for i in range(self.n_agents)]
@@ -243,6 +275,13 @@ def _adaptive_class() -> Any:
 
     class AdaptiveLossyAgent(ResendAgent):  # type: ignore[misc, valid-type]
         """Agent i: the re-sending agent (its packets, its estimate ẑ^r) plus its smoother on the items it holds."""
+
+        @staticmethod
+        def run_batched(agents: Sequence[Any], ys: Sequence[FloatArray], out: Any) -> FloatArray:
+            """Every agent's :meth:`step` for every run at once on the lossy runtime's link outcomes ``out``
+            (:class:`teamkf.simulation.lossy.LinkOutcomes`): :meth:`AdaptiveLossyDesign.estimates` on their on-time events."""
+            d = agents[0].design
+            return d.estimates(ys, on_time(out, d.arrivals))  # type: ignore[no-any-return]
 
         def init_state(self, n_runs: int) -> dict[str, Any]:
             st = super().init_state(n_runs)
@@ -283,8 +322,6 @@ def _adaptive_class() -> Any:
     AdaptiveLossyDesign.Agent = AdaptiveLossyAgent  # type: ignore[attr-defined]
     _CLS.append(AdaptiveLossyDesign)
     return AdaptiveLossyDesign
-
-
 
 
 # ---------------------------------------------------------------------------

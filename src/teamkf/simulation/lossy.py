@@ -606,6 +606,8 @@ def _run_lossy(
         return _run_cikf(agents, ys, out)
     if _is_summary(agents):  # mtmse_lossy with summary = M: its own batched step (teamkf.estimators._lossy_summary)
         return agents[0].run_batched(agents, ys, out)
+    if _is_adaptive(agents):  # mtmse_lossy with adaptive = true: its own batched step (teamkf.estimators._lossy_adaptive)
+        return agents[0].run_batched(agents, ys, out)
     if _stackable(agents, graph):
         return _run_stacked(agents, graph, ys, out)
     return _run_grouped(agents, graph, ys, out, stats, design)
@@ -680,6 +682,14 @@ def _is_summary(agents: Sequence[Any]) -> bool:
     from ..estimators._lossy_summary import SummaryAgent
 
     return bool(agents) and all(type(ag) is SummaryAgent and ag.index == i and ag.design is agents[0].design for i, ag in enumerate(agents))
+
+
+def _is_adaptive(agents: Sequence[Any]) -> bool:
+    from ..estimators._lossy_adaptive import adaptive_agent_class
+
+    cls = adaptive_agent_class()
+    d = agents[0].design if agents else None
+    return bool(agents) and hasattr(d, "estimates") and all(type(ag) is cls and ag.index == i and ag.design is d for i, ag in enumerate(agents))
 
 
 def _is_rulefill(agents: Sequence[Any]) -> bool:
