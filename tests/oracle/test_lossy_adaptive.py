@@ -12,7 +12,7 @@ from teamkf.estimators._lossy_rulefill import _joint
 from teamkf.estimators.registry import get_family
 from teamkf.estimators.team import design_mtmse
 from teamkf.estimators.team_lossy import design_mtmse_lossy
-from teamkf.exceptions import ArgumentError
+from teamkf.exceptions import ArgumentError, ResourceError
 
 from ..helpers import assert_lossy_agents_match, assert_lossy_mc_matches_exact
 
@@ -88,6 +88,8 @@ def test_refusals_and_registry(team):
         design_mtmse_lossy(sysm, cost, g, 4, p_drop=0.3, items="innovations", resend=2, adaptive=True, patterns=4)
     with pytest.raises(ArgumentError, match="adaptive"):
         design_mtmse_lossy(sysm, cost, g, 4, p_drop=0.3, items="measurements", fill="held", adaptive=True, patterns=4)
+    with pytest.raises(ResourceError, match="patterns"):  # sized before any pattern is drawn
+        design_mtmse_lossy(sysm, cost, g, 4, p_drop=0.3, items="measurements", resend=2, adaptive=True, patterns=10**10)
     for bad in ("yes", 1, None):
         with pytest.raises(ArgumentError, match="adaptive"):
             design_mtmse_lossy(sysm, cost, g, 4, p_drop=0.3, items="measurements", adaptive=bad)

@@ -442,6 +442,26 @@ def pattern_costs(
     return out
 
 
+def _check_size(d: Any, count: int) -> None:
+    """Refuse, before any work, a fit whose memory or optimistic time exceeds the budget (naming ``patterns`` and the horizon).
+
+    Memory: Σ_yy and the unit vectors of y (N_y² each, N_y = T d_y), Σ_{x(k)y}, one chunk of feature maps and
+    smoothers, and the moments (T (n n_f)²). Work: per pattern (fit and fresh) and step k, Φ Σ_yy Φᵀ on the
+    (k + 1) d_y columns used: 2 n n_f ((k + 1) d_y)² flops."""
+    from .. import _budget
+
+    sysm, T = d.system, int(d.horizon)
+    n, nf, dyt = sysm.n_agents, d.n_features, sysm.dy_total
+    Ny = T * dyt
+    peak = 8.0 * (2 * Ny * Ny + T * sysm.dx * Ny + CHUNK * n * (nf + (d.D + 1) * sysm.dx) * Ny + T * (n * nf) ** 2)
+    flops = 2.0 * count * sum(2.0 * n * nf * ((k + 1) * dyt) ** 2 for k in range(T))
+    loops = 2.0 * count * T * n * (d.D + 1) * n  # the smoothers' updates
+    what = f"the adaptive mtmse_lossy design over T = {T:,} steps with {count:,} + {count:,} link patterns"
+    fix = "fewer patterns (patterns = N), a shorter horizon, or adaptive = false (the re-sending design alone, exact)"
+    _budget.check_memory(peak, what, argument="patterns", fix=fix)
+    _budget.announce(_budget.check_work(flops, what, argument="patterns", fix=fix, loops=loops), what)
+
+
 def design_adaptive(resend_design: Any, *, patterns: int | None = None, rng: Any = 0) -> Any:
     """``design_mtmse_lossy(..., resend=r, adaptive=True)`` (module docstring) from the re-sending design ``resend_design``:
     gains fitted on ``patterns`` sampled link patterns, the cost on as many fresh ones (paired with the re-sending design)."""
@@ -462,6 +482,7 @@ def design_adaptive(resend_design: Any, *, patterns: int | None = None, rng: Any
     init = {f.name: getattr(rd, f.name) for f in fields(rd) if f.init}
     D, lags = int(ell.max()) + r - 1, int(ell.max())
     d0 = cls(**{**init, "D": D, "lags": lags, "G": np.zeros((T, sysm.n_agents, rd.cost.dz, 0))})
+    _check_size(d0, count)
     object.__setattr__(d0, "_loc", _local_maps(rd, T))
     Syy, Sxy, Px = _joint(sysm, T)
     gen = np.random.default_rng(rng)
