@@ -207,14 +207,22 @@ def test_conditional_mean_feature_conditions_the_joint_gaussian(tiny):
             sent = now
 
 
+def _held_scenario_text() -> str:
+    """The held-out complete-3 scenario with ``fill = "held"`` in its ``[mtmse_lossy]`` table (the file sets the adaptive class)."""
+    from pathlib import Path
+
+    src = (Path(__file__).parents[2] / "examples" / "scenarios" / "lossy-complete-3-unlike.toml").read_text(encoding="utf-8")
+    assert "resend = 3" in src and "adaptive = true" in src
+    return src.replace("resend = 3", "resend = 1").replace("adaptive = true", 'fill = "held"')
+
+
 def test_a_scenario_table_jitter_is_designed_for_and_refused_for_held(tmp_path):
     """``[mtmse_lossy] jitter`` in a scenario is the jitter designed for (the [network] table's applies only when the family's
     own table does not set it), so fill = "held" refuses it in one line instead of designing silently for no jitter."""
-    from pathlib import Path
 
     from teamkf.study.scenario import load_scenario
 
-    src = (Path(__file__).parents[2] / "examples" / "scenarios" / "lossy-complete-3-unlike.toml").read_text(encoding="utf-8")
+    src = _held_scenario_text()
     held = tmp_path / "held.toml"
     held.write_text(src.replace('fill = "held"', 'fill = "held"\njitter = 1'), encoding="utf-8")
     with pytest.raises(ArgumentError, match="'held' supports links without jitter, found jitter = 1"):
@@ -227,11 +235,10 @@ def test_a_scenario_table_jitter_is_designed_for_and_refused_for_held(tmp_path):
 
 def test_held_window_is_a_scenario_option(tmp_path):
     """``[mtmse_lossy] held_window = W`` sets the window of the conditional-mean feature; without fill = "held" it is refused."""
-    from pathlib import Path
 
     from teamkf.study.scenario import load_scenario
 
-    src = (Path(__file__).parents[2] / "examples" / "scenarios" / "lossy-complete-3-unlike.toml").read_text(encoding="utf-8")
+    src = _held_scenario_text()
     sp = tmp_path / "w.toml"
     sp.write_text(
         src.replace('fill = "held"', 'fill = "held"\nheld_window = 1\npatterns = 20').replace("horizon = 12", "horizon = 5"), encoding="utf-8"

@@ -167,7 +167,9 @@ def test_deploy_ships_summary_slices_and_filter_replays_it(tmp_path: Path) -> No
     root = Path(__file__).resolve().parents[2]
     src = (root / "examples" / "scenarios" / "lossy-complete-3-unlike.toml").read_text(encoding="utf-8")
     sp = tmp_path / "s.toml"
-    sp.write_text(src.replace('fill = "held"', "summary = 2"), encoding="utf-8")
+    table = 'items = "measurements"\nresend = 3               # each packet carries the sender\'s last 3 measurements\n'
+    assert table in src and "adaptive = true" in src
+    sp.write_text(src.replace(table, "").replace("adaptive = true", "summary = 2"), encoding="utf-8")
     sc = load_scenario(sp)
     log = tmp_path / "log.csv"
     Ms.write_measurements(str(log), [y[0] for y in sample_paths(sc.system, sc.horizon, 1, rng=2).y])

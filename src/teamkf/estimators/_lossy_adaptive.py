@@ -48,9 +48,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from .. import _validation as V
-from .._lazy import scipy_linalg as sla
 from .._validation import FloatArray
-from ..exceptions import ArgumentError
+from ..exceptions import ArgumentError, TeamkfError
 from ._arrivals import ArrivalModel
 from ._lossy_resend import resend_agent_class, resend_design_class
 from .team_lossy import _own_cols, _rows
@@ -133,7 +132,7 @@ def on_time(out: Any, arr: ArrivalModel) -> np.ndarray:
     ok = out.delivered & (out.extra == 0)  # (R, T, E)
     R, T, _ = ok.shape
     if [tuple(e) for e in out.edges] != [tuple(e) for e in arr.edges]:  # pragma: no cover - both sort the graph's edges
-        raise ValueError("the link outcomes' edges are not the arrival model's")
+        raise TeamkfError("the link outcomes' edges are not the arrival model's")
     d = np.zeros((R, T, arr.n_agents, arr.n_agents), dtype=bool)
     for (j, i), plist in arr.paths.items():
         acc = np.zeros((R, T), dtype=bool)
@@ -145,6 +144,18 @@ def on_time(out: Any, arr: ArrivalModel) -> np.ndarray:
             acc |= hit
         d[:, :, j, i] = acc
     return d
+
+
+def _lagged(system: Any, tops: dict[int, FloatArray], k: int, lags: int, shape: tuple[int, ...]) -> FloatArray:
+    """[E[x(k) | H(k - l)], l = 1..lags] (zero before step 0): the smoothed E[x(m) | H(m)] of ``tops`` predicted to k."""
+    dx = system.dx
+    out = np.zeros(shape)
+    for lg in range(1, min(lags, k) + 1):
+        x = tops[k - lg]
+        for m in range(k - lg, k):
+            x = system.A_at(m) @ x
+        out[..., (lg - 1) * dx : lg * dx, :] = x
+    return out
 
 
 def combine(G: FloatArray, zr: FloatArray, sm: FloatArray) -> FloatArray:
@@ -194,7 +205,7 @@ def _adaptive_class() -> Any:
             sysm, D, L, dx = self.system, self.D, self.lags, self.system.dx
             B, n, T = avail.shape
             sm = Smoother(sysm, D, B, C)
-            tops: list[FloatArray] = []
+            tops: dict[int, FloatArray] = {}  # E[x(m) | H(m)] of the last ``lags`` steps
             for k in range(T):
                 if k:
                     sm.predict(k)
@@ -203,16 +214,9 @@ def _adaptive_class() -> Any:
                         rows = np.flatnonzero(avail[:, j, s] == k)
                         if rows.size:
                             sm.update(k, j, s, rows, values(j, s, rows))
-                tops.append(sm.M[:, :dx].copy())
-                lag = np.zeros((B, L * dx, C))
-                for lg in range(1, L + 1):
-                    if k - lg >= 0:
-                        x = tops[k - lg]
-                        for m in range(k - lg, k):
-                            x = sysm.A_at(m) @ x
-                        lag[:, (lg - 1) * dx : lg * dx] = x
-                if len(tops) > L:
-                    tops[k - L] = None  # type: ignore[call-overload]  # no longer needed
+                tops[k] = sm.M[:, :dx].copy()
+                lag = _lagged(sysm, tops, k, L, (B, L * dx, C))
+                tops.pop(k - L, None)  # no longer needed
                 yield np.concatenate([sm.M, lag], axis=1)
 
         # --- every run at once ----------------------------------------------------------------
@@ -287,14 +291,15 @@ def _adaptive_class() -> Any:
             st = super().init_state(n_runs)
             d = self.design
             st["sm"] = Smoother(self.system, d.D, 1, n_runs)  # type: ignore[attr-defined]
-            st["tops"] = []
+            st["tops"] = {}
             return st
 
         def step(self, state: dict[str, Any], k: int, own: Any, inbox: Sequence[Any]) -> tuple[dict[str, Any], Any, list[Any]]:
             d: Any = self.design
             before = set(state["items"])
             sm = Smoother.__new__(Smoother)
-            sm.__dict__.update(state["sm"].__dict__)  # a copy: the state given is left as it was
+            sm.__dict__.update(state["sm"].__dict__)
+            sm.M, sm.P = sm.M.copy(), sm.P.copy()  # a copy: the state given is left as it was
             new_state, zr, msgs = super().step(state, k, own, inbox)
             if d.kept != "class":
                 return new_state, zr, msgs
@@ -306,14 +311,9 @@ def _adaptive_class() -> Any:
             for s, j in fresh:
                 val = np.asarray(new_state["items"][(j, s)], dtype=float).reshape(-1, sysm.dy[j]).T[None]
                 sm.update(k, j, s, one, val)
-            tops = [*state["tops"], sm.M[0, :dx].copy()][-(d.lags + 1) :]
-            lag = np.zeros((d.lags * dx, sm.M.shape[2]))
-            for lg in range(1, d.lags + 1):
-                if k - lg >= 0:
-                    x = tops[-1 - lg]
-                    for m in range(k - lg, k):
-                        x = sysm.A_at(m) @ x
-                    lag[(lg - 1) * dx : lg * dx] = x
+            tops = {m: v for m, v in state["tops"].items() if m > k - 1 - d.lags}
+            tops[k] = sm.M[0, :dx].copy()
+            lag = _lagged(sysm, tops, k, d.lags, (d.lags * dx, sm.M.shape[2]))
             phi = np.concatenate([sm.M[0], lag], axis=0).T  # (n_runs, n_f - d_z)
             z = combine(d.G[k][self.index], np.asarray(zr).reshape(phi.shape[0], -1), phi)
             new_state["sm"], new_state["tops"] = sm, tops
@@ -348,24 +348,6 @@ def _resend_maps(d: Any, i: int, k: int, Ny: int) -> tuple[FloatArray, FloatArra
             U[c][:, s * dyt + int(off[j]) + np.arange(dj)] += Gc
             col += dj
     return base, U, its
-
-
-def _local_maps(d: Any, T: int) -> list[list[FloatArray]]:
-    """x̂_i(k|k) of the local filters as maps of y (d_x × T d_y)."""
-    sysm = d.system
-    dyt, off = sysm.dy_total, sysm.offsets
-    out: list[list[FloatArray]] = []
-    X = [np.zeros((sysm.dx, T * dyt)) for _ in range(sysm.n_agents)]
-    for k in range(T):
-        row = []
-        for i in range(sysm.n_agents):
-            pred = X[i] if k == 0 else sysm.A_at(k - 1) @ X[i]
-            nu = -sysm.C_at(i, k) @ pred
-            nu[:, k * dyt + int(off[i]) + np.arange(sysm.dy[i])] += np.eye(sysm.dy[i])
-            X[i] = pred + d.K_local[k][i] @ nu
-            row.append(X[i])
-        out.append(row)
-    return out
 
 
 def _maps(d: Any, av: np.ndarray) -> Any:
@@ -403,24 +385,6 @@ def _moments(d: Any, av: np.ndarray, Syy: FloatArray, Sxy: Sequence[FloatArray])
             Mff[k] += np.einsum("bfc,bgc->fg", F @ Syy[:c, :c], F, optimize=True) / P
             Mfx[k] += np.einsum("bfc,xc->fx", F, Sxy[k][:, :c], optimize=True) / P
     return Mff, Mfx
-
-
-def _fit(d: Any, Mff: FloatArray, Mfx: FloatArray) -> FloatArray:
-    """Gains minimizing the mean stage cost over the fit patterns (Γ g = η per step; least squares if singular)."""
-    T, n, dz, nf = int(d.horizon), d.system.n_agents, d.cost.dz, d.n_features
-    G = np.zeros((T, n, dz, nf))
-    for k in range(T):
-        S, L = d.cost.S_at(k), d.cost.L_at(k)
-        Gam = np.einsum("iajb,ifjh->iafjbh", S.reshape(n, dz, n, dz), Mff[k].reshape(n, nf, n, nf)).reshape(n * dz * nf, -1)
-        eta = np.einsum("iax,ifx->iaf", (S @ L).reshape(n, dz, -1), Mfx[k].reshape(n, nf, -1)).ravel()
-        Gam = 0.5 * (Gam + Gam.T)
-        sc = max(float(np.max(np.abs(np.diag(Gam)))), 1e-300)
-        try:
-            g = sla.solve(Gam + 1e-12 * sc * np.eye(Gam.shape[0]), eta, assume_a="pos", check_finite=False)
-        except np.linalg.LinAlgError:  # pragma: no cover - redundant features: any solution has the same cost
-            g = np.linalg.lstsq(Gam, eta, rcond=1e-12)[0]
-        G[k] = g.reshape(n, dz, nf)
-    return G
 
 
 def pattern_costs(
@@ -465,7 +429,7 @@ def _check_size(d: Any, count: int) -> None:
 def design_adaptive(resend_design: Any, *, patterns: int | None = None, rng: Any = 0) -> Any:
     """``design_mtmse_lossy(..., resend=r, adaptive=True)`` (module docstring) from the re-sending design ``resend_design``:
     gains fitted on ``patterns`` sampled link patterns, the cost on as many fresh ones (paired with the re-sending design)."""
-    from ._lossy_rulefill import _joint
+    from ._lossy_rulefill import _joint, gains_from_moments, local_filter_maps
 
     rd = resend_design
     if rd.coordinates != "measurements":
@@ -483,11 +447,11 @@ def design_adaptive(resend_design: Any, *, patterns: int | None = None, rng: Any
     D, lags = int(ell.max()) + r - 1, int(ell.max())
     d0 = cls(**{**init, "D": D, "lags": lags, "G": np.zeros((T, sysm.n_agents, rd.cost.dz, 0))})
     _check_size(d0, count)
-    object.__setattr__(d0, "_loc", _local_maps(rd, T))
+    object.__setattr__(d0, "_loc", local_filter_maps(sysm, rd.K_local, T))
     Syy, Sxy, Px = _joint(sysm, T)
     gen = np.random.default_rng(rng)
     av_fit = available_steps(arr.sample(count, T, gen), ell, r)
-    Gc = _fit(d0, *_moments(d0, av_fit, Syy, Sxy))
+    Gc = gains_from_moments(rd.cost, sysm.n_agents, d0.n_features, *_moments(d0, av_fit, Syy, Sxy))
     Gr = np.zeros_like(Gc)
     Gr[:, :, :, : rd.cost.dz] = np.eye(rd.cost.dz)
     av_new = available_steps(arr.sample(count, T, gen), ell, r)  # fresh: the reported cost is unbiased

@@ -101,6 +101,23 @@ def flood_arrivals(edges: Sequence[tuple[int, int, int]], lost: np.ndarray, n: i
     return t
 
 
+def local_filter_maps(system: Any, K_local: Any, T: int) -> list[list[FloatArray]]:
+    """x̂_i(k|k) of the local Kalman filters (gains ``K_local[k][i]``, prior 0) as maps of y (d_x × T d_y), per step and agent."""
+    dyt, off = system.dy_total, system.offsets
+    out: list[list[FloatArray]] = []
+    X = [np.zeros((system.dx, T * dyt)) for _ in range(system.n_agents)]
+    for k in range(T):
+        row = []
+        for i in range(system.n_agents):
+            pred = X[i] if k == 0 else system.A_at(k - 1) @ X[i]
+            nu = -system.C_at(i, k) @ pred
+            nu[:, k * dyt + int(off[i]) + np.arange(system.dy[i])] += np.eye(system.dy[i])
+            X[i] = pred + K_local[k][i] @ nu
+            row.append(X[i])
+        out.append(row)
+    return out
+
+
 def _relevant_events(edges: Sequence[tuple[int, int, int]], T: int) -> list[tuple[int, int]]:
     return [(k, e) for k in range(T) for e, (_, _, dl) in enumerate(edges) if k + dl <= T - 1]
 
@@ -185,24 +202,9 @@ class RuleFillDesign(Design):
     def _local_maps(self) -> list[list[FloatArray]]:
         """x̂_i(k|k) as maps of y (d_x × T d_y), per step and agent (pattern independent)."""
         got = self._cache.get("local")
-        if got is not None:
-            return got  # type: ignore[no-any-return]
-        sysm, T = self.system, int(self.horizon or 0)
-        dyt, off = sysm.dy_total, sysm.offsets
-        out: list[list[FloatArray]] = []
-        X = [np.zeros((sysm.dx, T * dyt)) for _ in range(sysm.n_agents)]
-        for k in range(T):
-            row = []
-            for i in range(sysm.n_agents):
-                pred = X[i] if k == 0 else sysm.A_at(k - 1) @ X[i]
-                cols = k * dyt + int(off[i]) + np.arange(sysm.dy[i])
-                nu = -sysm.C_at(i, k) @ pred
-                nu[:, cols] += np.eye(sysm.dy[i])
-                X[i] = pred + self.today.K_local[k][i] @ nu
-                row.append(X[i].copy())
-            out.append(row)
-        self._cache["local"] = out
-        return out
+        if got is None:
+            got = self._cache["local"] = local_filter_maps(self.system, self.today.K_local, int(self.horizon or 0))
+        return got  # type: ignore[no-any-return]
 
     def _cm_gain(self, i: int, k: int, held: tuple[int, ...]) -> tuple[np.ndarray, FloatArray]:
         """(columns H, [Σ_{x(k) H}; Σ_{y(k-W+1:k) H}] Σ_HH⁻¹) for agent i at k holding the others' window items ``held``."""
@@ -425,7 +427,7 @@ def _fit(d: RuleFillDesign, t: np.ndarray, w: FloatArray) -> FloatArray:
     """The gains minimizing Σ_ω w(ω) J_k(G; ω) at every step (Γ g = η; least squares where Γ is singular)."""
     Syy, Sxy = d._cache["Syy"], d._cache["Sxy"]
     T = int(d.horizon or 0)
-    n, dz, nf = d.system.n_agents, d.cost.dz, d.n_features
+    n, nf = d.system.n_agents, d.n_features
     Mffs = np.zeros((T, n * nf, n * nf))
     Mfxs = np.zeros((T, n * nf, d.system.dx))
     for a, Phi in _chunks(d, t):
@@ -435,14 +437,19 @@ def _fit(d: RuleFillDesign, t: np.ndarray, w: FloatArray) -> FloatArray:
             Fw = (F * w[a : a + P, None, None]).transpose(1, 0, 2).reshape(n * nf, P * Ny)
             Mffs[k] += (Fw.reshape(n * nf * P, Ny) @ Syy).reshape(n * nf, P * Ny) @ F.transpose(1, 0, 2).reshape(n * nf, P * Ny).T
             Mfxs[k] += (Fw.reshape(n * nf * P, Ny) @ Sxy[k].T).reshape(n * nf, P, -1).sum(axis=1)
+    return gains_from_moments(d.cost, n, nf, Mffs, Mfxs)
+
+
+def gains_from_moments(cost: Any, n: int, nf: int, Mffs: FloatArray, Mfxs: FloatArray) -> FloatArray:
+    """Per step, the gains G_i(k) (d_z × n_f) minimizing E Tr S (L x - ẑ)(L x - ẑ)ᵀ, ẑ_i = G_i φ_i, given the features'
+    moments Mffs[k] = E[φ φᵀ] (n n_f × n n_f) and Mfxs[k] = E[φ x(k)ᵀ]: Γ g = η (least squares where Γ is singular)."""
+    T, dz = Mffs.shape[0], cost.dz
     G = np.zeros((T, n, dz, nf))
     for k in range(T):
-        S, L = d.cost.S_at(k), d.cost.L_at(k)
+        S, L = cost.S_at(k), cost.L_at(k)
         Mff, Mfx = Mffs[k].reshape(n, nf, n, nf), Mfxs[k].reshape(n, nf, -1)
-        Sx = S.reshape(n, dz, n, dz)
-        Gam = np.einsum("iajb,ifjh->iafjbh", Sx, Mff).reshape(n * dz * nf, -1)
-        SL = (S @ L).reshape(n, dz, -1)
-        eta = np.einsum("iax,ifx->iaf", SL, Mfx).ravel()
+        Gam = np.einsum("iajb,ifjh->iafjbh", S.reshape(n, dz, n, dz), Mff).reshape(n * dz * nf, -1)
+        eta = np.einsum("iax,ifx->iaf", (S @ L).reshape(n, dz, -1), Mfx).ravel()
         Gam = 0.5 * (Gam + Gam.T)
         sc = max(float(np.max(np.abs(np.diag(Gam)))), 1e-300)
         try:

@@ -688,8 +688,9 @@ def _is_adaptive(agents: Sequence[Any]) -> bool:
     from ..estimators._lossy_adaptive import adaptive_agent_class
 
     cls = adaptive_agent_class()
-    d = agents[0].design if agents else None
-    return bool(agents) and hasattr(d, "estimates") and all(type(ag) is cls and ag.index == i and ag.design is d for i, ag in enumerate(agents))
+    if not agents or type(agents[0]) is not cls or not hasattr(agents[0].design, "estimates"):  # a slice's view steps run by run
+        return False
+    return all(type(ag) is cls and ag.index == i and ag.design is agents[0].design for i, ag in enumerate(agents))
 
 
 def _is_rulefill(agents: Sequence[Any]) -> bool:
