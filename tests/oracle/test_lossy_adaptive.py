@@ -126,6 +126,10 @@ def test_evaluate_prints_its_sampled_cost_with_its_interval(tmp_path):
     assert out.returncode == 0, out.stderr
     row = json.loads(out.stdout)["estimators"]["mtmse_lossy"]
     assert row["cost_links"] == "lossy" and row["ci95"][0] < row["total_cost"] < row["ci95"][1]
+    text = subprocess.run(
+        [sys.executable, "-m", "teamkf", "evaluate", str(tmp_path / "s.toml")], capture_output=True, text=True, env=env, timeout=300
+    )
+    assert "mtmse_lossy: an estimate of its expected cost (the re-sending design's exact" in text.stdout  # marked, with its interval
 
 
 def test_deployed_slices_rebuild_the_adaptive_agents_bit_for_bit(team) -> None:

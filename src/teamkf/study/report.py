@@ -237,7 +237,9 @@ def evaluation_table(ev: Any) -> str:
         )
     if "assumed" in marks:
         notes.append(f"{_ASSUMED_MARK}: the expected cost under the links given in its own table, not these")
-    notes += [bound_note(r["label"], d.info) for r in ev.rows if (d := ev.designs.get(r["estimator"])) is not None and "known_pattern_gap" in d.info]
+    designs = [(r["label"], d) for r in ev.rows if (d := ev.designs.get(r["estimator"])) is not None]
+    notes += [sampled_note(label, d.info) for label, d in designs if d.info.get("exact") is False and "interval" in d.info]
+    notes += [bound_note(label, d.info) for label, d in designs if "known_pattern_gap" in d.info]
     if lossy and refrow is not None:
         notes.append(
             "vs mtmse: costs under these links (exact where the row has one, else the MC mean)"
@@ -245,6 +247,17 @@ def evaluation_table(ev: Any) -> str:
             else "vs mtmse: only between costs under the same links ('-': a cost under these links against a perfect-link one)"
         )
     return out + "".join(f"\n  {n}" for n in notes)
+
+
+def sampled_note(label: str, info: Mapping[str, Any]) -> str:
+    """The line under a table for an expected cost estimated over sampled link patterns (each pattern's moments exact)."""
+    lo, hi = info["interval"]
+    how = (
+        f"the re-sending design's exact {fmt(info['resend_cost'])} plus the paired difference over {info.get('patterns')} fresh link patterns"
+        if "resend_cost" in info
+        else f"over {info.get('patterns')} sampled link patterns"
+    )
+    return f"{label}: an estimate of its expected cost ({how}), 95 % [{fmt(lo)}, {fmt(hi)}]"
 
 
 def bound_note(label: str, info: Mapping[str, Any]) -> str:
