@@ -179,3 +179,35 @@ def assert_lossy_agents_match(design, system, cost, graph, T: int, p_drop: float
     np.testing.assert_allclose(e_run, design.errors(paths), rtol=1e-8, atol=1e-8)
     r = monte_carlo({"d": design}, T, 400, rng=4, path="runtime", graph=graph, links=LinkModel(p_drop=p_drop))["d"]
     assert abs(r.total_mean - design.total_cost) < 4 * r.total_sem, (r.total_mean, r.total_sem, design.total_cost)
+
+
+def assert_deploy_replays(tmp_path, scenario_path, hook: str) -> None:
+    """``teamkf deploy SCENARIO`` over drops (p = 0.3, seed 3) with agent processes that cannot design the team (``hook``,
+    a ``sitecustomize`` that makes building it an error: they must get slices), and ``teamkf filter --drops`` of the
+    recorded drops gives the same estimates file byte for byte."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from teamkf.cli import main
+    from teamkf.simulation.sampling import sample_paths
+    from teamkf.study import measurements as Ms
+    from teamkf.study.scenario import load_scenario
+
+    root = Path(__file__).resolve().parents[1]
+    sc = load_scenario(scenario_path)
+    log = tmp_path / "log.csv"
+    Ms.write_measurements(str(log), [y[0] for y in sample_paths(sc.system, sc.horizon, 1, rng=2).y])
+    hooks = tmp_path / "hook"
+    hooks.mkdir()
+    (hooks / "sitecustomize.py").write_text(hook, encoding="utf-8")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(hooks), str(root / "src"), os.environ.get("PYTHONPATH", "")])}
+    out, rec, rep = tmp_path / "est.csv", tmp_path / "drops.json", tmp_path / "replay.csv"
+    args = ["deploy", str(scenario_path), "--measurements", str(log), "--out", str(out), "--estimator", "mtmse_lossy"]
+    args += ["--p-drop", "0.3", "--seed", "3", "--record", str(rec), "--deadline", "10"]
+    proc = subprocess.run([sys.executable, "-m", "teamkf", *args], capture_output=True, text=True, env=env, timeout=400)
+    assert proc.returncode == 0, proc.stderr
+    assert "designs the team" not in proc.stderr
+    assert main(["--quiet", "filter", str(scenario_path), "--measurements", str(log), "--drops", str(rec), "--out", str(rep)]) == 0
+    assert out.read_bytes() == rep.read_bytes()

@@ -16,7 +16,7 @@ from teamkf.estimators.team import design_mtmse
 from teamkf.estimators.team_lossy import design_mtmse_lossy
 from teamkf.exceptions import ArgumentError, ResourceError
 
-from ..helpers import assert_lossy_agents_match, assert_lossy_mc_matches_exact
+from ..helpers import assert_deploy_replays, assert_lossy_agents_match, assert_lossy_mc_matches_exact
 
 T = 8
 
@@ -184,14 +184,8 @@ def test_the_batched_runtime_gives_the_agents_own_numbers(jitter) -> None:
 def test_deploy_ships_adaptive_slices_and_filter_replays_it(tmp_path) -> None:
     """``teamkf deploy`` of the adaptive class over drops: agent processes that cannot design (they get slices), and
     ``teamkf filter --drops`` of the recorded drops gives the same file byte for byte."""
-    import os
-    import subprocess
-    import sys
     from pathlib import Path
 
-    from teamkf.cli import main
-    from teamkf.simulation.sampling import sample_paths
-    from teamkf.study import measurements as Ms
     from teamkf.study.scenario import load_scenario
 
     from ..unit.test_lossy_long import HOOK
@@ -200,19 +194,5 @@ def test_deploy_ships_adaptive_slices_and_filter_replays_it(tmp_path) -> None:
     src = (root / "examples" / "scenarios" / "lossy-complete-3-unlike.toml").read_text(encoding="utf-8")
     sp = tmp_path / "s.toml"
     sp.write_text(src.replace("adaptive = true", "adaptive = true\npatterns = 30").replace("horizon = 12", "horizon = 8"), encoding="utf-8")
-    sc = load_scenario(sp)
-    assert sc.updated({"network": {"p_drop": 0.3}}).design("mtmse_lossy").info["kept"] == "class"  # the adaptive agents are deployed
-    log = tmp_path / "log.csv"
-    Ms.write_measurements(str(log), [y[0] for y in sample_paths(sc.system, sc.horizon, 1, rng=2).y])
-    hook = tmp_path / "hook"
-    hook.mkdir()
-    (hook / "sitecustomize.py").write_text(HOOK, encoding="utf-8")
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(hook), str(root / "src"), os.environ.get("PYTHONPATH", "")])}
-    out, rec, rep = tmp_path / "est.csv", tmp_path / "drops.json", tmp_path / "replay.csv"
-    args = ["deploy", str(sp), "--measurements", str(log), "--out", str(out), "--estimator", "mtmse_lossy"]
-    args += ["--p-drop", "0.3", "--seed", "3", "--record", str(rec), "--deadline", "10"]
-    proc = subprocess.run([sys.executable, "-m", "teamkf", *args], capture_output=True, text=True, env=env, timeout=400)
-    assert proc.returncode == 0, proc.stderr
-    assert "designs the team" not in proc.stderr
-    assert main(["--quiet", "filter", str(sp), "--measurements", str(log), "--drops", str(rec), "--out", str(rep)]) == 0
-    assert out.read_bytes() == rep.read_bytes()
+    assert load_scenario(sp).design("mtmse_lossy").info["kept"] == "class"  # the adaptive agents are deployed (p = 0.3, as below)
+    assert_deploy_replays(tmp_path, sp, HOOK)

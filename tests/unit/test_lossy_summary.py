@@ -155,13 +155,7 @@ def test_evaluate_runs_it_from_a_scenario(tmp_path: Path, capsys: pytest.Capture
 def test_deploy_ships_summary_slices_and_filter_replays_it(tmp_path: Path) -> None:
     """``teamkf deploy`` with ``summary = 2`` over drops: agent processes that cannot design (they get slices), and
     ``teamkf filter --drops`` of the recorded drops gives the same file byte for byte."""
-    import os
-    import subprocess
-    import sys
-
-    from teamkf.study import measurements as Ms
-    from teamkf.study.scenario import load_scenario
-
+    from ..helpers import assert_deploy_replays
     from .test_lossy_long import HOOK
 
     root = Path(__file__).resolve().parents[2]
@@ -170,21 +164,7 @@ def test_deploy_ships_summary_slices_and_filter_replays_it(tmp_path: Path) -> No
     table = 'items = "measurements"\nresend = 3               # each packet carries the sender\'s last 3 measurements\n'
     assert table in src and "adaptive = true" in src
     sp.write_text(src.replace(table, "").replace("adaptive = true", "summary = 2"), encoding="utf-8")
-    sc = load_scenario(sp)
-    log = tmp_path / "log.csv"
-    Ms.write_measurements(str(log), [y[0] for y in sample_paths(sc.system, sc.horizon, 1, rng=2).y])
-    hook = tmp_path / "hook"
-    hook.mkdir()
-    (hook / "sitecustomize.py").write_text(HOOK, encoding="utf-8")
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(hook), str(root / "src"), os.environ.get("PYTHONPATH", "")])}
-    out, rec, rep = tmp_path / "est.csv", tmp_path / "drops.json", tmp_path / "replay.csv"
-    args = ["deploy", str(sp), "--measurements", str(log), "--out", str(out), "--estimator", "mtmse_lossy"]
-    args += ["--p-drop", "0.3", "--seed", "3", "--record", str(rec), "--deadline", "10"]
-    proc = subprocess.run([sys.executable, "-m", "teamkf", *args], capture_output=True, text=True, env=env, timeout=400)
-    assert proc.returncode == 0, proc.stderr
-    assert "designs the team" not in proc.stderr
-    assert main(["--quiet", "filter", str(sp), "--measurements", str(log), "--drops", str(rec), "--out", str(rep)]) == 0
-    assert out.read_bytes() == rep.read_bytes()
+    assert_deploy_replays(tmp_path, sp, HOOK)
 
 
 def test_per_edge_links_unequal_delays_and_several_rows() -> None:
