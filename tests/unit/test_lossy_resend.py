@@ -94,6 +94,15 @@ def test_refusals_and_registry(team):
     assert LR.availability_prob(d.arrivals, 2, 0, 2) == pytest.approx(1 - (1 - 0.7**2) ** 2)  # two 2-hop packets
 
 
+def test_a_horizon_too_long_is_refused_with_what_fits_a_re_sending_design():
+    """``resend`` takes no ``memory``: the refusal offers the longest horizon, or resend = 1 with a memory (not memory alone)."""
+    from teamkf.exceptions import ResourceError
+
+    sysm, cost = LinearGaussianSystem.platoon(4), TeamCost.platoon(4, 10.0)
+    with pytest.raises(ResourceError, match=r"use a horizon of at most [\d,]+ steps \(resend = 2 takes no memory\), or resend = 1 and "):
+        design_mtmse_lossy(sysm, cost, CommGraph.line(4), 5000, p_drop=0.3, items="measurements", resend=2)
+
+
 def test_on_time_known_pattern_bound_lies_between():
     sysm, cost = unlike_line(3)
     g = CommGraph.complete(3, delay=1)  # a relayed copy (2 hops) is late: the design does not use it

@@ -158,11 +158,26 @@ def suggest(system: Any, arr: Any, T: int, memory: int | None, dz: int, kinds: A
     return f"use a horizon of at most {lo:,} steps with memory = {m} (with a memory the kept gains, fills and items grow like T)"
 
 
-def check(system: Any, arr: Any, T: int, memory: int | None, dz: int, prefix: bool, kinds: Any = lambda m: 1) -> None:
+def suggest_resend(system: Any, arr: Any, T: int, dz: int, prefix: bool, kinds: Any, resend: int) -> str:
+    """What makes a refused re-sending design (which takes no ``memory``) fit: the longest horizon, or ``resend = 1`` with a memory."""
+    avail, limit = _budget.available_memory(), _budget.work_limit_s()
+    lo, hi = 0, T
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if _fits(system, arr, mid, None, dz, prefix, kinds(None), avail, limit)[0]:
+            lo = mid
+        else:
+            hi = mid
+    longest = f"use a horizon of at most {lo:,} steps (resend = {resend} takes no memory)" if lo >= 1 else "use a smaller team"
+    return f"{longest}, or resend = 1 and {suggest(system, arr, T, None, dz, kinds)}"
+
+
+def check(system: Any, arr: Any, T: int, memory: int | None, dz: int, prefix: bool, kinds: Any = lambda m: 1, *, resend: int = 1) -> None:
     """Refuse, before anything is allocated, a drop-aware design whose memory or time exceeds what the machine has.
 
     ``kinds(m)``: how many item kinds the design computes with memory m (``items="auto"`` may design both).
-    The refusal names what fits (:func:`suggest`): a ``memory = m`` with its estimate, or the longest horizon.
+    The refusal names what fits (:func:`suggest`): a ``memory = m`` with its estimate, or the longest horizon; for
+    ``resend`` > 1, which takes no memory, the longest horizon or ``resend = 1`` with a memory (:func:`suggest_resend`).
 
     Raises
     ------
@@ -172,7 +187,7 @@ def check(system: Any, arr: Any, T: int, memory: int | None, dz: int, prefix: bo
     peak, flops, loops = estimate(system.dy, arr.ell, arr.prob, T, memory, system.dx, dz, prefix, kinds(memory))
     what = f"the mtmse_lossy design over T = {T:,} steps" + (f" (memory = {memory})" if memory is not None else "")
     if not _fits(system, arr, T, memory, dz, prefix, kinds(memory), _budget.available_memory(), _budget.work_limit_s())[0]:
-        fix = suggest(system, arr, T, memory, dz, kinds)
+        fix = suggest(system, arr, T, memory, dz, kinds) if resend == 1 else suggest_resend(system, arr, T, dz, prefix, kinds, resend)
     else:
         fix = ""
     _budget.check_memory(peak, what, argument="horizon", fix=fix)

@@ -700,11 +700,11 @@ def design_mtmse_lossy(
     def kinds(m: int | None) -> int:  # item kinds designed with memory m (``items="auto"`` may design both)
         return len(_auto_items(system, arr, T, m)) if coords == "auto" else 1
 
-    _lossy_size.check(system, arr, T, mem, cost.dz, prefix=mem is None and not cost.is_time_varying, kinds=kinds)  # before any allocation
+    rs = V.integer(resend, "resend", minimum=1, maximum=16, what="the items per packet r (1: one item per packet)")
+    _lossy_size.check(system, arr, T, mem, cost.dz, prefix=mem is None and not cost.is_time_varying, kinds=kinds, resend=rs)  # before any work
     kw = V.integer(keyed, "keyed", minimum=0, maximum=1, what="the window w (0: gains independent of the pattern, 1: keyed on the current arrivals)")
     candidates = _auto_items(system, arr, T, mem) if coords == "auto" else (coords,)
     fill = _lossy_size.check_fill(fill, "fill")
-    rs = V.integer(resend, "resend", minimum=1, maximum=16, what="the items per packet r (1: one item per packet)")
     ad = _lossy_size._flag(adaptive, "adaptive")
     if (fill == "held" and not _HELD) or (kw and not _KEYED) or ((rs > 1 or ad) and not (_RESEND and _ADAPTIVE)):  # modules of their own
         from .registry import families
