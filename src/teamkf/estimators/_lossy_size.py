@@ -131,6 +131,19 @@ def _fits(
     return (avail is None or peak <= _budget.MEMORY_FRACTION * avail) and t <= limit, peak, t
 
 
+def _longest(system: Any, arr: Any, T: int, memory: int | None, dz: int, prefix: bool, kinds: Any) -> int:
+    """The longest horizon below T whose design with ``memory`` fits (bisection; 0: none)."""
+    avail, limit = _budget.available_memory(), _budget.work_limit_s()
+    lo, hi = 0, T
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if _fits(system, arr, mid, memory, dz, prefix, kinds(memory), avail, limit)[0]:
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
 def suggest(system: Any, arr: Any, T: int, memory: int | None, dz: int, kinds: Any = lambda m: 1) -> str:
     """What makes a refused design fit: a ``memory`` (the largest up to 2 ℓ_max + :data:`MEMORY_SLACK` below the given one), else
     the longest horizon with the smallest useful memory (ℓ_max + 1: items older than the largest delay can arrive)."""
@@ -146,13 +159,7 @@ def suggest(system: Any, arr: Any, T: int, memory: int | None, dz: int, kinds: A
                 f"{_budget.format_seconds(t)} or more; its exact cost is reported, see docs/lossy-design.md), or use a shorter horizon"
             )
     m = lmax + 1 if memory is None else min(memory, lmax + 1)
-    lo, hi = 0, T  # the longest horizon that fits with memory m (what it keeps grows like T: counted without the steady form's reuse)
-    while hi - lo > 1:
-        mid = (lo + hi) // 2
-        if _fits(system, arr, mid, m, dz, False, kinds(m), avail, limit)[0]:
-            lo = mid
-        else:
-            hi = mid
+    lo = _longest(system, arr, T, m, dz, False, kinds)  # what a memory keeps grows like T: counted without the steady form's reuse
     if lo < 1:
         return "use a smaller team or fewer measurement rows"
     return f"use a horizon of at most {lo:,} steps with memory = {m} (with a memory the kept gains, fills and items grow like T)"
@@ -160,14 +167,7 @@ def suggest(system: Any, arr: Any, T: int, memory: int | None, dz: int, kinds: A
 
 def suggest_resend(system: Any, arr: Any, T: int, dz: int, prefix: bool, kinds: Any, resend: int) -> str:
     """What makes a refused re-sending design (which takes no ``memory``) fit: the longest horizon, or ``resend = 1`` with a memory."""
-    avail, limit = _budget.available_memory(), _budget.work_limit_s()
-    lo, hi = 0, T
-    while hi - lo > 1:
-        mid = (lo + hi) // 2
-        if _fits(system, arr, mid, None, dz, prefix, kinds(None), avail, limit)[0]:
-            lo = mid
-        else:
-            hi = mid
+    lo = _longest(system, arr, T, None, dz, prefix, kinds)
     longest = f"use a horizon of at most {lo:,} steps (resend = {resend} takes no memory)" if lo >= 1 else "use a smaller team"
     return f"{longest}, or resend = 1 and {suggest(system, arr, T, None, dz, kinds)}"
 
