@@ -196,3 +196,14 @@ def test_deploy_ships_adaptive_slices_and_filter_replays_it(tmp_path) -> None:
     sp.write_text(src.replace("adaptive = true", "adaptive = true\npatterns = 30").replace("horizon = 12", "horizon = 8"), encoding="utf-8")
     assert load_scenario(sp).design("mtmse_lossy").info["kept"] == "class"  # the adaptive agents are deployed (p = 0.3, as below)
     assert_deploy_replays(tmp_path, sp, HOOK)
+
+
+def test_the_design_has_the_same_bits_whatever_blas_threads_the_caller_set(team) -> None:
+    """A deployment's slices and its replay are designed in different processes: the fit runs on ``threads`` BLAS threads
+    (default 1) whatever the caller's setting, so the gains are the same bits."""
+    from teamkf._blas import blas_threads
+
+    sysm, cost, g, d = team
+    with blas_threads(2):
+        d2 = design_mtmse_lossy(sysm, cost, g, T, p_drop=0.5, items="measurements", resend=2, adaptive=True, patterns=60, bound=False)
+    assert np.asarray(d2.G).tobytes() == np.asarray(d.G).tobytes() and d2.total_cost == d.total_cost

@@ -48,6 +48,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .. import _validation as V
+from .._blas import blas_threads
 from .._validation import FloatArray
 from ..exceptions import ArgumentError, TeamkfError
 from ._arrivals import ArrivalModel
@@ -94,6 +95,13 @@ class Smoother:
         self.M = np.zeros((B, m, C))
         self.P = np.zeros((B, m, m))
         self.P[:, : self.dx, : self.dx] = system.Sigma_x
+
+    def copy(self) -> "Smoother":
+        """An independent copy (its own mean and covariance arrays)."""
+        out = Smoother.__new__(Smoother)
+        out.__dict__.update(self.__dict__)
+        out.M, out.P = self.M.copy(), self.P.copy()
+        return out
 
     def predict(self, k: int) -> None:
         """From k - 1 to k: shift the window, x(k) = A x(k-1) + w."""
@@ -297,9 +305,7 @@ def _adaptive_class() -> Any:
         def step(self, state: dict[str, Any], k: int, own: Any, inbox: Sequence[Any]) -> tuple[dict[str, Any], Any, list[Any]]:
             d: Any = self.design
             before = set(state["items"])
-            sm = Smoother.__new__(Smoother)
-            sm.__dict__.update(state["sm"].__dict__)
-            sm.M, sm.P = sm.M.copy(), sm.P.copy()  # a copy: the state given is left as it was
+            sm = state["sm"].copy()  # the state given is left as it was
             new_state, zr, msgs = super().step(state, k, own, inbox)
             if d.kept != "class":
                 return new_state, zr, msgs
@@ -426,7 +432,7 @@ def _check_size(d: Any, count: int) -> None:
     _budget.announce(_budget.check_work(flops, what, argument="patterns", fix=fix, loops=loops), what)
 
 
-def design_adaptive(resend_design: Any, *, patterns: int | None = None, rng: Any = 0) -> Any:
+def design_adaptive(resend_design: Any, *, patterns: int | None = None, rng: Any = 0, threads: int | None = 1) -> Any:
     """``design_mtmse_lossy(..., resend=r, adaptive=True)`` (module docstring) from the re-sending design ``resend_design``:
     gains fitted on ``patterns`` sampled link patterns, the cost on as many fresh ones (paired with the re-sending design)."""
     from ._lossy_rulefill import _joint, gains_from_moments, local_filter_maps
@@ -448,14 +454,15 @@ def design_adaptive(resend_design: Any, *, patterns: int | None = None, rng: Any
     d0 = cls(**{**init, "D": D, "lags": lags, "G": np.zeros((T, sysm.n_agents, rd.cost.dz, 0))})
     _check_size(d0, count)
     object.__setattr__(d0, "_loc", local_filter_maps(sysm, rd.K_local, T))
-    Syy, Sxy, Px = _joint(sysm, T)
     gen = np.random.default_rng(rng)
     av_fit = available_steps(arr.sample(count, T, gen), ell, r)
-    Gc = gains_from_moments(rd.cost, sysm.n_agents, d0.n_features, *_moments(d0, av_fit, Syy, Sxy))
-    Gr = np.zeros_like(Gc)
-    Gr[:, :, :, : rd.cost.dz] = np.eye(rd.cost.dz)
     av_new = available_steps(arr.sample(count, T, gen), ell, r)  # fresh: the reported cost is unbiased
-    costs = pattern_costs(d0, av_new, [Gc, Gr], Syy, Sxy, Px)
+    with blas_threads(threads):  # BLAS threads change the bits of the gains: a deployment's slices and its replay must agree
+        Syy, Sxy, Px = _joint(sysm, T)
+        Gc = gains_from_moments(rd.cost, sysm.n_agents, d0.n_features, *_moments(d0, av_fit, Syy, Sxy))
+        Gr = np.zeros_like(Gc)
+        Gr[:, :, :, : rd.cost.dz] = np.eye(rd.cost.dz)
+        costs = pattern_costs(d0, av_new, [Gc, Gr], Syy, Sxy, Px)
     diff = costs[0] - costs[1]  # (P, T): paired, per pattern
     dtot = diff.sum(axis=1)
     sem = float(dtot.std(ddof=1) / np.sqrt(count))

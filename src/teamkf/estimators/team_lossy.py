@@ -715,10 +715,11 @@ def design_mtmse_lossy(
     if rs > 1 or ad:  # re-sent items (and the pattern-adaptive features on top)
         d = _RESEND[-1](system, cost, graph, T, p, J, arr, candidates, rs, fill, bound, threads, keyed=kw, memory=mem)
         if ad:
-            d = _ADAPTIVE[-1](d, patterns=patterns)
+            d = _ADAPTIVE[-1](d, patterns=patterns, threads=threads)
         return known.attach(d, *relay_of(d.coordinates, rs))
     if fill == "held":  # the class containing the missed-packet rule (raw measurements, relayed once)
-        d = _HELD[-1](system, cost, graph, T, p, J, arr, patterns=patterns, keyed=kw, memory=mem, window=held_window)
+        with blas_threads(threads):  # the same bits wherever it is designed (a deployment's agents and its replay)
+            d = _HELD[-1](system, cost, graph, T, p, J, arr, patterns=patterns, keyed=kw, memory=mem, window=held_window)
         return known.attach(d, "flood")
     if held_window is not None:
         raise ArgumentError(
